@@ -1,0 +1,90 @@
+"""Input checks shared by every public function: fail early, say what to do."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def as_channel_last_float(image, *, channel_axis=-1, name="image"):
+    """Return ``image`` as a C-contiguous float64 array of shape (H, W, d).
+
+    Integer images are scaled to [0, 1] like ``skimage.util.img_as_float``;
+    float images keep their values. ``channel_axis=None`` means a grey image.
+    The input is never modified (a copy is made whenever the dtype or layout
+    changes; a float64 C-contiguous input is copied too, so callers may write).
+    """
+    if image is None:
+        raise TypeError(f"{name} is None: pass a 2-D grey or 3-D multichannel array.")
+    try:
+        arr = np.asarray(image)
+    except Exception as exc:  # pragma: no cover - exotic array-likes
+        raise TypeError(f"{name} could not be converted to an array: {exc}") from exc
+    if arr.dtype == object or arr.dtype.kind not in "biuf":
+        raise TypeError(
+            f"{name} has dtype {arr.dtype}; pass a numeric (integer or float) array."
+        )
+    if arr.size == 0:
+        raise ValueError(f"{name} is empty (shape {arr.shape}); pass a non-empty image.")
+    if arr.ndim == 2:
+        arr = arr[..., np.newaxis]
+    elif arr.ndim == 3:
+        if channel_axis is None:
+            raise ValueError(
+                f"{name} is 3-D {arr.shape} but channel_axis=None; pass the channel "
+                "axis (e.g. channel_axis=-1 for (H, W, C)) or a 2-D grey image."
+            )
+        arr = np.moveaxis(arr, channel_axis, -1)
+    else:
+        raise ValueError(
+            f"{name} must be 2-D (H, W) or 3-D (H, W, C) with channel_axis; got "
+            f"{arr.ndim}-D shape {arr.shape}. For a stack, pass one image at a time."
+        )
+    if arr.dtype.kind in "biu":
+        if arr.dtype.kind == "b":
+            out = arr.astype(np.float64)
+        else:
+            info = np.iinfo(arr.dtype)
+            out = arr.astype(np.float64) / info.max
+            if info.min < 0:
+                out = np.maximum(out, -1.0)
+    else:
+        out = arr.astype(np.float64)
+    out = np.ascontiguousarray(out)
+    if not np.all(np.isfinite(out)):
+        bad = int(np.count_nonzero(~np.isfinite(out)))
+        raise ValueError(
+            f"{name} contains {bad} NaN or infinite values; fill or mask them first "
+            "(e.g. np.nan_to_num, or restrict the fit to a finite rectangle)."
+        )
+    if out.shape[-1] > 64:
+        raise ValueError(
+            f"{name} has {out.shape[-1]} channels on axis {channel_axis}; is the channel "
+            "axis right? Pass channel_axis=None for a grey image or the correct axis."
+        )
+    return out
+
+
+def check_not_constant(image, *, name="image"):
+    """A CAR model needs variation: a constant channel has no texture to fit."""
+    spread = image.max(axis=(0, 1)) - image.min(axis=(0, 1))
+    scale = np.maximum(np.abs(image).max(axis=(0, 1)), 1.0)
+    flat = np.flatnonzero(spread <= 1e-12 * scale)
+    if flat.size:
+        raise ValueError(
+            f"{name} is constant in channel(s) {flat.tolist()}: a CAR model needs "
+            "texture to estimate. Select a textured region or drop the flat channel."
+        )
+
+
+def check_size(image, reach, *, minimum_pixels=1, name="image"):
+    """The image must be larger than the neighbourhood with pixels to spare."""
+    (top, bottom), (left, right) = reach
+    h, w = image.shape[:2]
+    usable = max(h - top - bottom, 0) * max(w - left - right, 0)
+    if usable < minimum_pixels:
+        raise ValueError(
+            f"{name} of size {h}x{w} is too small for this neighbourhood (it reaches "
+            f"{top} rows up, {left} columns left and {right} right): only {usable} pixels "
+            f"have a complete neighbourhood and at least {minimum_pixels} are needed. "
+            "Use a larger image or a lower order."
+        )

@@ -1,0 +1,189 @@
+"""Causal neighbourhoods and the regression context X_r (SPEC 1.1, 1.2).
+
+A neighbourhood is an (eta, 2) int array of offsets ``s = (di, dj)``; the
+neighbour of pixel ``r`` is ``r - s``. It is causal for the raster scan when
+``di > 0`` or ``di == 0 and dj > 0``.
+
+A :class:`Context` says what goes into the regression vector ``X_r``: a list of
+taps ``(di, dj, channel)`` into a channel-last source array, and which channels
+are the modelled ``Y_r``. The plain 3DCAR model taps every channel at every
+causal offset; the 2.5D model (other images at ``r``) and the 3.5D model
+(previous frames) only add taps into extra, fully known channels, so the same
+kernels serve all of them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+
+__all__ = ["causal_neighbourhood", "as_offsets", "Context", "MAX_ORDER"]
+
+MAX_ORDER = 30
+
+
+@lru_cache(maxsize=None)
+def _hierarchy(max_order):
+    radius = int(np.ceil(np.sqrt(max_order))) + 2
+    cand = [
+        (di * di + dj * dj, di, dj)
+        for di in range(0, radius + 1)
+        for dj in range(-radius, radius + 1)
+        if di > 0 or (di == 0 and dj > 0)
+    ]
+    cand.sort()
+    lengths = sorted({c[0] for c in cand})[:max_order]
+    return cand, lengths
+
+
+def causal_neighbourhood(order):
+    """Offsets of the hierarchical causal neighbourhood of a given order.
+
+    Order ``k`` holds every causal offset whose squared length is at most the
+    ``k``-th smallest squared length among causal offsets, sorted by squared
+    length, then ``di``, then ``dj`` (SPEC 1.1). Orders are nested: the offsets
+    of order ``k`` are the first rows of those of order ``k + 1``.
+
+    Parameters
+    ----------
+    order : int
+        Neighbourhood order, 1 to 30.
+
+    Returns
+    -------
+    offsets : (eta, 2) ndarray of int
+        Offsets ``(di, dj)``; the neighbour of ``r`` is ``r - (di, dj)``.
+
+    Examples
+    --------
+    >>> causal_neighbourhood(2).tolist()
+    [[0, 1], [1, 0], [1, -1], [1, 1]]
+    """
+    if isinstance(order, (bool, np.bool_)) or not isinstance(order, (int, np.integer)):
+        raise TypeError(f"order must be an int from 1 to {MAX_ORDER}; got {order!r}.")
+    order = int(order)
+    if not 1 <= order <= MAX_ORDER:
+        raise ValueError(f"order must be between 1 and {MAX_ORDER}; got {order}.")
+    cand, lengths = _hierarchy(MAX_ORDER)
+    limit = lengths[order - 1]
+    return np.array([(di, dj) for sq, di, dj in cand if sq <= limit], dtype=np.int64)
+
+
+def as_offsets(neighbourhood):
+    """Validate a neighbourhood given as an order or an offset array.
+
+    Returns ``(offsets, order)`` where ``order`` is None for a custom list.
+    """
+    if isinstance(neighbourhood, (int, np.integer)) and not isinstance(
+        neighbourhood, (bool, np.bool_)
+    ):
+        return causal_neighbourhood(neighbourhood), int(neighbourhood)
+    if isinstance(neighbourhood, str):
+        raise ValueError(
+            f"neighbourhood {neighbourhood!r} is not understood here; pass an order "
+            "(int) or an (eta, 2) array of causal offsets."
+        )
+    try:
+        offsets = np.asarray(neighbourhood)
+    except Exception as exc:
+        raise TypeError(f"neighbourhood could not be read as offsets: {exc}") from exc
+    if offsets.ndim != 2 or offsets.shape[1] != 2 or offsets.shape[0] == 0:
+        raise ValueError(
+            "neighbourhood offsets must be a non-empty (eta, 2) array of (di, dj); got "
+            f"shape {offsets.shape}."
+        )
+    if offsets.dtype.kind not in "iu":
+        if offsets.dtype.kind == "f" and np.all(np.isfinite(offsets)) and np.all(
+            offsets == np.round(offsets)
+        ):
+            offsets = offsets.astype(np.int64)
+        else:
+            raise ValueError(f"neighbourhood offsets must be integers; got {offsets.tolist()}.")
+    offsets = offsets.astype(np.int64)
+    noncausal = [
+        (int(di), int(dj)) for di, dj in offsets if not (di > 0 or (di == 0 and dj > 0))
+    ]
+    if noncausal:
+        raise ValueError(
+            f"offsets {noncausal} are not causal: each (di, dj) needs di > 0, or di == 0 "
+            "and dj > 0 (the neighbour r - s must come before r in the raster scan)."
+        )
+    if len({(int(a), int(b)) for a, b in offsets}) != len(offsets):
+        raise ValueError(f"neighbourhood offsets contain duplicates: {offsets.tolist()}.")
+    return offsets, None
+
+
+@dataclass(frozen=True)
+class Context:
+    """What goes into the regression vector ``X_r``.
+
+    Attributes
+    ----------
+    taps : (m, 3) ndarray of int
+        ``(di, dj, channel)``: ``X_r[k] = source[i - di, j - dj, channel]``
+        relative to the scan. Taps into target channels must be causal; taps
+        into other (context) channels may be anywhere, since those channels are
+        fully known (other images for 2.5D, previous frames for 3.5D).
+    targets : (d,) ndarray of int
+        Source channels that form ``Y_r``.
+    """
+
+    taps: np.ndarray
+    targets: np.ndarray
+
+    def __post_init__(self):
+        taps = np.ascontiguousarray(self.taps, dtype=np.int64).reshape(-1, 3)
+        targets = np.ascontiguousarray(self.targets, dtype=np.int64).ravel()
+        if targets.size == 0 or taps.shape[0] == 0:
+            raise ValueError("a context needs at least one tap and one target channel.")
+        if len(set(targets.tolist())) != targets.size or targets.min() < 0:
+            raise ValueError(f"target channels must be distinct and >= 0; got {targets}.")
+        if taps[:, 2].min() < 0:
+            raise ValueError("tap channels must be >= 0.")
+        own = np.isin(taps[:, 2], targets)
+        di, dj = taps[own, 0], taps[own, 1]
+        if np.any(~((di > 0) | ((di == 0) & (dj > 0)))):
+            raise ValueError(
+                "taps into the modelled channels must be causal (di > 0, or di == 0 and dj > 0)."
+            )
+        object.__setattr__(self, "taps", taps)
+        object.__setattr__(self, "targets", targets)
+
+    @classmethod
+    def spatial(cls, offsets, n_channels):
+        """The 3DCAR context: every channel at every offset, ordered as SPEC 1.2.
+
+        ``X_r = [Y_{r-s_1}; ...; Y_{r-s_eta}]`` so that ``gamma = [A_1, ..., A_eta]``
+        with ``gamma[:, k*d + c] = A_k[:, c]``.
+        """
+        offsets = np.asarray(offsets, dtype=np.int64)
+        d = int(n_channels)
+        taps = np.empty((len(offsets) * d, 3), dtype=np.int64)
+        taps[:, 0] = np.repeat(offsets[:, 0], d)
+        taps[:, 1] = np.repeat(offsets[:, 1], d)
+        taps[:, 2] = np.tile(np.arange(d), len(offsets))
+        return cls(taps, np.arange(d))
+
+    @property
+    def n_regressors(self):
+        return self.taps.shape[0]
+
+    @property
+    def n_targets(self):
+        return self.targets.size
+
+    @property
+    def n_channels(self):
+        """Channels the source array must have at least."""
+        return int(max(self.taps[:, 2].max(), self.targets.max())) + 1
+
+    @property
+    def reach(self):
+        """((rows above, rows below), (columns left, columns right)) in scan terms."""
+        di, dj = self.taps[:, 0], self.taps[:, 1]
+        return (
+            (max(int(di.max()), 0), max(int(-di.min()), 0)),
+            (max(int(dj.max()), 0), max(int(-dj.min()), 0)),
+        )

@@ -1,0 +1,146 @@
+"""Whole-image estimation, the decision rule and prediction (SPEC 1.3, 1.5, 1.6)."""
+
+import numpy as np
+import pytest
+from skimage import data as skdata
+
+from car_napari import CARModel, fit_car, predict, select_support
+from car_fields import ORDERS, car_field, gamma_of, random_stable_model
+
+
+def test_fit_recovers_true_parameters_of_a_3dcar_field():
+    A, offsets, sigma = random_stable_model(2, 3, seed=0)
+    field = car_field(A, offsets, sigma, (256, 256), seed=1)
+    model = fit_car(field, 2)
+    assert isinstance(model, CARModel)
+    assert model.gamma.shape == (3, 12) and model.sigma.shape == (3, 3)
+    assert model.offsets.tolist() == [list(s) for s in offsets]
+    assert np.abs(model.gamma - gamma_of(A)).max() < 0.03
+    assert np.abs(model.sigma - sigma).max() < 0.1
+    np.testing.assert_allclose(model.A, A, atol=0.03)
+
+
+def test_fit_equals_plain_least_squares_on_centred_data():
+    img = skdata.astronaut()[200:260, 180:250] / 255.0
+    model = fit_car(img, 3)
+    Y = img - img.mean(axis=(0, 1))
+    offs = ORDERS[3]
+    H, W, d = Y.shape
+    X = np.concatenate([Y[2 - a : H - a, 2 - b : W - 1 - b] for a, b in offs], axis=2)
+    X = X.reshape(-1, d * len(offs))
+    T = Y[2:H, 2 : W - 1].reshape(-1, d)
+    # our documented choice: exactly flat neighbourhoods (saturated here) carry no texture
+    flat = np.all(X == np.tile(T, len(offs)), axis=1)
+    assert 0 < flat.sum() < 0.5 * flat.size
+    X, T = X[~flat], T[~flat]
+    coef, *_ = np.linalg.lstsq(X, T, rcond=None)
+    np.testing.assert_allclose(model.gamma, coef.T, rtol=1e-5, atol=1e-6)
+    resid = T - X @ coef
+    np.testing.assert_allclose(model.lam, resid.T @ resid, rtol=1e-4)
+    assert model.n_pixels == X.shape[0]
+    np.testing.assert_allclose(model.sigma, model.lam / model.beta)
+
+
+@pytest.mark.parametrize("d", [1, 3])
+@pytest.mark.parametrize("true_order", [2, 3, 5])
+def test_decision_rule_picks_true_order(d, true_order):
+    hits = 0
+    for seed in range(10):
+        A, offsets, sigma = random_stable_model(true_order, d, seed=seed)
+        field = car_field(A, offsets, sigma, (128, 128), seed=100 + seed)
+        best, scores = select_support(field, orders=range(1, 6))
+        assert set(scores) == {1, 2, 3, 4, 5}
+        hits += best == true_order
+    assert hits >= 9
+
+
+def test_decision_rule_is_scale_invariant():
+    img = skdata.brick()[:128, :128]
+    best8, scores8 = select_support(img)
+    best_f, scores_f = select_support(img.astype(float) * 1000.0)
+    assert best8 == best_f
+    np.testing.assert_allclose(list(scores8.values()), list(scores_f.values()), rtol=1e-9)
+
+
+def test_auto_support_is_used_by_fit():
+    img = skdata.gravel()[:128, :128]
+    model = fit_car(img, "auto")
+    best, scores = select_support(img)
+    assert model.order == best and model.scores == scores
+
+
+def _density_probe(model, x_values, y_grid):
+    """Log density at pixel (1, 3k+1) of a (2, 3K) image whose neighbours are
+    fixed (order 2: up-left, up, up-right, left) and whose value runs over y_grid."""
+    d = model.n_channels
+    K = len(y_grid)
+    img = np.zeros((2, 3 * K, d))
+    up_left, up, up_right, left = x_values
+    img[0, 0::3], img[0, 1::3], img[0, 2::3], img[1, 0::3] = up_left, up, up_right, left
+    img[1, 1::3] = y_grid
+    img[1, 2::3] = y_grid  # any value; these pixels are not probed
+    mean, logp = predict(model, img if d > 1 else img[..., 0])
+    return mean.reshape(2, 3 * K, d)[1, 1::3], logp[1, 1::3]
+
+
+@pytest.mark.parametrize("d", [1, 2])
+def test_predictive_density_integrates_to_one_with_mean_gamma_x(d):
+    rng = np.random.default_rng(d)
+    A, offsets, sigma = random_stable_model(2, d, seed=d)
+    field = car_field(A, offsets, sigma, (14, 14), seed=7) + 3.0
+    model = fit_car(field, 2)
+    x_values = [rng.standard_normal(d) + 3.0 for _ in range(4)]
+    # SPEC ordering of X_r: offsets (0,1)=left, (1,0)=up, (1,-1)=up-right, (1,1)=up-left
+    X = np.concatenate([x_values[k] - model.mean for k in (3, 1, 2, 0)])
+    expected_mean = model.gamma @ X + model.mean
+    sd = np.sqrt(np.diag(model.sigma))
+    if d == 1:
+        y = expected_mean[0] + np.linspace(-25, 25, 4001) * sd[0]
+        mean, logp = _density_probe(model, x_values, y[:, None])
+        p = np.exp(logp)
+        assert np.trapezoid(p, y) == pytest.approx(1.0, abs=1e-6)
+        assert np.trapezoid(y * p, y) == pytest.approx(expected_mean[0], abs=1e-6)
+        np.testing.assert_allclose(mean[:, 0], expected_mean[0], rtol=1e-9)
+    else:
+        g0 = expected_mean[0] + np.linspace(-10, 10, 241) * sd[0]
+        g1 = expected_mean[1] + np.linspace(-10, 10, 241) * sd[1]
+        Y0, Y1 = np.meshgrid(g0, g1, indexing="ij")
+        ys = np.stack([Y0.ravel(), Y1.ravel()], axis=1)
+        mean, logp = _density_probe(model, x_values, ys)
+        p = np.exp(logp).reshape(Y0.shape)
+        total = np.trapezoid(np.trapezoid(p, g1, axis=1), g0)
+        assert total == pytest.approx(1.0, abs=1e-4)
+        m0 = np.trapezoid(np.trapezoid(p * Y0, g1, axis=1), g0)
+        m1 = np.trapezoid(np.trapezoid(p * Y1, g1, axis=1), g0)
+        np.testing.assert_allclose([m0, m1], expected_mean, atol=1e-4 * sd.max())
+        np.testing.assert_allclose(mean[0], expected_mean, rtol=1e-9)
+
+
+def test_predict_shapes_and_borders():
+    img = skdata.astronaut()[:40, :50]
+    model = fit_car(img, 2)
+    mean, logp = predict(model, img)
+    assert mean.shape == img.shape and logp.shape == img.shape[:2]
+    assert np.isnan(logp[0]).all() and np.isnan(logp[:, 0]).all() and np.isnan(logp[:, -1]).all()
+    assert np.isfinite(logp[1:, 1:-1]).all()
+    # a well-fitted model predicts its own texture better than the mean does
+    inner = (slice(1, None), slice(1, -1))
+    assert np.mean((mean[inner] - img[inner] / 255.0) ** 2) < np.var(img / 255.0)
+
+
+def test_2d_path_spectral_factors():
+    img = skdata.astronaut()[100:228, 100:228]
+    model = fit_car(img, "auto", model="2d")
+    assert len(model.factors) == 3
+    np.testing.assert_allclose(model.basis.T @ model.basis, np.eye(3), atol=1e-12)
+    # each factor's A_s are the diagonal of the colour-space A_s in the PCA basis
+    A_pca = model.basis.T @ model.A @ model.basis
+    for k, fm in enumerate(model.factors):
+        pos = {tuple(s): i for i, s in enumerate(model.offsets.tolist())}
+        for s, a in zip(map(tuple, fm.offsets.tolist()), fm.gamma[0]):
+            assert A_pca[pos[s], k, k] == pytest.approx(a)
+        off = A_pca[:, k, :].copy()
+        off[:, k] = 0
+        assert np.abs(off).max() < 1e-12
+    mean, logp = predict(model, img)
+    assert mean.shape == img.shape and np.isfinite(logp[5:-5, 5:-5]).all()
