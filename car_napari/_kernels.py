@@ -5,22 +5,21 @@ Every kernel is compiled with ``cache=True`` (a fast second start) and
 responsive). Kernels see flat C-ordered arrays plus integer strides, so one
 compiled kernel serves all four scan directions without copying the image.
 
-Square-root form (SPEC 1.4): the data-gathering matrix of the augmented vector
-``z = [X_r; 1 (optional intercept); Y_r]`` is kept as ``V = s^2 U^T U`` with
-``U`` upper triangular and ``s`` a scalar. Forgetting multiplies ``s`` by
-``phi`` instead of touching ``U``; new data enter ``U`` by a rank-one Cholesky
-update with ``z / s``. Every estimate then comes from triangular solves:
+Square-root form (SPEC 1.4, chapter (14.26)-(14.29)): the inverse of the
+regressors' data-gathering matrix is kept as ``P = V_x^{-1} = tau^2 S S^T``
+with ``S`` upper triangular (stored transposed, ``T = S^T``) and ``tau`` a
+scalar, and updated by Carlson's square-root measurement update; no inverse
+is ever formed, so rounding cannot make it indefinite. Forgetting divides
+``tau`` by ``phi`` instead of touching ``S``. ``gamma`` and ``lambda`` follow
+the recursions of SPEC 1.4 with the gain that update yields.
 
-    gamma^T = U11^{-1} U12,   lambda = s^2 U22^T U22,   V_x = s^2 U11^T U11.
-
-No inverse is ever formed, so rounding cannot make it indefinite.
-
-Wind-up: in a flat region ``z`` excites at most one direction while forgetting
-shrinks all others. We use stabilised forgetting,
-``V(t) = phi^2 V(t-1) + (1 - phi^2) V_0 + z z^T``, which keeps ``V >= V_0``;
-the ``(1 - phi^2) V_0`` term is added one coordinate per pixel (round robin,
-``n (1 - phi^2) v_k`` on coordinate ``k = t mod n``), which costs a third of
-an update on average and equals the full term over every ``n`` pixels.
+Wind-up: in a flat region the data excite at most one direction while
+forgetting inflates ``P`` in all others. We use stabilised forgetting,
+``V(t) = phi^2 V(t-1) + (1 - phi^2) V_0 + z z^T``, which keeps ``V >= V_0``
+(``P <= V_0^{-1}``). The ``(1 - phi^2) V_0`` term enters as pseudo-data: one
+coordinate every ``_INJECT_EVERY`` pixels, round robin, scaled so the average
+amount is exact (``x = a e_k, y = 0`` for a regressor coordinate, ``lambda +=
+a^2 e_t e_t^T`` for a target one), which is what the prior ``V_0`` is.
 """
 
 from __future__ import annotations
@@ -30,51 +29,76 @@ import math
 import numpy as np
 from numba import njit
 
-_RESCALE_BELOW = 1e-100
+_RESCALE_ABOVE = 1e20  # keeps alpha0 = phi^2 / tau^2 far from underflow in Carlson
+_INJECT_EVERY = 4
+_FAST = {"reassoc", "contract", "arcp"}
 
 
-@njit(cache=True, nogil=True)
-def _rank_one_update(U, x, start, n):
-    """U^T U + x x^T, in place, for U upper triangular (x is overwritten)."""
-    for k in range(start, n):
-        ukk = U[k, k]
-        xk = x[k]
-        if xk == 0.0:
-            continue
-        r = math.sqrt(ukk * ukk + xk * xk)
-        c = r / ukk
-        sn = xk / ukk
-        inv_c = 1.0 / c
-        U[k, k] = r
-        for i in range(k + 1, n):
-            uki = (U[k, i] + sn * x[i]) * inv_c
-            U[k, i] = uki
-            x[i] = c * x[i] - sn * uki
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST, inline="always")
+def _carlson_update(T, v, w, coef, alpha0, start, p):
+    """Carlson's square-root update of ``P = S S^T`` (``T = S^T`` lower).
 
-
-@njit(cache=True, nogil=True)
-def _forward_solve_transposed(U, x, u, p):
-    """Solve U[:p, :p]^T u = x[:p] (forward substitution)."""
+    ``v = S^T x`` on entry (entries before ``start`` are zero); on exit ``T``
+    holds the factor of ``P - P x x^T P / (alpha0 + x^T P x)`` and ``w = P x``
+    (before the update). Returns ``alpha0 + x^T P x``. ``coef`` (2, p) is
+    scratch: the running sums ``alpha_j`` are formed first so that the
+    square roots and divisions are independent (pipelined, not a chain).
+    """
+    alpha = alpha0
+    for j in range(start, p):
+        coef[0, j] = alpha
+        alpha += v[j] * v[j]
+        coef[1, j] = alpha
+    for j in range(start, p):
+        inv_gamma = 1.0 / math.sqrt(coef[0, j] * coef[1, j])
+        coef[0, j] = coef[0, j] * inv_gamma  # eta_j
+        coef[1, j] = v[j] * inv_gamma  # zeta_j
     for i in range(p):
-        acc = x[i]
-        for k in range(i):
-            acc -= U[k, i] * u[k]
-        u[i] = acc / U[i, i]
+        w[i] = 0.0
+    for j in range(start, p):
+        eta = coef[0, j]
+        zeta = coef[1, j]
+        sigma = v[j]
+        row = T[j]
+        for i in range(j + 1):
+            tau = row[i]
+            row[i] = eta * tau - zeta * w[i]
+            w[i] += tau * sigma
+    return alpha
 
 
-@njit(cache=True, nogil=True)
-def _coefficients(U, G, p, d):
-    """G = U11^{-1} U12 (p x d): the transposed parameter matrix gamma^T."""
-    for t in range(d):
-        col = p + t
-        for i in range(p - 1, -1, -1):
-            acc = U[i, col]
-            for k in range(i + 1, p):
-                acc -= U[i, k] * G[k, t]
-            G[i, t] = acc / U[i, i]
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST, inline="always")
+def _project(T, x, v, p):
+    """v = S^T x = T x (T lower triangular); returns v^T v."""
+    vv = 0.0
+    for j in range(p):
+        acc = 0.0
+        row = T[j]
+        for i in range(j + 1):
+            acc += row[i] * x[i]
+        v[j] = acc
+        vv += acc * acc
+    return vv
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
+def _cholesky_small(A, L, d):
+    """Lower Cholesky factor of a small SPD matrix; returns log det A."""
+    logdet = 0.0
+    for i in range(d):
+        for j in range(i + 1):
+            acc = A[i, j]
+            for k in range(j):
+                acc -= L[i, k] * L[j, k]
+            if i == j:
+                L[i, i] = math.sqrt(acc)
+                logdet += 2.0 * math.log(L[i, i])
+            else:
+                L[i, j] = acc / L[j, j]
+    return logdet
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
 def recursive_scan(
     data,
     geom,
@@ -82,7 +106,9 @@ def recursive_scan(
     tap_ch,
     target_off,
     intercept,
-    U0,
+    T0,
+    G0,
+    lam0,
     beta_init,
     beta_prior,
     phi,
@@ -93,7 +119,9 @@ def recursive_scan(
     logp_out,
     q_out,
     maha_out,
-    U_final,
+    T_final,
+    G_final,
+    lam_final,
     state_final,
 ):
     """Scan an image once, in one direction, with the recursive estimator.
@@ -113,10 +141,12 @@ def recursive_scan(
         after a flat background is estimated as if the background were absent.
     target_off : int64[d] channel of each modelled component.
     intercept : bool, append a constant 1 regressor (a local mean).
-    U0 : float64[n, n] initial square-root factor (n = m + intercept + d).
+    T0 : float64[p, p] lower factor with ``V_x^{-1} = T0^T T0`` at the start
+        (p = m + intercept); G0 (d, p) gamma with the intercept column;
+        lam0 (d, d) lambda.
     beta_init, beta_prior : initial and prior ``beta``.
     phi : forgetting factor (1 = none).
-    prior_diag : float64[n] ``V_0`` diagonal re-injected when ``phi < 1``.
+    prior_diag : float64[p + d] ``V_0`` diagonal re-injected when ``phi < 1``.
     update : bool, False freezes the statistics (prediction by a fixed model).
     gamma_out : float64[N*d*m] or empty. Estimate after each pixel (carried
         over where the neighbourhood leaves the image).
@@ -125,7 +155,8 @@ def recursive_scan(
         ``q = 1 + X^T V_x^{-1} X`` and ``e^T lambda^{-1} e`` from the
         statistics before the pixel's update; NaN where the neighbourhood
         leaves the image.
-    U_final, state_final : outputs: the final factor and ``[s, beta, count]``.
+    T_final, G_final, lam_final, state_final : the final statistics and
+        ``[beta, count]``.
     """
     Hs, Ws = geom[0], geom[1]
     base, sa, sb = geom[2], geom[3], geom[4]
@@ -136,14 +167,16 @@ def recursive_scan(
     p = m + (1 if intercept else 0)
     n = p + d
 
-    U = U0.copy()
-    s = 1.0
+    T = T0.copy()
+    G = G0.copy()
+    lam = lam0.copy()
+    tau = 1.0
     beta = beta_init
     phi2 = phi * phi
     forget = phi < 1.0
     inject = np.empty(n)
     for k in range(n):
-        inject[k] = math.sqrt(n * (1.0 - phi2) * prior_diag[k]) if forget else 0.0
+        inject[k] = math.sqrt(_INJECT_EVERY * n * (1.0 - phi2) * prior_diag[k]) if forget else 0.0
 
     want_gamma = gamma_out.shape[0] > 0
     want_mean = mean_out.shape[0] > 0
@@ -152,12 +185,14 @@ def recursive_scan(
     want_maha = maha_out.shape[0] > 0
     want_pred = want_mean or want_logp or want_q or want_maha
 
-    z = np.empty(n)
-    work = np.empty(n)
-    u = np.empty(p)
+    x = np.empty(p)
+    y = np.empty(d)
+    v = np.empty(p)
+    w = np.empty(p)
+    coef = np.empty((2, p))
     e = np.empty(d)
-    w = np.empty(d)
-    G = np.zeros((p, d))
+    u = np.empty(d)
+    L = np.zeros((d, d))
     log_pi = math.log(math.pi)
     count = 0.0
     tick = 0
@@ -171,109 +206,129 @@ def recursive_scan(
                     o = px * d * m
                     for t in range(d):
                         for k in range(m):
-                            gamma_out[o + t * m + k] = G[k, t]
-                if want_pred:
-                    if want_mean:
-                        for t in range(d):
-                            mean_out[px * d + t] = np.nan
-                    if want_logp:
-                        logp_out[px] = np.nan
-                    if want_q:
-                        q_out[px] = np.nan
-                    if want_maha:
-                        maha_out[px] = np.nan
+                            gamma_out[o + t * m + k] = G[t, k]
+                if want_mean:
+                    for t in range(d):
+                        mean_out[px * d + t] = np.nan
+                if want_logp:
+                    logp_out[px] = np.nan
+                if want_q:
+                    q_out[px] = np.nan
+                if want_maha:
+                    maha_out[px] = np.nan
                 continue
 
             pos = base + a * sa + b * sb
-            for k in range(m):
-                z[k] = data[pos + tap_off[k]]
-            if intercept:
-                z[m] = 1.0
-            for t in range(d):
-                z[p + t] = data[pos + target_off[t]]
             flat = True
             for k in range(m):
-                if z[k] != data[pos + tap_ch[k]]:
+                x[k] = data[pos + tap_off[k]]
+                if x[k] != data[pos + tap_ch[k]]:
                     flat = False
-                    break
+            if intercept:
+                x[m] = 1.0
+            for t in range(d):
+                y[t] = data[pos + target_off[t]]
+                acc = 0.0
+                for k in range(p):
+                    acc += G[t, k] * x[k]
+                e[t] = y[t] - acc
+            learn = update and not flat
+            vv = 0.0
+            if want_pred or learn:
+                vv = _project(T, x, v, p)
 
             if want_pred:
                 # One-step-ahead prediction from the statistics before r.
-                _forward_solve_transposed(U, z, u, p)
-                uu = 0.0
-                for k in range(p):
-                    uu += u[k] * u[k]
-                q = 1.0 + uu / (s * s)
-                for t in range(d):
-                    acc = 0.0
-                    for k in range(p):
-                        acc += U[k, p + t] * u[k]
-                    e[t] = z[p + t] - acc
-                    if want_mean:
-                        mean_out[px * d + t] = acc
-                # w = U22^{-T} e
-                maha = 0.0
-                logdet = 0.0
-                for t in range(d):
-                    acc = e[t]
-                    for k in range(t):
-                        acc -= U[p + k, p + t] * w[k]
-                    w[t] = acc / U[p + t, p + t]
-                    maha += w[t] * w[t]
-                    logdet += math.log(abs(U[p + t, p + t]))
-                maha /= s * s
-                logdet = 2.0 * logdet + 2.0 * d * math.log(s)
+                q = 1.0 + tau * tau * vv
+                if want_mean:
+                    for t in range(d):
+                        mean_out[px * d + t] = y[t] - e[t]
                 if want_q:
                     q_out[px] = q
-                if want_maha:
-                    maha_out[px] = maha
-                if want_logp:
-                    nu = beta - p + 2.0
-                    logp_out[px] = (
-                        math.lgamma(0.5 * (nu + d))
-                        - math.lgamma(0.5 * nu)
-                        - 0.5 * d * (log_pi + math.log(q))
-                        - 0.5 * logdet
-                        - 0.5 * (nu + d) * math.log1p(maha / q)
-                    )
+                if want_logp or want_maha:
+                    logdet = _cholesky_small(lam, L, d)
+                    maha = 0.0
+                    for t in range(d):
+                        acc = e[t]
+                        for k in range(t):
+                            acc -= L[t, k] * u[k]
+                        u[t] = acc / L[t, t]
+                        maha += u[t] * u[t]
+                    if want_maha:
+                        maha_out[px] = maha
+                    if want_logp:
+                        nu = beta - p + 2.0
+                        logp_out[px] = (
+                            math.lgamma(0.5 * (nu + d))
+                            - math.lgamma(0.5 * nu)
+                            - 0.5 * d * (log_pi + math.log(q))
+                            - 0.5 * logdet
+                            - 0.5 * (nu + d) * math.log1p(maha / q)
+                        )
 
-            if update and not flat:
+            if learn:
+                # gamma += P x e^T / (phi^2 + x^T P x); P -> (P - ...) / phi^2
+                alpha = _carlson_update(T, v, w, coef, phi2 / (tau * tau), 0, p)
+                inv_alpha = 1.0 / alpha
+                for t in range(d):
+                    g = e[t] * inv_alpha
+                    for k in range(p):
+                        G[t, k] += w[k] * g
+                shrink = phi2 / (phi2 + tau * tau * vv)
+                for t in range(d):
+                    for c in range(t + 1):
+                        lam[t, c] = phi2 * lam[t, c] + shrink * e[t] * e[c]
+                        lam[c, t] = lam[t, c]
                 if forget:
-                    s *= phi
-                    if s < _RESCALE_BELOW:
-                        for i in range(n):
-                            for j in range(i, n):
-                                U[i, j] *= s
-                        s = 1.0
-                    k0 = tick % n
-                    for k in range(n):
-                        work[k] = 0.0
-                    work[k0] = inject[k0] / s
-                    _rank_one_update(U, work, k0, n)
-                    tick += 1
+                    tau /= phi
                     beta = phi2 * beta + (1.0 - phi2) * beta_prior + 1.0
+                    if tick % _INJECT_EVERY == 0:
+                        k0 = (tick // _INJECT_EVERY) % n
+                        amount = inject[k0]
+                        if k0 < p:
+                            # pseudo-datum x = amount e_k0, y = 0, no forgetting
+                            vv0 = 0.0
+                            for j in range(p):
+                                v[j] = amount * T[j, k0] if j >= k0 else 0.0
+                                vv0 += v[j] * v[j]
+                            for t in range(d):
+                                e[t] = -amount * G[t, k0]
+                            alpha = _carlson_update(T, v, w, coef, 1.0 / (tau * tau), k0, p)
+                            inv_alpha = 1.0 / alpha
+                            for t in range(d):
+                                g = e[t] * inv_alpha
+                                for k in range(p):
+                                    G[t, k] += w[k] * g
+                            shrink = 1.0 / (1.0 + tau * tau * vv0)
+                            for t in range(d):
+                                for c in range(t + 1):
+                                    lam[t, c] += shrink * e[t] * e[c]
+                                    lam[c, t] = lam[t, c]
+                        else:
+                            lam[k0 - p, k0 - p] += amount * amount
+                    tick += 1
+                    if tau > _RESCALE_ABOVE:
+                        for j in range(p):
+                            for i in range(j + 1):
+                                T[j, i] *= tau
+                        tau = 1.0
                 else:
                     beta += 1.0
-                inv_s = 1.0 / s
-                for k in range(n):
-                    work[k] = z[k] * inv_s
-                _rank_one_update(U, work, 0, n)
                 count += 1.0
 
             if want_gamma:
-                if update and not flat:
-                    _coefficients(U, G, p, d)
                 o = px * d * m
                 for t in range(d):
                     for k in range(m):
-                        gamma_out[o + t * m + k] = G[k, t]
+                        gamma_out[o + t * m + k] = G[t, k]
 
-    for i in range(n):
-        for j in range(n):
-            U_final[i, j] = U[i, j] * s if j >= i else 0.0
-    state_final[0] = s
-    state_final[1] = beta
-    state_final[2] = count
+    for j in range(p):
+        for i in range(p):
+            T_final[j, i] = T[j, i] * tau if i <= j else 0.0
+    G_final[:, :] = G
+    lam_final[:, :] = lam
+    state_final[0] = beta
+    state_final[1] = count
 
 
 @njit(cache=True, nogil=True)
@@ -311,3 +366,39 @@ def synthesize_field(gamma, chol_sigma, noise, tap_di, tap_dj, tap_ch, limit):
                     return False
                 noise[i, j, t] = acc
     return True
+
+
+@njit(cache=True, nogil=True)
+def channel_summary(data):
+    """One pass over (N, d) data: per-channel min, max, mean, variance, and
+    the count of non-finite values (which are left out of the others)."""
+    n, d = data.shape
+    out = np.zeros((5, d))
+    lo = np.full(d, np.inf)
+    hi = np.full(d, -np.inf)
+    total = np.zeros(d)
+    count = np.zeros(d)
+    bad = np.zeros(d)
+    for i in range(n):
+        for c in range(d):
+            val = data[i, c]
+            if math.isfinite(val):
+                lo[c] = min(lo[c], val)
+                hi[c] = max(hi[c], val)
+                total[c] += val
+                count[c] += 1.0
+            else:
+                bad[c] += 1.0
+    for c in range(d):
+        mean = total[c] / max(count[c], 1.0)
+        acc = 0.0
+        for i in range(n):
+            val = data[i, c]
+            if math.isfinite(val):
+                acc += (val - mean) * (val - mean)
+        out[0, c] = lo[c]
+        out[1, c] = hi[c]
+        out[2, c] = mean
+        out[3, c] = acc / max(count[c], 1.0)
+        out[4, c] = bad[c]
+    return out

@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+from collections import namedtuple
+
 import numpy as np
+
+from ._kernels import channel_summary
 
 
 def as_channel_last_float(image, *, channel_axis=-1, name="image"):
@@ -50,24 +54,36 @@ def as_channel_last_float(image, *, channel_axis=-1, name="image"):
     else:
         out = arr.astype(np.float64)
     out = np.ascontiguousarray(out)
-    if not np.all(np.isfinite(out)):
-        bad = int(np.count_nonzero(~np.isfinite(out)))
-        raise ValueError(
-            f"{name} contains {bad} NaN or infinite values; fill or mask them first "
-            "(e.g. np.nan_to_num, or restrict the fit to a finite rectangle)."
-        )
     if out.shape[-1] > 64:
         raise ValueError(
             f"{name} has {out.shape[-1]} channels on axis {channel_axis}; is the channel "
             "axis right? Pass channel_axis=None for a grey image or the correct axis."
         )
+    summary = summarize(out)
+    if summary.nonfinite.any():
+        bad = int(summary.nonfinite.sum())
+        raise ValueError(
+            f"{name} contains {bad} NaN or infinite values; fill or mask them first "
+            "(e.g. np.nan_to_num, or restrict the fit to a finite rectangle)."
+        )
     return out
 
 
-def check_not_constant(image, *, name="image"):
+Summary = namedtuple("Summary", "min max mean var nonfinite")
+
+
+def summarize(image):
+    """Per-channel min, max, mean, variance and non-finite count of (H, W, d)
+    in one Numba pass (numpy's axis=(0, 1) reductions take several slow
+    passes over channel-last data)."""
+    return Summary(*channel_summary(image.reshape(-1, image.shape[-1])))
+
+
+def check_not_constant(image, *, name="image", summary=None):
     """A CAR model needs variation: a constant channel has no texture to fit."""
-    spread = image.max(axis=(0, 1)) - image.min(axis=(0, 1))
-    scale = np.maximum(np.abs(image).max(axis=(0, 1)), 1.0)
+    summary = summary if summary is not None else summarize(image)
+    spread = summary.max - summary.min
+    scale = np.maximum(np.maximum(np.abs(summary.max), np.abs(summary.min)), 1.0)
     flat = np.flatnonzero(spread <= 1e-12 * scale)
     if flat.size:
         raise ValueError(

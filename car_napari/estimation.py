@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ._validation import as_channel_last_float, check_not_constant, check_size
+from ._validation import as_channel_last_float, check_not_constant, check_size, summarize
 from .neighbourhood import Context, as_offsets, causal_neighbourhood
 from .recursive import DIRECTIONS, scan, scan_view
 
@@ -182,11 +182,12 @@ def _decision_score(vx_chol, lam, beta, beta0, m, d):
 
 
 def _prepare(image, channel_axis, name="image"):
+    """Validated float copy, centred; returns (data, mean, per-channel variance)."""
     data = as_channel_last_float(image, channel_axis=channel_axis, name=name)
-    check_not_constant(data, name=name)
-    mean = data.mean(axis=(0, 1))
-    data -= mean
-    return data, mean
+    summary = summarize(data)
+    check_not_constant(data, name=name, summary=summary)
+    data -= summary.mean
+    return data, summary.mean, summary.var
 
 
 def _candidate_offsets(orders):
@@ -200,7 +201,7 @@ def _candidate_offsets(orders):
     return cands
 
 
-def _scores(centred, candidates, direction):
+def _scores(centred, candidates, direction, channel_var):
     """Score every candidate on the same pixels (SPEC 1.5, first condition)."""
     d = centred.shape[2]
     union = []
@@ -213,7 +214,7 @@ def _scores(centred, candidates, direction):
     view_shape = scan_view(centred, direction).shape
     check_size(np.empty(view_shape[:2]), ctx.reach, minimum_pixels=4 * ctx.n_regressors + 4)
     # Unit variance: the rule's penalty is then the same whatever the image's range.
-    scale = np.sqrt(np.mean(np.var(centred, axis=(0, 1))))
+    scale = np.sqrt(np.mean(channel_var))
     V, count = data_statistics(centred / scale, ctx, direction=direction)
     mu = ctx.n_regressors
     index = {s: k for k, s in enumerate(map(tuple, union.tolist()))}
@@ -254,9 +255,9 @@ def select_support(image, orders=range(1, 6), *, channel_axis=-1, direction="dow
     """
     if direction not in DIRECTIONS:
         raise ValueError(f"direction must be one of {DIRECTIONS}; got {direction!r}.")
-    centred, _ = _prepare(image, channel_axis)
+    centred, _, var = _prepare(image, channel_axis)
     candidates = _candidate_offsets(orders)
-    scores = _scores(centred, candidates, direction)
+    scores = _scores(centred, candidates, direction, var)
     best = max(scores, key=scores.get)
     return best, scores
 
@@ -296,13 +297,13 @@ def fit_car(
         raise ValueError(f"model must be '3d' or '2d'; got {model!r}.")
     if direction not in DIRECTIONS:
         raise ValueError(f"direction must be one of {DIRECTIONS}; got {direction!r}.")
-    centred, mean = _prepare(image, channel_axis)
+    centred, mean, var = _prepare(image, channel_axis)
     if model == "2d":
         return _fit_2d(centred, mean, neighbourhood, orders, direction)
-    return _fit_centred(centred, mean, neighbourhood, orders, direction)
+    return _fit_centred(centred, mean, var, neighbourhood, orders, direction)
 
 
-def _fit_centred(centred, mean, neighbourhood, orders, direction):
+def _fit_centred(centred, mean, channel_var, neighbourhood, orders, direction):
     d = centred.shape[2]
     scores = None
     if isinstance(neighbourhood, str):
@@ -311,7 +312,7 @@ def _fit_centred(centred, mean, neighbourhood, orders, direction):
                 f"neighbourhood must be an order, offsets or 'auto'; got {neighbourhood!r}."
             )
         candidates = _candidate_offsets(orders)
-        scores = _scores(centred, candidates, direction)
+        scores = _scores(centred, candidates, direction, channel_var)
         best = max(scores, key=scores.get)
         offsets = dict(candidates)[best]
         order = best if isinstance(best, int) else None
@@ -322,7 +323,7 @@ def _fit_centred(centred, mean, neighbourhood, orders, direction):
     check_size(np.empty(view_shape[:2]), ctx.reach, minimum_pixels=ctx.n_regressors + 2)
     V, count = data_statistics(centred, ctx, direction=direction)
     m = ctx.n_regressors
-    var = float(np.mean(np.var(centred, axis=(0, 1))))
+    var = float(np.mean(channel_var))
     gamma, lam, vx, beta, _ = _estimate(V, count, m, d, np.full(m + d, _PRIOR * var))
     return CARModel(
         gamma=gamma, sigma=lam / beta, mean=mean, offsets=offsets, lam=lam, vx=vx,
@@ -344,7 +345,9 @@ def _fit_2d(centred, mean, neighbourhood, orders, direction):
                 f"spectral factor {k} is constant (the channels are linearly dependent); "
                 "use model='3d' or fewer channels."
             )
-        factors.append(_fit_centred(f, np.zeros(1), neighbourhood, orders, direction))
+        factors.append(
+            _fit_centred(f, np.zeros(1), f.var(axis=(0, 1)), neighbourhood, orders, direction)
+        )
     # Equivalent colour-space model over the union of the factors' offsets.
     union = []
     for fm in factors:

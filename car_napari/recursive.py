@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._kernels import recursive_scan
-from ._validation import as_channel_last_float, check_not_constant, check_size
+from ._validation import as_channel_last_float, check_not_constant, check_size, summarize
 from .neighbourhood import Context, as_offsets
 
 __all__ = ["local_parameters", "DIRECTIONS", "scan", "ScanResult"]
@@ -87,15 +87,18 @@ def scan(
     intercept : bool, add a constant regressor.
     prior : (n,) diagonal of ``V_0`` (``n = m + intercept + d``); required
         unless ``initial`` is given.
-    initial : (U0, beta0) to start from a given upper factor instead of the prior.
+    initial : (U0, beta0) to start from given statistics instead of the prior:
+        ``U0`` the upper Cholesky factor of the augmented ``V = U0^T U0`` of
+        ``[X; (1); Y]`` (prior included).
     update : bool, False predicts with fixed statistics.
     outputs : subset of {'gamma', 'mean', 'logp', 'q', 'maha'}.
 
     Returns
     -------
     ScanResult with the requested arrays in image geometry (``gamma``:
-    (H, W, d, m), ``mean``: (H, W, d), others (H, W)), and ``U`` (the final
-    upper factor, ``V = U^T U``), ``beta`` and ``count`` (updates made).
+    (H, W, d, m), ``mean``: (H, W, d), others (H, W)), and the final
+    statistics: ``G`` (d, p) gamma with its intercept column, ``lam``,
+    ``T`` (lower, ``V_x^{-1} = T^T T``), ``beta`` and ``count`` (updates made).
     """
     h, w, c = data.shape
     if c < context.n_channels:
@@ -108,12 +111,18 @@ def scan(
         prior = np.ascontiguousarray(prior, dtype=np.float64)
         if prior.shape != (n,) or np.any(prior <= 0):
             raise ValueError("prior must hold n positive values.")
-        U0 = np.diag(np.sqrt(prior))
+        T0 = np.diag(1.0 / np.sqrt(prior[:p]))
+        G0 = np.zeros((d, p))
+        lam0 = np.diag(prior[p:])
         beta0 = float(p - 1)
     else:
         U0, beta0 = initial
-        U0 = np.ascontiguousarray(U0, dtype=np.float64)
-        prior = np.diag(U0) ** 2
+        U11, U12, U22 = U0[:p, :p], U0[:p, p:], U0[p:, p:]
+        S = np.linalg.solve(U11, np.eye(p))  # U11^{-1}: upper, V_x^{-1} = S S^T
+        T0 = np.ascontiguousarray(np.triu(S).T)
+        G0 = np.ascontiguousarray((S @ U12).T)
+        lam0 = U22.T @ U22
+        prior = np.diag(U0.T @ U0).copy()
     npx = h * w
     empty = np.empty(0)
     arrays = {
@@ -123,8 +132,10 @@ def scan(
         "q": np.empty(npx) if "q" in outputs else empty,
         "maha": np.empty(npx) if "maha" in outputs else empty,
     }
-    U_final = np.empty((n, n))
-    state = np.empty(3)
+    T_final = np.empty((p, p))
+    G_final = np.empty((d, p))
+    lam_final = np.empty((d, d))
+    state = np.empty(2)
     recursive_scan(
         data.reshape(-1),
         geom,
@@ -132,7 +143,9 @@ def scan(
         context.taps[:, 2].copy(),
         context.targets,
         bool(intercept),
-        U0,
+        T0,
+        G0,
+        np.ascontiguousarray(lam0),
         float(beta0),
         float(p - 1),
         float(forgetting),
@@ -143,21 +156,22 @@ def scan(
         arrays["logp"],
         arrays["q"],
         arrays["maha"],
-        U_final,
+        T_final,
+        G_final,
+        lam_final,
         state,
     )
     shapes = {"gamma": (h, w, d, m), "mean": (h, w, d), "logp": (h, w), "q": (h, w),
               "maha": (h, w)}
     result = ScanResult({k: arrays[k].reshape(shapes[k]) for k in outputs})
-    result["U"] = U_final
-    result["beta"] = float(state[1])
-    result["count"] = int(state[2])
+    result.update(T=T_final, G=G_final, lam=lam_final, beta=float(state[0]),
+                  count=int(state[1]))
     return result
 
 
-def default_prior(data, n_regressors, intercept, n_targets, strength):
+def default_prior(channel_var, n_regressors, intercept, n_targets, strength):
     """Diagonal of V_0: ``strength`` times the data variance (1 for the intercept)."""
-    var = float(np.mean(np.var(data, axis=(0, 1))))
+    var = float(np.mean(channel_var))
     var = var if var > 0 else 1.0
     prior = np.full(n_regressors + int(intercept) + n_targets, strength * var)
     if intercept:
@@ -223,9 +237,10 @@ def local_parameters(
         raise ValueError(f"prior must be positive; got {prior}.")
     context = Context.spatial(offsets, data.shape[2])
     check_size(np.empty(scan_shape(data.shape, direction)), context.reach)
-    check_not_constant(data)
-    data -= data.mean(axis=(0, 1))
-    pri = default_prior(data, context.n_regressors, True, context.n_targets, prior)
+    summary = summarize(data)
+    check_not_constant(data, summary=summary)
+    data -= summary.mean
+    pri = default_prior(summary.var, context.n_regressors, True, context.n_targets, prior)
     res = scan(
         data, context, direction=direction, forgetting=float(forgetting),
         intercept=True, prior=pri, outputs=("gamma",),

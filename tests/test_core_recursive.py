@@ -51,17 +51,17 @@ def test_forgetting_one_equals_batch_least_squares(direction, d, order):
 
 def test_adaptive_estimate_tracks_a_change_of_texture():
     # Two AR(1)-like textures side by side in a raster scan: the local estimate
-    # follows each one (forgetting 0.98: a window of about 25 pixels).
+    # follows each one (forgetting 0.99: a window of about 50 pixels).
     rng = np.random.default_rng(3)
-    H, W = 40, 400
+    H, W = 40, 800
     img = np.zeros((H, W))
     e = rng.standard_normal((H, W))
     for j in range(1, W):
         a = 0.9 if j < W // 2 else -0.6
         img[:, j] = a * img[:, j - 1] + e[:, j]
-    gamma = local_parameters(img, [[0, 1]], forgetting=0.98)[..., 0, 0]
-    assert abs(np.median(gamma[5:, 150:195]) - 0.9) < 0.05
-    assert abs(np.median(gamma[5:, 350:395]) + 0.6) < 0.05
+    gamma = local_parameters(img, [[0, 1]], forgetting=0.99)[..., 0, 0]
+    assert abs(np.median(gamma[5:, 300:395]) - 0.9) < 0.05
+    assert abs(np.median(gamma[5:, 700:795]) + 0.6) < 0.05
 
 
 def _real_textures(shared_dir):
