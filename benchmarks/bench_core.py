@@ -102,15 +102,22 @@ def timings():
     t_sqrt, t_plain = [], []
     for _ in range(5):
         t_sqrt.append(best_of(lambda: cn.local_parameters(img, 2, forgetting=0.99), 1))
-        t_plain.append(best_of(lambda: plain_rls(img, offsets, 0.99, 1e-6, np.empty_like(out)), 1))
+        t_plain.append(
+            best_of(lambda: plain_rls(img, offsets, 0.99, 1e-6, np.empty_like(out)), 1)
+        )
     t_sqrt, t_plain = min(t_sqrt), min(t_plain)
-    print(f"local_parameters 1024x1024x3 order 2 (square-root): {t_sqrt * 1e9 / npx:7.0f} ns/pixel")
-    print(f"plain RLS kernel, same data, same process:           {t_plain * 1e9 / npx:7.0f} ns/pixel")
-    print(f"ratio square-root / plain:                           {t_sqrt / t_plain:7.2f}")
+    rows = [
+        ("local_parameters 1024x1024x3 order 2 (square-root)", t_sqrt * 1e9 / npx, "ns/pixel"),
+        ("plain RLS kernel, same data, same process", t_plain * 1e9 / npx, "ns/pixel"),
+        ("ratio square-root / plain", t_sqrt / t_plain, ""),
+    ]
+    for label, value, unit in rows:
+        print(f"{label:52s} {value:7.2f} {unit}")
 
     for order in (2, 5):
         t = best_of(lambda: cn.fit_car(img, order))
-        print(f"fit_car 1024x1024x3 order {order}:        {t:6.3f} s ({t * 1e9 / npx:5.0f} ns/pixel)")
+        per_px = t * 1e9 / npx
+        print(f"fit_car 1024x1024x3 order {order}:        {t:6.3f} s ({per_px:5.0f} ns/pixel)")
     t = best_of(lambda: cn.select_support(img))
     print(f"select_support 1024x1024x3 orders 1-5: {t:6.3f} s")
     model = cn.fit_car(img, 2)

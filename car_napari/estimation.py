@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ._validation import as_channel_last_float, check_not_constant, check_size, summarize
-from .neighbourhood import Context, as_offsets, causal_neighbourhood
+from .neighbourhood import Context, as_offsets
 from .recursive import DIRECTIONS, scan, scan_view
 
 __all__ = ["CARModel", "fit_car", "select_support", "predict", "data_statistics"]

@@ -32,6 +32,19 @@ def scan_view(image, direction):
     raise ValueError(f"direction must be one of {DIRECTIONS}; got {direction!r}.")
 
 
+def unscan_view(field, direction):
+    """The inverse of :func:`scan_view`: the image whose scan reads ``field``."""
+    if direction == "down":
+        return field
+    if direction == "up":
+        return field[::-1]
+    if direction == "right":
+        return field.swapaxes(0, 1)
+    if direction == "left":
+        return field.swapaxes(0, 1)[:, ::-1]
+    raise ValueError(f"direction must be one of {DIRECTIONS}; got {direction!r}.")
+
+
 def _geometry(shape, direction, context):
     """Strides that map scan position (a, b) to the original (H, W, C) array."""
     h, w, c = shape

@@ -8,7 +8,7 @@ import numpy as np
 
 from ._kernels import synthesize_field
 from .estimation import CARModel
-from .recursive import DIRECTIONS
+from .recursive import unscan_view
 
 __all__ = ["synthesize", "spectral_radius"]
 
@@ -69,19 +69,6 @@ def spectral_radius(model):
             return math.inf
         radius = max(radius, _companion_radius(coeffs, lead))
     return radius
-
-
-def _from_scan(field, direction):
-    """Undo :func:`car_napari.recursive.scan_view` on a generated field."""
-    if direction == "down":
-        return field
-    if direction == "up":
-        return field[::-1]
-    if direction == "right":
-        return field.swapaxes(0, 1)
-    if direction == "left":
-        return field.swapaxes(0, 1)[:, ::-1]
-    raise ValueError(f"direction must be one of {DIRECTIONS}; got {direction!r}.")
 
 
 def synthesize(model, shape, *, seed=None, margin=None):
@@ -151,6 +138,6 @@ def synthesize(model, shape, *, seed=None, margin=None):
             "Use a lower order or a more stationary texture."
         )
     field = noise[top:, side : side + ws]
-    out = _from_scan(field, model.direction) + model.mean
+    out = unscan_view(field, model.direction) + model.mean
     out = np.ascontiguousarray(out)
     return out[..., 0] if d == 1 else out
