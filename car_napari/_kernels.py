@@ -16,10 +16,12 @@ the recursions of SPEC 1.4 with the gain that update yields.
 Wind-up: in a flat region the data excite at most one direction while
 forgetting inflates ``P`` in all others. We use stabilised forgetting,
 ``V(t) = phi^2 V(t-1) + (1 - phi^2) V_0 + z z^T``, which keeps ``V >= V_0``
-(``P <= V_0^{-1}``). The ``(1 - phi^2) V_0`` term enters as pseudo-data: one
-coordinate every ``_INJECT_EVERY`` pixels, round robin, scaled so the average
-amount is exact (``x = a e_k, y = 0`` for a regressor coordinate, ``lambda +=
-a^2 e_t e_t^T`` for a target one), which is what the prior ``V_0`` is.
+(``P <= V_0^{-1}``). The ``(1 - phi^2) V_0`` term enters as pseudo-data,
+round robin over the coordinates, scaled so the average amount is exact
+(``x = a e_k, y = 0`` for a regressor coordinate, ``lambda += a^2 e_t e_t^T``
+for a target one), which is what the prior ``V_0`` is. Every coordinate is
+revisited before forgetting halves it (``phi^(2 period) >= 1/2``), so the
+floor holds to a factor of two at any ``phi`` and any number of regressors.
 """
 
 from __future__ import annotations
@@ -30,7 +32,6 @@ import numpy as np
 from numba import njit
 
 _RESCALE_ABOVE = 1e20  # keeps alpha0 = phi^2 / tau^2 far from underflow in Carlson
-_INJECT_EVERY = 4
 _FAST = {"reassoc", "contract", "arcp"}
 
 
@@ -96,6 +97,32 @@ def _cholesky_small(A, L, d):
             else:
                 L[i, j] = acc / L[j, j]
     return logdet
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST, inline="always")
+def _inject_prior(T, G, lam, v, w, coef, e, k0, amount, tau, p, d):
+    """Add ``amount^2`` to coordinate ``k0`` of ``V`` as a pseudo-datum."""
+    if k0 >= p:
+        lam[k0 - p, k0 - p] += amount * amount
+        return
+    # x = amount e_k0, y = 0, no forgetting
+    vv0 = 0.0
+    for j in range(p):
+        v[j] = amount * T[j, k0] if j >= k0 else 0.0
+        vv0 += v[j] * v[j]
+    for t in range(d):
+        e[t] = -amount * G[t, k0]
+    alpha = _carlson_update(T, v, w, coef, 1.0 / (tau * tau), k0, p)
+    inv_alpha = 1.0 / alpha
+    for t in range(d):
+        g = e[t] * inv_alpha
+        for k in range(p):
+            G[t, k] += w[k] * g
+    shrink = 1.0 / (1.0 + tau * tau * vv0)
+    for t in range(d):
+        for c in range(t + 1):
+            lam[t, c] += shrink * e[t] * e[c]
+            lam[c, t] = lam[t, c]
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
@@ -174,9 +201,21 @@ def recursive_scan(
     beta = beta_init
     phi2 = phi * phi
     forget = phi < 1.0
+    # Prior re-injection schedule: `per_event` coordinates every `every`
+    # learned pixels, so each coordinate comes back within `half_life` pixels.
+    every = 1
+    per_event = 1
+    if forget:
+        half_life = math.log(2.0) / (-2.0 * math.log(phi))
+        if n <= half_life:
+            every = max(1, int(half_life // n))
+        else:
+            per_event = min(n, int(math.ceil(n / max(half_life, 1e-12))))
+    period = n * every / per_event
     inject = np.empty(n)
     for k in range(n):
-        inject[k] = math.sqrt(_INJECT_EVERY * n * (1.0 - phi2) * prior_diag[k]) if forget else 0.0
+        inject[k] = math.sqrt(period * (1.0 - phi2) * prior_diag[k]) if forget else 0.0
+    next_k = 0
 
     want_gamma = gamma_out.shape[0] > 0
     want_mean = mean_out.shape[0] > 0
@@ -282,30 +321,11 @@ def recursive_scan(
                 if forget:
                     tau /= phi
                     beta = phi2 * beta + (1.0 - phi2) * beta_prior + 1.0
-                    if tick % _INJECT_EVERY == 0:
-                        k0 = (tick // _INJECT_EVERY) % n
-                        amount = inject[k0]
-                        if k0 < p:
-                            # pseudo-datum x = amount e_k0, y = 0, no forgetting
-                            vv0 = 0.0
-                            for j in range(p):
-                                v[j] = amount * T[j, k0] if j >= k0 else 0.0
-                                vv0 += v[j] * v[j]
-                            for t in range(d):
-                                e[t] = -amount * G[t, k0]
-                            alpha = _carlson_update(T, v, w, coef, 1.0 / (tau * tau), k0, p)
-                            inv_alpha = 1.0 / alpha
-                            for t in range(d):
-                                g = e[t] * inv_alpha
-                                for k in range(p):
-                                    G[t, k] += w[k] * g
-                            shrink = 1.0 / (1.0 + tau * tau * vv0)
-                            for t in range(d):
-                                for c in range(t + 1):
-                                    lam[t, c] += shrink * e[t] * e[c]
-                                    lam[c, t] = lam[t, c]
-                        else:
-                            lam[k0 - p, k0 - p] += amount * amount
+                    if tick % every == 0:
+                        for _ in range(per_event):
+                            k0 = next_k
+                            next_k = (next_k + 1) % n
+                            _inject_prior(T, G, lam, v, w, coef, e, k0, inject[k0], tau, p, d)
                     tick += 1
                     if tau > _RESCALE_ABOVE:
                         for j in range(p):

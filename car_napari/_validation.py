@@ -83,8 +83,8 @@ def check_not_constant(image, *, name="image", summary=None):
     """A CAR model needs variation: a constant channel has no texture to fit."""
     summary = summary if summary is not None else summarize(image)
     spread = summary.max - summary.min
-    scale = np.maximum(np.maximum(np.abs(summary.max), np.abs(summary.min)), 1.0)
-    flat = np.flatnonzero(spread <= 1e-12 * scale)
+    scale = np.maximum(np.abs(summary.max), np.abs(summary.min))
+    flat = np.flatnonzero((spread == 0) | (spread <= 1e-12 * scale))
     if flat.size:
         raise ValueError(
             f"{name} is constant in channel(s) {flat.tolist()}: a CAR model needs "

@@ -152,22 +152,30 @@ def data_statistics(centred, context, *, direction="down"):
 
 
 def _estimate(V, n_pixels, m, d, prior):
-    """Bayesian estimates of SPEC 1.3 from the augmented statistics + prior."""
+    """Bayesian estimates of SPEC 1.3 from the augmented statistics + prior.
+
+    One Cholesky factor of the augmented ``V`` gives everything: its leading
+    block factors ``V_x`` and its trailing block factors ``lambda``, which is
+    then positive definite even for nearly collinear channels (a subtraction
+    ``V_y - V_xy^T V_x^{-1} V_xy`` can go indefinite there).
+
+    Returns ``gamma, lambda, V_x, beta, L`` with ``L`` the lower factor of
+    the augmented matrix.
+    """
     Vp = V + np.diag(prior)
-    vx, vxy, vy = Vp[:m, :m], Vp[:m, m:], Vp[m:, m:]
-    L = np.linalg.cholesky(vx)
-    sol = np.linalg.solve(L.T, np.linalg.solve(L, vxy))  # V_x^{-1} V_xy
-    lam = vy - vxy.T @ sol
-    lam = 0.5 * (lam + lam.T)
+    L = np.linalg.cholesky(Vp)
+    L11, L21, L22 = L[:m, :m], L[m:, :m], L[m:, m:]
+    gamma = np.linalg.solve(L11.T, L21.T).T  # gamma^T = V_x^{-1} V_xy = L11^{-T} L21^T
+    lam = L22 @ L22.T
     beta = (m - 1) + n_pixels
-    return sol.T, lam, vx, float(beta), L
+    return gamma, lam, Vp[:m, :m], float(beta), L
 
 
-def _decision_score(vx_chol, lam, beta, beta0, m, d):
-    """D_j of (14.6) with log-determinants from Cholesky factors."""
-    log_det_vx = 2.0 * np.sum(np.log(np.diag(vx_chol)))
-    lam_chol = np.linalg.cholesky(lam)
-    log_det_lam = 2.0 * np.sum(np.log(np.diag(lam_chol)))
+def _decision_score(chol, beta, beta0, m, d):
+    """D_j of (14.6) with log-determinants from the augmented Cholesky factor."""
+    diag = np.log(np.diag(chol))
+    log_det_vx = 2.0 * np.sum(diag[:m])
+    log_det_lam = 2.0 * np.sum(diag[m:])
     eta = m // d
     lgammas = sum(
         math.lgamma(0.5 * (beta - m + d + 2 - i)) - math.lgamma(0.5 * (beta0 - m + d + 2 - i))
@@ -213,9 +221,9 @@ def _scores(centred, candidates, direction, channel_var):
     ctx = Context.spatial(union, d)
     view_shape = scan_view(centred, direction).shape
     check_size(np.empty(view_shape[:2]), ctx.reach, minimum_pixels=4 * ctx.n_regressors + 4)
-    # Unit variance: the rule's penalty is then the same whatever the image's range.
-    scale = np.sqrt(np.mean(channel_var))
-    V, count = data_statistics(centred / scale, ctx, direction=direction)
+    # Whiten the channels: the scores then do not change under any invertible
+    # colour transform Y -> B Y (in particular, under the image's value range).
+    V, count = data_statistics(_whiten(centred), ctx, direction=direction)
     mu = ctx.n_regressors
     index = {s: k for k, s in enumerate(map(tuple, union.tolist()))}
     scores = {}
@@ -224,9 +232,18 @@ def _scores(centred, candidates, direction, channel_var):
         sel = np.r_[cols, mu + np.arange(d)]
         m = cols.size
         sub = V[np.ix_(sel, sel)]
-        _, lam, _, beta, L = _estimate(sub, count, m, d, np.full(m + d, _PRIOR))
-        scores[key] = _decision_score(L, lam, beta, float(m - 1), m, d)
+        _, _, _, beta, L = _estimate(sub, count, m, d, np.full(m + d, _PRIOR))
+        scores[key] = _decision_score(L, beta, float(m - 1), m, d)
     return scores
+
+
+def _whiten(centred):
+    d = centred.shape[2]
+    flat = centred.reshape(-1, d)
+    cov = flat.T @ flat / flat.shape[0]
+    cov += 1e-12 * np.trace(cov) / d * np.eye(d)
+    L = np.linalg.cholesky(cov)
+    return np.linalg.solve(L, flat.T).T.reshape(centred.shape)
 
 
 def select_support(image, orders=range(1, 6), *, channel_axis=-1, direction="down"):
@@ -234,9 +251,9 @@ def select_support(image, orders=range(1, 6), *, channel_axis=-1, direction="dow
 
     Every candidate is scored on the same pixels (those whose neighbourhood
     under the union of all candidates lies inside the image) with
-    ``beta(0) = d*eta - 1``, the two conditions SPEC 1.5 requires. The image
-    is scaled to unit variance first, so the choice does not depend on its
-    value range.
+    ``beta(0) = d*eta - 1``, the two conditions SPEC 1.5 requires. The
+    channels are whitened first (unit covariance), so the scores do not
+    change under any invertible colour transform, the value range included.
 
     Parameters
     ----------
@@ -376,14 +393,16 @@ def _fit_2d(centred, mean, neighbourhood, orders, direction):
 
 
 def _augmented_factor(model):
-    """Upper factor U of the model's augmented statistics V = U^T U."""
+    """Upper factor U of the model's augmented statistics V = U^T U, built
+    block by block (forming V and factoring it loses lambda to cancellation
+    when channels are nearly collinear)."""
     m = model.vx.shape[0]
     d = model.n_channels
-    vxy = model.vx @ model.gamma.T
-    vy = model.lam + model.gamma @ vxy
-    V = np.empty((m + d, m + d))
-    V[:m, :m], V[:m, m:], V[m:, :m], V[m:, m:] = model.vx, vxy, vxy.T, vy
-    return np.linalg.cholesky(0.5 * (V + V.T)).T.copy()
+    U = np.zeros((m + d, m + d))
+    U[:m, :m] = np.linalg.cholesky(model.vx).T
+    U[:m, m:] = U[:m, :m] @ model.gamma.T
+    U[m:, m:] = np.linalg.cholesky(model.lam).T
+    return U
 
 
 def predict(model, image, *, channel_axis=-1):

@@ -25,6 +25,14 @@ def _level_features(level, offsets):
     ctx = Context.spatial(offsets, d)
     check_size(centred, ctx.reach, minimum_pixels=ctx.n_regressors + d + 2,
                name="pyramid level")
+    flat = centred.reshape(-1, d)
+    evals = np.linalg.eigvalsh(flat.T @ flat)
+    if evals[0] <= 1e-10 * evals[-1]:
+        raise ValueError(
+            "the image's channels are linearly dependent (e.g. a grey image stored as "
+            "RGB): illumination invariants need independent channels. Pass one "
+            "channel (channel_axis=None on a 2-D image) or a true colour image."
+        )
     V, count = data_statistics(centred, ctx)
     m = ctx.n_regressors
     # Covariant prior: one pixel's worth of the data's own scatter.

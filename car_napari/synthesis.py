@@ -56,7 +56,16 @@ def spectral_radius(model):
             row[j - 1] = row[j - 1] + a
     radius = _companion_radius(row)
     K = int(di.max())
-    for omega in np.linspace(0.0, 2 * np.pi, _FREQUENCIES, endpoint=False):
+    frequencies = np.linspace(0.0, 2 * np.pi, _FREQUENCIES, endpoint=False)
+    if row:
+        # The row-to-row recursion resonates where the in-row filter A(0, w2)
+        # is nearly singular on |w2| = 1, between grid points maybe: add the
+        # arguments of its zeros, 1 / (companion eigenvalues).
+        comp = np.zeros((len(row) * d, len(row) * d), dtype=complex)
+        comp[:d, :] = np.hstack(row)
+        comp[d:, :-d] = np.eye((len(row) - 1) * d)
+        frequencies = np.r_[frequencies, -np.angle(np.linalg.eigvals(comp))]
+    for omega in frequencies:
         phase = np.exp(1j * omega * dj)
         lead = np.eye(d, dtype=complex)
         coeffs = [np.zeros((d, d), complex) for _ in range(K)]

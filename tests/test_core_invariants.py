@@ -38,3 +38,25 @@ def test_features_discriminate_textures():
 def test_too_small_for_pyramid():
     with pytest.raises(ValueError, match="too small"):
         illumination_invariants(skdata.camera()[:20, :20], levels=4)
+
+
+def test_traces_equal_independent_least_squares():
+    img = skdata.astronaut()[256:384, 0:128] / 255.0
+    f = illumination_invariants(img, 1)
+    Y = img - img.mean(axis=(0, 1))
+    X = np.concatenate([Y[1:, :-1], Y[:-1, 1:]], axis=2).reshape(-1, 6)
+    T = Y[1:, 1:].reshape(-1, 3)
+    coef, *_ = np.linalg.lstsq(X, T, rcond=None)
+    A = coef.T.reshape(3, 2, 3).transpose(1, 0, 2)
+    # the covariant prior is one pixel's worth of data: O(1/N) from plain LS
+    np.testing.assert_allclose(f[:2], np.trace(A, axis1=1, axis2=2), rtol=1e-3)
+    resid = T - X @ coef
+    lam = resid.T @ resid
+    alpha3 = np.sqrt(np.sum(Y.reshape(-1, 3) * np.linalg.solve(lam, Y.reshape(-1, 3).T).T))
+    assert f[-1] == pytest.approx(alpha3, rel=1e-3)
+
+
+def test_dependent_channels_are_a_clear_error():
+    grey = skdata.camera()[:64, :64]
+    with pytest.raises(ValueError, match="linearly dependent"):
+        illumination_invariants(np.repeat(grey[..., None], 3, axis=2))

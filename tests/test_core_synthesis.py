@@ -85,3 +85,30 @@ def test_bad_shapes_and_model():
     with pytest.raises(TypeError, match="CARModel"):
         synthesize(np.eye(2), (10, 10))
     assert isinstance(model, CARModel)
+
+
+def test_unstable_fit_really_explodes():
+    """Not circular: generate with the raw kernel, bypassing the check."""
+    from car_napari._kernels import synthesize_field
+
+    for order, explodes in ((2, True), (5, False)):
+        model = fit_car(skdata.brick(), order)
+        noise = np.random.default_rng(0).standard_normal((1200, 400, 1))
+        taps = model.context.taps
+        synthesize_field(model.gamma, np.sqrt(model.sigma), noise,
+                         taps[:, 0].copy(), taps[:, 1].copy(), taps[:, 2].copy(), 1e300)
+        growth = noise[900:1200, 100:300].std() / noise[300:600, 100:300].std()
+        assert (growth > 100) == explodes, (order, growth)
+        assert (spectral_radius(model) > 1) == explodes
+
+
+def test_narrow_in_row_resonance_is_found():
+    # In-row AR(2) with roots 0.9999 exp(+-i pi/256) plus a tiny vertical tap:
+    # the resonance falls between the frequency grid points.
+    r, th = 0.9999, np.pi / 256
+    model = fit_car(np.random.default_rng(0).random((20, 20)), 3)
+    model.gamma = np.zeros((1, 6))
+    model.gamma[0, 0] = 2 * r * np.cos(th)  # (0, 1)
+    model.gamma[0, 4] = -r * r  # (0, 2)
+    model.gamma[0, 1] = 1e-5  # (1, 0)
+    assert spectral_radius(model) > 1
