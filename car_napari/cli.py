@@ -1,0 +1,92 @@
+"""Command line: ``car-napari fit IMAGE`` and ``car-napari synthesize IMAGE``.
+
+Uses only the public core API; no Qt, no napari.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+import numpy as np
+
+
+def _read(path):
+    from skimage import io
+
+    try:
+        image = io.imread(path)
+    except FileNotFoundError:
+        raise ValueError(f"no such file: {path}") from None
+    except Exception as exc:
+        raise ValueError(f"cannot read {path} as an image: {exc}") from None
+    if image.ndim == 3 and image.shape[2] == 4:
+        image = image[..., :3]  # drop alpha
+    return image
+
+
+def _fit(image, order):
+    from . import fit_car
+
+    neighbourhood = "auto" if order == "auto" else int(order)
+    return fit_car(image, neighbourhood, channel_axis=-1 if image.ndim == 3 else None)
+
+
+def cmd_fit(args):
+    model = _fit(_read(args.image), args.order)
+    json.dump(model.to_dict(), sys.stdout, indent=2)
+    sys.stdout.write("\n")
+
+
+def cmd_synthesize(args):
+    from skimage import io
+
+    from . import synthesize
+
+    image = _read(args.image)
+    model = _fit(image, args.order)
+    sample = synthesize(model, tuple(args.size), seed=args.seed)
+    if image.dtype == np.uint8:
+        sample = np.round(np.clip(sample, 0.0, 1.0) * 255).astype(np.uint8)
+    elif image.dtype == np.uint16:
+        sample = np.round(np.clip(sample, 0.0, 1.0) * 65535).astype(np.uint16)
+    else:
+        sample = np.clip(sample, image.min(), image.max()).astype(np.float32)
+    io.imsave(args.output, sample, check_contrast=False)
+    print(f"wrote {args.output}: {sample.shape}, order {model.order}", file=sys.stderr)
+
+
+def build_parser():
+    parser = argparse.ArgumentParser(
+        prog="car-napari",
+        description="Haindl's causal autoregressive (CAR) random-field models, headless.",
+    )
+    sub = parser.add_subparsers(dest="command", required=True)
+    p = sub.add_parser("fit", help="fit a CAR model and print it as JSON")
+    p.add_argument("image", help="image file (grey or RGB)")
+    p.add_argument("--order", default="auto",
+                   help="neighbourhood order, or 'auto' for the decision rule (default)")
+    p.set_defaults(run=cmd_fit)
+    p = sub.add_parser("synthesize", help="fit a model to IMAGE and write a synthesised texture")
+    p.add_argument("image", help="example texture (grey or RGB)")
+    p.add_argument("-o", "--output", required=True, help="output image file")
+    p.add_argument("--size", nargs=2, type=int, metavar=("H", "W"), default=(256, 256))
+    p.add_argument("--seed", type=int, default=None)
+    p.add_argument("--order", default="auto")
+    p.set_defaults(run=cmd_synthesize)
+    return parser
+
+
+def main(argv=None):
+    args = build_parser().parse_args(argv)
+    try:
+        args.run(args)
+    except (ValueError, TypeError, OSError) as exc:
+        print(f"car-napari: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,50 @@
+"""Sample data for napari's File > Open Sample menu (Qt-free).
+
+Each function returns a list of napari ``LayerData`` tuples. The files live
+in the top-level ``resources/`` folder, shipped inside the package as
+``car_napari/_resources``; see ``resources/README.md`` for their licences.
+"""
+
+from __future__ import annotations
+
+from importlib.resources import files
+
+import numpy as np
+
+
+def resource_path(name):
+    """Path of a shipped sample file."""
+    path = files("car_napari") / "_resources" / name
+    if not path.is_file():
+        raise FileNotFoundError(
+            f"sample file {name!r} is missing from the installation ({path}); reinstall "
+            "car-napari."
+        )
+    return path
+
+
+def _read(name):
+    from skimage import io
+
+    return io.imread(str(resource_path(name)))
+
+
+def colour_texture():
+    """VisTex VS50, a 256x256 colour texture (research use with attribution)."""
+    return [(_read("texture_vistex_VS50.png"), {"name": "VisTex VS50", "rgb": True}, "image")]
+
+
+def mammogram():
+    """mini-MIAS mdb001 (research use only; cite Suckling et al. 1994)."""
+    return [(_read("mammogram_mdb001.png"), {"name": "mini-MIAS mdb001",
+                                             "colormap": "gray"}, "image")]
+
+
+def damaged_film():
+    """A damaged 35 mm film scan (FILM-AA) with its damage mask as labels."""
+    frame = _read("film_cinestill50d_damaged.jpg")
+    mask = (_read("film_cinestill50d_mask.png") > 127).astype(np.uint8)
+    return [
+        (frame, {"name": "damaged film", "rgb": True}, "image"),
+        (mask, {"name": "scratch mask", "opacity": 0.6}, "labels"),
+    ]
