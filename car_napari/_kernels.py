@@ -202,15 +202,16 @@ def recursive_scan(
     phi2 = phi * phi
     forget = phi < 1.0
     # Prior re-injection schedule: `per_event` coordinates every `every`
-    # learned pixels, so each coordinate comes back within `half_life` pixels.
+    # learned pixels, so each coordinate comes back within `revisit` pixels
+    # (the time forgetting takes to halve it).
     every = 1
     per_event = 1
     if forget:
-        half_life = math.log(2.0) / (-2.0 * math.log(phi))
-        if n <= half_life:
-            every = max(1, int(half_life // n))
+        revisit = math.log(2.0) / (-2.0 * math.log(phi))  # decay to 1/2 at most
+        if n <= revisit:
+            every = max(1, int(revisit // n))
         else:
-            per_event = min(n, int(math.ceil(n / max(half_life, 1e-12))))
+            per_event = min(n, int(math.ceil(n / max(revisit, 1e-12))))
     period = n * every / per_event
     inject = np.empty(n)
     for k in range(n):

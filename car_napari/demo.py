@@ -11,10 +11,11 @@ def main(argv=None):
     viewer = napari.Viewer(title="car-napari")
     for key in ("film", "mammogram", "texture"):
         viewer.open_sample("car-napari", key)
-    viewer.window.add_plugin_dock_widget("car-napari", "CAR model")
-    if "--no-run" not in (argv or sys.argv[1:]):
+    _, widget = viewer.window.add_plugin_dock_widget("car-napari", "CAR model")
+    widget._image.value = viewer.layers["VisTex VS50"]
+    if "--no-run" not in (sys.argv[1:] if argv is None else argv):
         napari.run()
-    return viewer
+    return viewer, widget
 
 
 if __name__ == "__main__":
