@@ -41,3 +41,24 @@ def test_core_import_is_qt_free():
             "print(bad); sys.exit(1 if bad else 0)")
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert res.returncode == 0, res.stdout + res.stderr
+
+
+def test_wheel_ships_manifest_and_resources(tmp_path):
+    """A regular (non-editable) install gets the real manifest and the samples."""
+    import zipfile
+
+    res = subprocess.run(
+        [sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(tmp_path), str(TOP)],
+        capture_output=True, text=True,
+    )
+    assert res.returncode == 0, res.stderr[-2000:]
+    (wheel,) = tmp_path.glob("car_napari-*.whl")
+    with zipfile.ZipFile(wheel) as z:
+        names = set(z.namelist())
+        assert z.read("car_napari/napari.yaml").decode() == (TOP / "napari.yaml").read_text()
+        entry = next(n for n in names if n.endswith("entry_points.txt"))
+        assert "car-napari = car_napari:napari.yaml" in z.read(entry).decode()
+    for name in ("texture_vistex_VS50.png", "mammogram_mdb001.png",
+                 "film_cinestill50d_damaged.jpg", "film_cinestill50d_mask.png",
+                 "LICENCE-mini-MIAS.txt"):
+        assert f"car_napari/_resources/{name}" in names
