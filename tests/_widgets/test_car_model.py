@@ -10,11 +10,8 @@ pytest.importorskip("napari")
 
 
 @pytest.fixture
-def widget(make_napari_viewer):
-    viewer = make_napari_viewer()
-    w = CARModelWidget(viewer)
-    viewer.window.add_dock_widget(w, name="CAR model")
-    return viewer, w
+def widget(docked):
+    return docked(CARModelWidget, "CAR model")
 
 
 def _wait(qtbot, job, timeout=60000):
