@@ -102,7 +102,8 @@ def scan(
         unless ``initial`` is given.
     initial : (U0, beta0) to start from given statistics instead of the prior:
         ``U0`` the upper Cholesky factor of the augmented ``V = U0^T U0`` of
-        ``[X; (1); Y]`` (prior included).
+        ``[X; (1); Y]`` (prior included). ``prior``, if also given, is still
+        the floor that forgetting re-injects.
     update : bool, False predicts with fixed statistics.
     outputs : subset of {'gamma', 'mean', 'logp', 'q', 'maha'}.
 
@@ -135,7 +136,9 @@ def scan(
         T0 = np.ascontiguousarray(np.triu(S).T)
         G0 = np.ascontiguousarray((S @ U12).T)
         lam0 = U22.T @ U22
-        prior = np.diag(U0.T @ U0).copy()
+        if prior is None:  # re-inject what we started from
+            prior = np.diag(U0.T @ U0).copy()
+        prior = np.ascontiguousarray(prior, dtype=np.float64)
     npx = h * w
     empty = np.empty(0)
     arrays = {
@@ -200,6 +203,7 @@ def local_parameters(
     direction="down",
     channel_axis=-1,
     prior=1e-6,
+    warm_start=True,
 ):
     """Adaptive 3DCAR parameters ``gamma_hat_r`` at every pixel (SPEC 1.4).
 
@@ -225,6 +229,11 @@ def local_parameters(
     prior : float, optional
         Strength of the prior ``V_0 = prior * var(image) * I`` relative to one
         pixel's data; also the floor the statistics never fall below.
+    warm_start : bool, optional
+        Start the scan from the whole image's statistics weighted as one
+        forgetting window (``1 / (1 - phi**2)`` pixels) instead of the bare
+        prior: the first pixels of the scan then get the global model, not a
+        transient fitted to a handful of pixels. Ignored when ``forgetting=1``.
 
     Returns
     -------
@@ -254,8 +263,29 @@ def local_parameters(
     check_not_constant(data, summary=summary)
     data -= summary.mean
     pri = default_prior(summary.var, context.n_regressors, True, context.n_targets, prior)
+    initial = None
+    if warm_start and forgetting < 1.0:
+        initial = _window_statistics(data, context, direction, pri, float(forgetting))
     res = scan(
         data, context, direction=direction, forgetting=float(forgetting),
-        intercept=True, prior=pri, outputs=("gamma",),
+        intercept=True, prior=pri, initial=initial, outputs=("gamma",),
     )
     return res["gamma"]
+
+
+def _window_statistics(centred, context, direction, prior, forgetting):
+    """Whole-image augmented statistics of [X; 1; Y], scaled to the weight of
+    one forgetting window, plus the prior: (upper factor, beta)."""
+    from .estimation import data_statistics
+
+    V, count = data_statistics(centred, context, direction=direction)
+    m = context.n_regressors
+    n = V.shape[0] + 1
+    aug = np.zeros((n, n))
+    aug[:m, :m], aug[:m, m + 1:], aug[m + 1:, :m], aug[m + 1:, m + 1:] = (
+        V[:m, :m], V[:m, m:], V[m:, :m], V[m:, m:])
+    aug[m, m] = count  # the data are centred: the intercept's cross terms are ~0
+    window = 1.0 / (1.0 - forgetting**2)
+    weight = min(1.0, window / max(count, 1))
+    aug = aug * weight + np.diag(prior)
+    return np.linalg.cholesky(aug).T.copy(), float(m) + weight * count

@@ -1,6 +1,11 @@
 """Plain-NumPy reference generators for tests (independent of car_napari's kernels)."""
 
+from pathlib import Path
+
 import numpy as np
+
+# The real data beside the repository (../shared/data); absent in some clones.
+SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
 # The hierarchical neighbourhoods of SPEC 1.1, written out by hand.
 ORDERS = {

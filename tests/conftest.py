@@ -5,7 +5,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
 
-SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+from car_fields import SHARED_DATA  # noqa: E402
 
 
 @pytest.fixture

@@ -8,7 +8,7 @@ from skimage import data as skdata
 
 from car_napari import Context, local_parameters
 from car_napari.recursive import default_prior, scan
-from car_fields import ORDERS
+from car_fields import ORDERS, SHARED_DATA
 
 
 def batch_ls_with_intercept(Y, offsets):
@@ -83,8 +83,6 @@ def _real_textures(shared_dir):
 
 @pytest.fixture
 def real_textures():
-    from conftest import SHARED_DATA
-
     return _real_textures(SHARED_DATA if SHARED_DATA.is_dir() else None)
 
 
