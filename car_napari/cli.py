@@ -57,6 +57,61 @@ def cmd_synthesize(args):
     print(f"wrote {args.output}: {sample.shape}, order {model.order}", file=sys.stderr)
 
 
+IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm", ".ppm", ".gif"}
+
+
+def expand_inputs(items):
+    """Files, folders (their images, sorted) and glob patterns, in order."""
+    import glob
+    from pathlib import Path
+
+    paths = []
+    for item in items:
+        p = Path(item)
+        if p.is_dir():
+            paths += sorted(f for f in p.iterdir() if f.suffix.lower() in IMAGE_SUFFIXES)
+        elif any(ch in item for ch in "*?["):
+            paths += sorted(Path(f) for f in glob.glob(item))
+        else:
+            paths.append(p)
+    if not paths:
+        raise ValueError(f"no input images found in {list(items)}")
+    return paths
+
+
+def _progress(i, n, label, stream=sys.stderr):
+    width = 30
+    filled = int(round(width * i / max(n, 1)))
+    stream.write(f"\r[{'#' * filled}{'.' * (width - filled)}] {i}/{n} {label[:40]:40s}")
+    stream.flush()
+    if i == n:
+        stream.write("\n")
+
+
+def cmd_segment(args):
+    import time
+    from pathlib import Path
+
+    from skimage import io
+
+    from .segmentation import segment
+
+    out = Path(args.output)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = expand_inputs(args.inputs)
+    for i, path in enumerate(paths):
+        _progress(i, len(paths), path.name)
+        image = _read(str(path))
+        t0 = time.perf_counter()
+        result = segment(image, n_segments=args.segments, levels=args.levels,
+                         channel_axis=-1 if image.ndim == 3 else None)
+        labels = result.labels.astype(np.uint8 if result.labels.max() < 256 else np.uint16)
+        io.imsave(out / f"{path.stem}_segments.png", labels, check_contrast=False)
+        print(f"{path.name}: {result.n_segments} segments, {time.perf_counter() - t0:.1f} s",
+              file=sys.stderr if args.quiet else sys.stdout)
+    _progress(len(paths), len(paths), "done")
+
+
 def build_parser():
     parser = argparse.ArgumentParser(
         prog="car-napari",
@@ -75,6 +130,14 @@ def build_parser():
     p.add_argument("--seed", type=int, default=None)
     p.add_argument("--order", default="auto")
     p.set_defaults(run=cmd_synthesize)
+    p = sub.add_parser("segment", help="unsupervised texture segmentation; label PNGs")
+    p.add_argument("inputs", nargs="+", help="images, folders or glob patterns")
+    p.add_argument("-o", "--output", required=True, help="output folder")
+    p.add_argument("--segments", type=int, default=None,
+                   help="number of segments (default: found automatically)")
+    p.add_argument("--levels", type=int, default=3, help="resolutions (default 3)")
+    p.add_argument("--quiet", action="store_true", help="per-image lines to stderr")
+    p.set_defaults(run=cmd_segment)
     return parser
 
 

@@ -44,3 +44,19 @@ def test_entry_point_help():
     out = subprocess.run([sys.executable, "-m", "car_napari.cli", "--help"],
                          capture_output=True, text=True, check=True).stdout
     assert "fit" in out and "synthesize" in out
+
+
+def test_segment_folder_and_glob(tmp_path, capsys):
+    src = tmp_path / "in"
+    src.mkdir()
+    a, b = skdata.brick()[:96, :48], skdata.grass()[:96, :48]
+    io.imsave(src / "one.png", np.concatenate([a, b], axis=1))
+    io.imsave(src / "two.png", np.concatenate([b, a], axis=1))
+    out = tmp_path / "out"
+    assert main(["segment", str(src), "-o", str(out), "--segments", "2", "--levels", "2"]) == 0
+    labels = io.imread(out / "one_segments.png")
+    assert labels.shape == (96, 96) and set(np.unique(labels)) <= {0, 1, 2}
+    assert (out / "two_segments.png").exists()
+    assert main(["segment", str(src / "*.png"), "-o", str(out), "--levels", "2"]) == 0
+    assert main(["segment", str(tmp_path / "none*.png"), "-o", str(out)]) == 2
+    assert "no input images" in capsys.readouterr().err
