@@ -275,10 +275,14 @@ def local_parameters(
 
 def _window_statistics(centred, context, direction, prior, forgetting):
     """Whole-image augmented statistics of [X; 1; Y], scaled to the weight of
-    one forgetting window, plus the prior: (upper factor, beta)."""
+    one forgetting window, plus the prior: (upper factor, beta). A prior worth
+    one window needs no more than a central crop of 256 x 256 pixels."""
     from .estimation import data_statistics
 
-    V, count = data_statistics(centred, context, direction=direction)
+    h, w = centred.shape[:2]
+    top, left = max(0, (h - 256) // 2), max(0, (w - 256) // 2)
+    crop = centred[top : top + 256, left : left + 256]
+    V, count = data_statistics(crop, context, direction=direction)
     m = context.n_regressors
     n = V.shape[0] + 1
     aug = np.zeros((n, n))
