@@ -62,3 +62,11 @@ def test_wheel_ships_manifest_and_resources(tmp_path):
                  "film_cinestill50d_damaged.jpg", "film_cinestill50d_mask.png",
                  "LICENCE-mini-MIAS.txt"):
         assert f"car_napari/_resources/{name}" in names
+
+
+def test_manifest_reads_dicom():
+    from npe2 import PluginManifest
+
+    manifest = PluginManifest.from_file(str(TOP / "napari.yaml"))
+    (reader,) = manifest.contributions.readers
+    assert "*.dcm" in reader.filename_patterns
