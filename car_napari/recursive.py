@@ -262,15 +262,21 @@ def local_parameters(
     summary = summarize(data)
     check_not_constant(data, summary=summary)
     data -= summary.mean
-    pri = default_prior(summary.var, context.n_regressors, True, context.n_targets, prior)
+    return adaptive_scan(data, context, summary.var, forgetting=float(forgetting),
+                         direction=direction, prior=prior, warm_start=warm_start,
+                         outputs=("gamma",))["gamma"]
+
+
+def adaptive_scan(centred, context, channel_var, *, forgetting, direction, prior=1e-6,
+                  warm_start=True, outputs=("gamma",)):
+    """The scan behind :func:`local_parameters` on centred, validated data,
+    with any of :func:`scan`'s outputs (e.g. the one-step conditional mean)."""
+    pri = default_prior(channel_var, context.n_regressors, True, context.n_targets, prior)
     initial = None
     if warm_start and forgetting < 1.0:
-        initial = _window_statistics(data, context, direction, pri, float(forgetting))
-    res = scan(
-        data, context, direction=direction, forgetting=float(forgetting),
-        intercept=True, prior=pri, initial=initial, outputs=("gamma",),
-    )
-    return res["gamma"]
+        initial = _window_statistics(centred, context, direction, pri, float(forgetting))
+    return scan(centred, context, direction=direction, forgetting=float(forgetting),
+                intercept=True, prior=pri, initial=initial, outputs=outputs)
 
 
 def _window_statistics(centred, context, direction, prior, forgetting):

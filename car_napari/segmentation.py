@@ -18,7 +18,7 @@ import numpy as np
 
 from ._validation import as_channel_last_float, check_not_constant, summarize
 from .neighbourhood import Context, as_offsets
-from .recursive import DIRECTIONS, local_parameters
+from .recursive import DIRECTIONS, adaptive_scan
 
 __all__ = [
     "segment",
@@ -174,9 +174,17 @@ def texture_features(
         if m:
             level = pyramid_reduce(level, downscale=2, channel_axis=-1)
         hm, wm = level.shape[:2]
+        summary = summarize(level)
+        centred = np.ascontiguousarray(level - summary.mean)
+        ctx = Context.spatial(offsets, d)
         reduced = []
+        energy = np.zeros((hm, wm))
         for direction in DIRECTIONS:
-            gamma = local_parameters(level, offsets, forgetting=forgetting, direction=direction)
+            res = adaptive_scan(centred, ctx, summary.var, forgetting=forgetting,
+                                direction=direction, outputs=("gamma", "mean"))
+            gamma = res["gamma"]
+            err2 = np.nan_to_num(((centred - res["mean"]) ** 2).sum(axis=2))
+            energy += ndimage.gaussian_filter(err2, smoothing) / len(DIRECTIONS)
             flat = gamma.reshape(hm * wm, -1)
             mean, axes = _pca(flat, components, rng)
             reduced.append(((flat - mean) @ axes).reshape(hm, wm, -1))
@@ -190,7 +198,9 @@ def texture_features(
         mean, axes = _pca(flat, components + 1, rng)
         texture = ((flat - mean) @ axes).reshape(hm, wm, -1)
         local_mean = ndimage.gaussian_filter(level, sigma=(smoothing, smoothing, 0))
-        feats = np.concatenate([texture, local_mean], axis=2)
+        # the local model's prediction-error energy (its Sigma), on a log scale
+        log_energy = np.log(energy + 1e-6 * float(np.mean(summary.var)))[..., None]
+        feats = np.concatenate([texture, log_energy, local_mean], axis=2)
         if m:
             feats = resize(feats, (h, w), order=1, mode="edge", anti_aliasing=False)
         blocks.append(feats)
