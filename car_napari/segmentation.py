@@ -87,6 +87,7 @@ class SegmentationResult:
     smoothing: float = 2.0
     min_area: int = 0
     threshold: float = 0.0
+    mask: np.ndarray | None = field(default=None, repr=False)
 
     def mixture_at(self, k):
         ks = [mx.k for mx in self.history]
@@ -106,7 +107,9 @@ class SegmentationResult:
             threshold=self.threshold if threshold is None else threshold,
             min_area=self.min_area,
         )
-        return labels
+        if self.mask is not None:
+            labels[~self.mask] = 0
+        return _renumber(labels)
 
 
 def pseudo_colour(grey, gammas=(0.5, 2.0)):
@@ -414,6 +417,7 @@ def iter_segment(
     result = SegmentationResult(
         labels=None, n_segments=n_segments, history=history, probability=None,
         features=features, smoothing=smoothing, min_area=min_area, threshold=threshold,
+        mask=None if mask is None else np.asarray(mask, bool),
     )
     mix = result.mixture_at(n_segments)
     labels, prob = label_pixels(features, mix, smoothing=smoothing, threshold=threshold,
@@ -426,12 +430,10 @@ def iter_segment(
 
 
 def _renumber(labels):
-    """Labels 1..K in order of first appearance, 0 kept."""
-    out = np.zeros_like(labels)
-    values = [v for v in np.unique(labels) if v != 0]
-    for new, v in enumerate(values, start=1):
-        out[labels == v] = new
-    return out
+    """Labels 1..K (in order of the old values), 0 kept."""
+    values, inverse = np.unique(labels, return_inverse=True)
+    new = np.arange(values.size) + (0 if values[0] == 0 else 1)
+    return new[inverse].reshape(labels.shape).astype(labels.dtype)
 
 
 def _choose_k(history, threshold):
