@@ -12,7 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["read_dicom", "get_reader"]
+__all__ = ["dicom_reader", "get_reader", "read_dicom"]
+
 
 
 def _pydicom():
@@ -59,27 +60,27 @@ def read_dicom(path):
                          "pass a single 2-D image (one frame).")
     values = apply_modality_lut(stored, ds).astype(np.float64)
     applied = []
-    if "RescaleSlope" in ds or "RescaleIntercept" in ds:
+    if "RescaleSlope" in ds or "RescaleIntercept" in ds or "ModalityLUTSequence" in ds:
         applied.append("modality rescale")
     bits = int(ds.get("BitsStored", 16))
-    has_voi = "WindowCenter" in ds or "VOILUTSequence" in ds
-    if has_voi:
-        windowed = apply_voi_lut(values, ds, index=0).astype(np.float64)
-        lo, hi = 0.0, float(2**bits - 1)
-        if "WindowCenter" in ds and "VOILUTSequence" not in ds:
-            applied.append("VOI window")
-            # pydicom maps the window linearly onto [y_min, y_max] of the stored range
-            y_max = float(2**bits - 1)
-            signed = int(ds.get("PixelRepresentation", 0)) == 1
-            lo, hi = (-(2 ** (bits - 1)), 2 ** (bits - 1) - 1) if signed else (0.0, y_max)
-        else:
-            applied.append("VOI LUT")
-            lo, hi = float(np.min(windowed)), float(np.max(windowed))
-        image = (windowed - lo) / max(hi - lo, 1e-12)
+    if "VOILUTSequence" in ds and len(ds.VOILUTSequence):
+        # the LUT's own output range (LUTDescriptor's third value: its bit depth)
+        image = apply_voi_lut(values, ds, index=0, prefer_lut=True).astype(np.float64)
+        lut_bits = int(ds.VOILUTSequence[0].LUTDescriptor[2]) or 16
+        image = image / float(2**lut_bits - 1)
+        applied.append("VOI LUT")
+    elif "WindowCenter" in ds and "WindowWidth" in ds:
+        image = _window(values, _first(ds.WindowCenter), _first(ds.WindowWidth),
+                        str(ds.get("VOILUTFunction", "LINEAR")).upper())
+        applied.append("VOI window")
     else:
+        # no VOI: the modality-rescaled range of the stored bits
         slope = float(ds.get("RescaleSlope", 1.0))
         intercept = float(ds.get("RescaleIntercept", 0.0))
-        ends = sorted([intercept, intercept + slope * (2**bits - 1)])
+        signed = int(ds.get("PixelRepresentation", 0)) == 1
+        s_lo, s_hi = ((-(2 ** (bits - 1)), 2 ** (bits - 1) - 1) if signed
+                      else (0, 2**bits - 1))
+        ends = sorted([intercept + slope * s_lo, intercept + slope * s_hi])
         image = (values - ends[0]) / max(ends[1] - ends[0], 1e-12)
     image = np.clip(image, 0.0, 1.0)
     if photometric == "MONOCHROME1":
@@ -97,15 +98,38 @@ def read_dicom(path):
     return image.astype(np.float32), metadata
 
 
+def _first(value):
+    """First value of a possibly multi-valued DICOM element."""
+    try:
+        return float(value[0])
+    except TypeError:
+        return float(value)
+
+
+def _window(x, center, width, function="LINEAR"):
+    """DICOM VOI window (PS3.3 C.11.2.1.2) onto [0, 1]."""
+    width = max(float(width), 1.0)
+    if function == "SIGMOID":
+        return 1.0 / (1.0 + np.exp(-4.0 * (x - center) / width))
+    if function == "LINEAR_EXACT":
+        return np.clip((x - center) / width + 0.5, 0.0, 1.0)
+    if width <= 1.0:
+        return (x > center - 0.5).astype(np.float64)
+    return np.clip((x - (center - 0.5)) / (width - 1.0) + 0.5, 0.0, 1.0)
+
+
 def get_reader(path):
     """napari reader hook: a reader function for .dcm files, else None."""
     paths = [path] if isinstance(path, (str, bytes)) or not hasattr(path, "__iter__") else path
     if not all(str(p).lower().endswith((".dcm", ".dicom")) for p in paths):
         return None
-    return _read_layers
+    return dicom_reader
 
 
-def _read_layers(path):
+def dicom_reader(path):
+    """napari reader: LayerData tuples ``(image, kwargs, 'image')`` for one
+    or more DICOM paths (grey, display transforms applied, pixel spacing as
+    the layer scale)."""
     paths = [path] if isinstance(path, (str, bytes)) or not hasattr(path, "__iter__") else path
     layers = []
     for p in paths:
@@ -118,3 +142,6 @@ def _read_layers(path):
             kwargs["scale"] = tuple(scale)
         layers.append((image, kwargs, "image"))
     return layers
+
+
+_read_layers = dicom_reader  # former private name
