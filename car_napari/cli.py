@@ -26,6 +26,20 @@ def _read(path):
     return image
 
 
+def _order(text):
+    """argparse type for --order: 'auto' or a positive integer."""
+    if text == "auto":
+        return text
+    try:
+        order = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"order must be 'auto' or a positive integer; got {text!r}") from None
+    if order < 1:
+        raise argparse.ArgumentTypeError(f"order must be 'auto' or a positive integer; got {order}")
+    return order
+
+
 def _fit(image, order):
     from . import fit_car
 
@@ -120,7 +134,7 @@ def build_parser():
     sub = parser.add_subparsers(dest="command", required=True)
     p = sub.add_parser("fit", help="fit a CAR model and print it as JSON")
     p.add_argument("image", help="image file (grey or RGB)")
-    p.add_argument("--order", default="auto",
+    p.add_argument("--order", default="auto", type=_order,
                    help="neighbourhood order, or 'auto' for the decision rule (default)")
     p.set_defaults(run=cmd_fit)
     p = sub.add_parser("synthesize", help="fit a model to IMAGE and write a synthesised texture")
@@ -128,7 +142,8 @@ def build_parser():
     p.add_argument("-o", "--output", required=True, help="output image file")
     p.add_argument("--size", nargs=2, type=int, metavar=("H", "W"), default=(256, 256))
     p.add_argument("--seed", type=int, default=None)
-    p.add_argument("--order", default="auto")
+    p.add_argument("--order", default="auto", type=_order,
+                   help="neighbourhood order, or 'auto' for the decision rule (default)")
     p.set_defaults(run=cmd_synthesize)
     p = sub.add_parser("segment", help="unsupervised texture segmentation; label PNGs")
     p.add_argument("inputs", nargs="+", help="images, folders or glob patterns")

@@ -60,3 +60,14 @@ def test_segment_folder_and_glob(tmp_path, capsys):
     assert main(["segment", str(src / "*.png"), "-o", str(out), "--levels", "2"]) == 0
     assert main(["segment", str(tmp_path / "none*.png"), "-o", str(out)]) == 2
     assert "no input images" in capsys.readouterr().err
+
+
+def test_bad_order_is_a_usage_error(tmp_path, capsys):
+    import pytest
+
+    path = tmp_path / "gravel.png"
+    io.imsave(path, skdata.gravel()[:48, :48])
+    with pytest.raises(SystemExit) as exit_info:
+        main(["fit", str(path), "--order", "abc"])
+    assert exit_info.value.code == 2
+    assert "'auto' or a positive integer" in capsys.readouterr().err
