@@ -78,3 +78,21 @@ def test_grey_modes():
 def test_bad_input(image, match):
     with pytest.raises(ValueError, match=match):
         segment(image, levels=3)
+
+
+def test_n_segments_stops_at_k_and_features_can_be_reused():
+    image, _ = _two_textures()
+    result = segment(image, n_segments=3, levels=2, n_init=8)
+    assert len(np.unique(result.labels[result.labels > 0])) <= 3
+    again = segment(image, n_segments=3, levels=2, n_init=8, features=result.features)
+    np.testing.assert_array_equal(again.labels, result.labels)
+
+
+def test_labels_at_is_fast():
+    import time
+
+    image, _ = _two_textures()
+    result = segment(image, levels=2, n_init=8)
+    t0 = time.perf_counter()
+    result.labels_at(2)
+    assert time.perf_counter() - t0 < 1.0
