@@ -9,6 +9,7 @@ from skimage import io
 from car_napari import mammography as mm
 from car_napari.mammography import detect_breast, detect_mammogram_rois
 from car_napari.sample_data import resource_path
+from dicom_files import write_dicom as _write_dicom
 
 # mdb001's ground-truth mass (mini-MIAS): centre (col 535, row 599), radius 197
 MASS_ROW, MASS_COL, MASS_RADIUS = 599, 535, 197
@@ -136,33 +137,6 @@ def test_iter_yields_progress_then_result(rois):
 # --- DICOM ----------------------------------------------------------------------
 
 
-def _write_dicom(path, pixels, photometric="MONOCHROME2", bits=12, **attrs):
-    from pydicom.dataset import Dataset, FileMetaDataset
-    from pydicom.uid import (
-        ExplicitVRLittleEndian,
-        SecondaryCaptureImageStorage,
-        generate_uid,
-    )
-
-    meta = FileMetaDataset()
-    meta.MediaStorageSOPClassUID = SecondaryCaptureImageStorage
-    meta.MediaStorageSOPInstanceUID = generate_uid()
-    meta.TransferSyntaxUID = ExplicitVRLittleEndian
-    ds = Dataset()
-    ds.file_meta = meta
-    ds.SOPClassUID = SecondaryCaptureImageStorage
-    ds.SOPInstanceUID = meta.MediaStorageSOPInstanceUID
-    ds.Modality = "MG"
-    ds.Rows, ds.Columns = pixels.shape
-    ds.SamplesPerPixel = 1
-    ds.PhotometricInterpretation = photometric
-    ds.BitsAllocated, ds.BitsStored, ds.HighBit = 16, bits, bits - 1
-    ds.PixelRepresentation = 0
-    for key, value in attrs.items():
-        setattr(ds, key, value)
-    ds.PixelData = pixels.astype(np.uint16).tobytes()
-    ds.save_as(path, enforce_file_format=True)
-    return str(path)
 
 
 RAMP = np.tile(np.linspace(0, 4095, 64).round().astype(np.uint16), (8, 1))

@@ -6,32 +6,12 @@ import pytest
 pydicom = pytest.importorskip("pydicom")
 
 from car_napari.dicom import get_reader, read_dicom  # noqa: E402
+from dicom_files import write_dicom  # noqa: E402
 
 
 def _write(path, pixels, photometric="MONOCHROME2", bits=12, **attrs):
-    from pydicom.dataset import Dataset, FileMetaDataset
-    from pydicom.uid import ExplicitVRLittleEndian, SecondaryCaptureImageStorage, generate_uid
-
-    meta = FileMetaDataset()
-    meta.MediaStorageSOPClassUID = SecondaryCaptureImageStorage
-    meta.MediaStorageSOPInstanceUID = generate_uid()
-    meta.TransferSyntaxUID = ExplicitVRLittleEndian
-    ds = Dataset()
-    ds.file_meta = meta
-    ds.SOPClassUID = SecondaryCaptureImageStorage
-    ds.SOPInstanceUID = meta.MediaStorageSOPInstanceUID
-    ds.Modality = "MG"
-    ds.Rows, ds.Columns = pixels.shape
-    ds.SamplesPerPixel = 1
-    ds.PhotometricInterpretation = photometric
-    ds.BitsAllocated, ds.BitsStored, ds.HighBit = 16, bits, bits - 1
-    ds.PixelRepresentation = 0
-    ds.PixelSpacing = [0.1, 0.1]
-    for key, value in attrs.items():
-        setattr(ds, key, value)
-    ds.PixelData = pixels.astype(np.uint16).tobytes()
-    ds.save_as(path, enforce_file_format=True)
-    return path
+    attrs.setdefault("PixelSpacing", [0.1, 0.1])
+    return write_dicom(path, pixels, photometric, bits, **attrs)
 
 
 @pytest.fixture
