@@ -1,4 +1,4 @@
-"""Command line: ``car-napari fit IMAGE`` and ``car-napari synthesize IMAGE``.
+"""Command line: ``car-napari fit | synthesize | segment | mammo``.
 
 Uses only the public core API; no Qt, no napari.
 """
@@ -13,8 +13,16 @@ import numpy as np
 
 
 def _read(path):
+    from pathlib import Path
+
     from skimage import io
 
+    if Path(path).suffix.lower() in DICOM_SUFFIXES:
+        from .dicom import read_dicom
+
+        if not Path(path).exists():
+            raise ValueError(f"no such file: {path}")
+        return read_dicom(str(path))[0]
     try:
         image = io.imread(path)
     except FileNotFoundError:
@@ -71,7 +79,9 @@ def cmd_synthesize(args):
     print(f"wrote {args.output}: {sample.shape}, order {model.order}", file=sys.stderr)
 
 
-IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm", ".ppm", ".gif"}
+DICOM_SUFFIXES = {".dcm", ".dicom"}
+IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm", ".ppm", ".gif",
+                  *DICOM_SUFFIXES}
 
 
 def expand_inputs(items):
@@ -126,6 +136,53 @@ def cmd_segment(args):
     _progress(len(paths), len(paths), "done")
 
 
+def cmd_mammo(args):
+    import csv
+    import time
+    from pathlib import Path
+
+    from skimage import io
+    from skimage.color import rgb2gray
+
+    from .mammography import DEFAULT_MAX_REGIONS, TABLE_COLUMNS, detect_mammogram_rois
+
+    out = Path(args.output)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = expand_inputs(args.inputs)
+    table_path = out / "rois.csv"
+    failed = 0
+    max_regions = DEFAULT_MAX_REGIONS if args.max_regions is None else args.max_regions or None
+    with open(table_path, "w", newline="") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(("image", *TABLE_COLUMNS))
+        for i, path in enumerate(paths):
+            _progress(i, len(paths), path.name)
+            t0 = time.perf_counter()
+            try:
+                image = _read(str(path))
+                if image.ndim == 3:  # an RGB export of a grey mammogram
+                    image = rgb2gray(image)
+                labels, table = detect_mammogram_rois(
+                    image, reference=args.reference, tolerance=args.tolerance,
+                    max_regions=max_regions)
+            except ValueError as exc:  # one bad file must not lose the others
+                failed += 1
+                print(f"\n{path.name}: skipped: {exc}", file=sys.stderr)
+                continue
+            dtype = np.uint8 if labels.max() < 256 else np.uint16
+            io.imsave(out / f"{path.stem}_rois.png", labels.astype(dtype), check_contrast=False)
+            for row in zip(*(np.asarray(table[k]).tolist() for k in TABLE_COLUMNS)):
+                writer.writerow((path.name, *row))
+            fh.flush()
+            print(f"{path.name}: {len(table['label'])} regions, "
+                  f"{time.perf_counter() - t0:.1f} s",
+                  file=sys.stderr if args.quiet else sys.stdout)
+    _progress(len(paths), len(paths), "done")
+    print(f"table: {table_path}", file=sys.stderr)
+    if failed == len(paths):
+        raise ValueError("no mammogram could be processed (see the messages above).")
+
+
 def build_parser():
     parser = argparse.ArgumentParser(
         prog="car-napari",
@@ -153,6 +210,17 @@ def build_parser():
     p.add_argument("--levels", type=int, default=3, help="resolutions (default 3)")
     p.add_argument("--quiet", action="store_true", help="per-image lines to stderr")
     p.set_defaults(run=cmd_segment)
+    p = sub.add_parser("mammo", help="mammogram regions of interest; label PNGs and rois.csv")
+    p.add_argument("inputs", nargs="+", help="mammograms (PNG, TIFF, DICOM), folders or globs")
+    p.add_argument("-o", "--output", required=True, help="output folder")
+    p.add_argument("--reference", type=float, default=None,
+                   help="reference grey of a mass in [0, 1] (default: learned on mini-MIAS)")
+    p.add_argument("--tolerance", type=float, default=None,
+                   help="accepted distance from the reference (default: learned)")
+    p.add_argument("--max-regions", type=int, default=None,
+                   help="regions kept per image, best first (default: learned; 0: all)")
+    p.add_argument("--quiet", action="store_true", help="per-image lines to stderr")
+    p.set_defaults(run=cmd_mammo)
     return parser
 
 

@@ -25,6 +25,7 @@ __all__ = [
     "filter_regions",
     "iter_detect_mammogram_rois",
     "iter_segment_breast",
+    "region_outlines",
 ]
 
 # Learned by ``benchmarks/bench_mammography.py`` on mini-MIAS, 2026-11-22:
@@ -435,6 +436,25 @@ def filter_regions(image, segments, *, reference=None, tolerance=None, max_regio
             table[k] = np.asarray(col, table[k].dtype)
         table["label"] = np.arange(1, len(rows) + 1)
     return labels, table
+
+
+def region_outlines(labels):
+    """Outline polygons of regions 1..n of ``labels``: a list of (N, 2)
+    arrays of (row, col) vertices in label order (the longest contour of each
+    region, on pixel centres, ready for a napari Shapes layer)."""
+    from scipy import ndimage
+    from skimage.measure import find_contours
+
+    labels = np.asarray(labels)
+    outlines = []
+    for i, sl in enumerate(ndimage.find_objects(labels), start=1):
+        if sl is None:
+            continue
+        # one pixel of padding so regions touching the crop edge close
+        inside = np.pad(labels[sl] == i, 1).astype(np.float32)
+        contour = max(find_contours(inside, 0.5), key=len)
+        outlines.append(contour + np.array([sl[0].start - 1, sl[1].start - 1]))
+    return outlines
 
 
 def iter_detect_mammogram_rois(image, *, reference=None, tolerance=None, levels=3,

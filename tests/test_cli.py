@@ -71,3 +71,39 @@ def test_bad_order_is_a_usage_error(tmp_path, capsys):
         main(["fit", str(path), "--order", "abc"])
     assert exit_info.value.code == 2
     assert "'auto' or a positive integer" in capsys.readouterr().err
+
+
+def test_mammo_writes_labels_and_one_table(tmp_path, capsys):
+    import csv
+
+    import pytest
+
+    from car_napari.mammography import TABLE_COLUMNS
+    from car_napari.sample_data import mammogram
+
+    (image, _, _), = mammogram()
+    small = image.reshape(256, 4, 256, 4).mean(axis=(1, 3)).astype(np.uint8)
+    src = tmp_path / "in"
+    src.mkdir()
+    io.imsave(src / "mdb001.png", small)
+    io.imsave(src / "black.png", np.zeros((64, 64), np.uint8), check_contrast=False)
+    inputs = [str(src / "*.png")]
+    pytest.importorskip("pydicom")
+    from dicom_files import write_dicom
+
+    write_dicom(src / "mdb001.dcm", small.astype(np.uint16) * 16, bits=12)
+    inputs.append(str(src / "mdb001.dcm"))
+    out = tmp_path / "out"
+    assert main(["mammo", *inputs, "-o", str(out), "--max-regions", "0",
+                 "--tolerance", "0.3"]) == 0
+    err = capsys.readouterr().err
+    assert "black.png: skipped" in err and "constant" in err
+    labels = io.imread(out / "mdb001_rois.png")
+    assert labels.shape == small.shape and labels.max() >= 1
+    with open(out / "rois.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert set(rows[0]) == {"image", *TABLE_COLUMNS}
+    png = [r for r in rows if r["image"] == "mdb001.png"]
+    assert len(png) == labels.max()
+    assert {r["image"] for r in rows} == {"mdb001.png", "mdb001.dcm"}
+    assert main(["mammo", str(src / "black.png"), "-o", str(out)]) == 2
