@@ -146,6 +146,7 @@ def recursive_scan(
     logp_out,
     q_out,
     maha_out,
+    logrel_out,
     T_final,
     G_final,
     lam_final,
@@ -182,6 +183,9 @@ def recursive_scan(
         ``q = 1 + X^T V_x^{-1} X`` and ``e^T lambda^{-1} e`` from the
         statistics before the pixel's update; NaN where the neighbourhood
         leaves the image.
+    logrel_out : float64[N] or empty. Log of the predictive density relative
+        to its peak (at the conditional mean): ``-(nu + d)/2 log(1 + maha/q)``,
+        in (-inf, 0]; scale-free, so thresholds on it need no units.
     T_final, G_final, lam_final, state_final : the final statistics and
         ``[beta, count]``.
     """
@@ -223,7 +227,8 @@ def recursive_scan(
     want_logp = logp_out.shape[0] > 0
     want_q = q_out.shape[0] > 0
     want_maha = maha_out.shape[0] > 0
-    want_pred = want_mean or want_logp or want_q or want_maha
+    want_logrel = logrel_out.shape[0] > 0
+    want_pred = want_mean or want_logp or want_q or want_maha or want_logrel
 
     x = np.empty(p)
     y = np.empty(d)
@@ -256,6 +261,8 @@ def recursive_scan(
                     q_out[px] = np.nan
                 if want_maha:
                     maha_out[px] = np.nan
+                if want_logrel:
+                    logrel_out[px] = np.nan
                 continue
 
             pos = base + a * sa + b * sb
@@ -285,7 +292,7 @@ def recursive_scan(
                         mean_out[px * d + t] = y[t] - e[t]
                 if want_q:
                     q_out[px] = q
-                if want_logp or want_maha:
+                if want_logp or want_maha or want_logrel:
                     logdet = _cholesky_small(lam, L, d)
                     maha = 0.0
                     for t in range(d):
@@ -296,6 +303,8 @@ def recursive_scan(
                         maha += u[t] * u[t]
                     if want_maha:
                         maha_out[px] = maha
+                    if want_logrel:
+                        logrel_out[px] = -0.5 * (beta - p + 2.0 + d) * math.log1p(maha / q)
                     if want_logp:
                         nu = beta - p + 2.0
                         logp_out[px] = (
@@ -423,3 +432,35 @@ def channel_summary(data):
         out[3, c] = acc / max(count[c], 1.0)
         out[4, c] = bad[c]
     return out
+
+
+@njit(cache=True, nogil=True)
+def accumulate_prediction(mean_sum, prob_sum, count, mean, logrel):
+    """Add one scan direction's conditional mean (N, d) and relative log
+    density (N,) to running sums, skipping pixels without a prediction (NaN)."""
+    n, d = mean.shape
+    for i in range(n):
+        lr = logrel[i]
+        if not (lr == lr) or not (mean[i, 0] == mean[i, 0]):
+            continue
+        for c in range(d):
+            mean_sum[i, c] += mean[i, c]
+        prob_sum[i] += math.exp(lr)
+        count[i] += 1.0
+
+
+@njit(cache=True, nogil=True)
+def average_prediction(mean_sum, prob_sum, count, observed, offset, pred_out, prob_out):
+    """Averages of :func:`accumulate_prediction`'s sums plus ``offset`` (d,);
+    where no direction predicted, the observed value and probability 1."""
+    n, d = mean_sum.shape
+    for i in range(n):
+        k = count[i]
+        if k > 0:
+            for c in range(d):
+                pred_out[i, c] = mean_sum[i, c] / k + offset[c]
+            prob_out[i] = prob_sum[i] / k
+        else:
+            for c in range(d):
+                pred_out[i, c] = observed[i, c] + offset[c]
+            prob_out[i] = 1.0

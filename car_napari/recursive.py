@@ -105,7 +105,8 @@ def scan(
         ``[X; (1); Y]`` (prior included). ``prior``, if also given, is still
         the floor that forgetting re-injects.
     update : bool, False predicts with fixed statistics.
-    outputs : subset of {'gamma', 'mean', 'logp', 'q', 'maha'}.
+    outputs : subset of {'gamma', 'mean', 'logp', 'q', 'maha', 'logrel'}
+        (``logrel``: log predictive density relative to its peak, <= 0).
 
     Returns
     -------
@@ -147,6 +148,7 @@ def scan(
         "logp": np.empty(npx) if "logp" in outputs else empty,
         "q": np.empty(npx) if "q" in outputs else empty,
         "maha": np.empty(npx) if "maha" in outputs else empty,
+        "logrel": np.empty(npx) if "logrel" in outputs else empty,
     }
     T_final = np.empty((p, p))
     G_final = np.empty((d, p))
@@ -172,13 +174,14 @@ def scan(
         arrays["logp"],
         arrays["q"],
         arrays["maha"],
+        arrays["logrel"],
         T_final,
         G_final,
         lam_final,
         state,
     )
     shapes = {"gamma": (h, w, d, m), "mean": (h, w, d), "logp": (h, w), "q": (h, w),
-              "maha": (h, w)}
+              "maha": (h, w), "logrel": (h, w)}
     result = ScanResult({k: arrays[k].reshape(shapes[k]) for k in outputs})
     result.update(T=T_final, G=G_final, lam=lam_final, beta=float(state[0]),
                   count=int(state[1]))

@@ -1,0 +1,652 @@
+"""Restoration by the conditional mean of adaptive CAR models (SPEC 4 and 5).
+
+* :func:`restore`: one degraded image. Every pixel is predicted from its
+  causal neighbours by the adaptive 3DCAR model (recursive estimation with
+  forgetting, SPEC 1.4), in each of the four scan directions; the four
+  one-step conditional means are averaged (the causal model's directional
+  bias cancels: +1.3 dB PSNR over one direction, measured on blurred, noisy
+  images). The edge rule (14.40) then keeps observed values where they
+  disagree with the prediction by more than the noise explains.
+* :func:`restore_multichannel`: several registered degraded versions of one
+  scene. The least degraded version is modelled by the 2.5D CAR model whose
+  regression vector holds the causal neighbours in all versions and the other
+  versions' pixels at the same place; a pixel is replaced by its prediction
+  where the prediction probability exceeds ``kappa`` (14.50)-(14.52).
+* :func:`estimate_psf`: the least-squares point-spread function (14.46)-(14.47)
+  relating a restored image to the observed one, globally or per window.
+
+The generators :func:`iter_restore` and :func:`iter_restore_multichannel`
+yield progress and the running result (refined as each scan direction
+finishes) and return a :class:`RestorationResult`, which re-thresholds at any
+``kappa`` without recomputation.
+"""
+
+from __future__ import annotations
+
+import os
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+
+from ._validation import as_channel_last_float, check_not_constant, check_size, summarize
+from .neighbourhood import Context, as_offsets
+from .recursive import DIRECTIONS, adaptive_scan, scan_shape
+
+__all__ = [
+    "DEFAULT_KAPPA",
+    "RestorationResult",
+    "RestorationState",
+    "estimate_noise",
+    "estimate_psf",
+    "iter_restore",
+    "iter_restore_multichannel",
+    "psf_width",
+    "restore",
+    "restore_multichannel",
+    "sharpness",
+]
+
+# Threshold on the prediction probability (the predictive density relative to
+# its peak, in [0, 1]) above which a pixel is replaced by its prediction;
+# exp(-z^2/2) for a standardised error z, so 0.05 replaces |z| < 2.45.
+DEFAULT_KAPPA = 0.05
+# Windows (pixels) over which the edge rule, and the weighting of the scan
+# directions, measure the local prediction error.
+EDGE_WINDOW = 7
+DIRECTION_WINDOW = 3
+DIRECTION_POWER = 4
+# Edge rule: directional predictions whose variance (3x3 mean) exceeds this
+# many noise variances mark an edge (flat noise: 99.9 % of 3x3 means below 0.4).
+EDGE_SPREAD = 0.7
+
+
+@dataclass
+class RestorationState:
+    """What :func:`iter_restore` yields while running."""
+
+    stage: str
+    fraction: float
+    restored: np.ndarray | None = None  # running result, channel-last (H, W, C)
+
+
+@dataclass
+class RestorationResult:
+    """Everything a restoration computed; :meth:`restored` re-thresholds it.
+
+    Arrays are channel-last ``(H, W, C)`` floats (``C = 1`` for grey).
+
+    Attributes
+    ----------
+    observed : the image that is restored (for a stack: the reference version).
+    prediction : the one-step conditional mean, averaged over scan directions.
+    probability : (H, W) prediction probability in [0, 1]: the Student-t
+        predictive density of the observed value (SPEC 1.6) divided by its
+        peak value, averaged over directions. 1 where the observation is the
+        prediction, near 0 where the model cannot explain it (edges, outliers).
+    weight : (H, W, C) or None, the edge rule's weight of the observation
+        (1 keeps it, 0 takes the prediction); None when edges are not kept.
+    reference : index of the reference version in a stack, else None.
+    kappa : the threshold :meth:`restored` uses by default.
+    noise : per-channel noise standard deviation used by the edge rule.
+    """
+
+    observed: np.ndarray
+    prediction: np.ndarray
+    probability: np.ndarray
+    weight: np.ndarray | None
+    reference: int | None
+    kappa: float
+    noise: np.ndarray
+
+    def restored(self, kappa=None):
+        """The restored image at threshold ``kappa`` (default: the run's).
+
+        Pixels whose prediction probability is at most ``kappa`` keep their
+        observed value (14.50); the others take the prediction, blended with
+        the observation by the edge rule's weight when edges are kept.
+        """
+        kappa = self.kappa if kappa is None else _check_kappa(kappa)
+        out = self.prediction
+        if self.weight is not None:
+            out = out + self.weight * (self.observed - out)
+        if kappa > 0:
+            out = np.where((self.probability > kappa)[..., None], out, self.observed)
+        return out
+
+    def changed(self, kappa=None):
+        """(H, W) bool: pixels whose restored value differs from the observed."""
+        return np.any(self.restored(kappa) != self.observed, axis=-1)
+
+
+# --- helpers ------------------------------------------------------------------
+
+
+def _check_kappa(kappa):
+    try:
+        value = float(kappa)
+    except (TypeError, ValueError):
+        raise TypeError(f"kappa must be a number in [0, 1); got {kappa!r}.") from None
+    if not 0.0 <= value < 1.0:
+        raise ValueError(
+            f"kappa must be in [0, 1) (a prediction probability: 0 replaces every pixel, "
+            f"values near 1 almost none); got {kappa}."
+        )
+    return value
+
+
+def _check_options(forgetting, directions):
+    if not 0.0 < float(forgetting) <= 1.0:
+        raise ValueError(f"forgetting must be in (0, 1]; got {forgetting}.")
+    if isinstance(directions, str):
+        directions = DIRECTIONS if directions == "all" else (directions,)
+    directions = tuple(directions)
+    bad = [d for d in directions if d not in DIRECTIONS]
+    if bad or not directions:
+        raise ValueError(f"directions must be 'all' or a non-empty subset of {DIRECTIONS}; "
+                         f"got {directions}.")
+    return float(forgetting), directions
+
+
+def _offsets(neighbourhood, data):
+    if isinstance(neighbourhood, str):
+        if neighbourhood != "auto":
+            raise ValueError(f"neighbourhood must be an order, offsets or 'auto'; got "
+                             f"{neighbourhood!r}.")
+        from .estimation import select_support
+
+        neighbourhood, _ = select_support(data, channel_axis=-1)
+    offsets, _ = as_offsets(neighbourhood)
+    return offsets
+
+
+def estimate_noise(image, *, channel_axis=-1):
+    """Standard deviation of white Gaussian noise, per channel.
+
+    Immerkaer's (1996) Laplacian-difference estimate made robust: the median
+    absolute response of the kernel ``[[1,-2,1],[-2,4,-2],[1,-2,1]]`` (which
+    cancels planes and is ``6 sigma`` on white noise) divided by
+    ``6 * 0.6745``. Edges and texture raise it a little; blur does not.
+    """
+    from scipy import ndimage
+
+    data = as_channel_last_float(image, channel_axis=channel_axis)
+    if min(data.shape[:2]) < 3:
+        raise ValueError(f"the image {data.shape[:2]} is too small to estimate noise "
+                         "(needs at least 3 x 3 pixels).")
+    kernel = np.array([[1.0, -2.0, 1.0], [-2.0, 4.0, -2.0], [1.0, -2.0, 1.0]])
+    sigma = np.empty(data.shape[2])
+    for c in range(data.shape[2]):
+        response = ndimage.convolve(data[..., c], kernel, mode="reflect")[1:-1, 1:-1]
+        sigma[c] = np.median(np.abs(response)) / (6.0 * 0.6745)
+    return sigma
+
+
+def sharpness(stack, *, axis=0, channel_axis=None):
+    """Sharpness of each version of a stack: the mean squared Laplacian after
+    a 1-pixel Gaussian (which tames the noise so that blur decides).
+
+    ``restore_multichannel(reference='auto')`` restores the sharpest version.
+    """
+    from scipy import ndimage
+
+    versions = _versions(stack, axis=axis, channel_axis=channel_axis)
+    return np.array([
+        np.mean([np.mean(ndimage.gaussian_laplace(v[..., c], 1.0) ** 2)
+                 for c in range(v.shape[2])])
+        for v in versions
+    ])
+
+
+def _versions(stack, *, axis, channel_axis):
+    """A list of channel-last float versions with clear errors."""
+    if isinstance(stack, (list, tuple)):
+        shapes = {np.shape(v) for v in stack}
+        if len(shapes) > 1:
+            raise ValueError(
+                f"the versions differ in shape ({sorted(shapes)}); register and crop them "
+                "to one shape first.")
+        stack = np.stack(stack, axis=int(axis)) if stack else np.empty((0, 0, 0))
+    try:
+        arr = np.asarray(stack)
+    except Exception as exc:
+        raise TypeError(f"stack could not be converted to an array: {exc}") from exc
+    if arr.ndim not in (3, 4):
+        raise ValueError(
+            f"stack must be (n, H, W) or (n, H, W, C) with the versions along `axis`; got "
+            f"shape {arr.shape}. (Versions of different shapes: register and crop them to "
+            "one shape first.)"
+        )
+    if arr.dtype == object:
+        raise ValueError("the versions in the stack differ in shape; register and crop them "
+                         "to one shape first.")
+    axis = int(axis) % arr.ndim
+    arr = np.moveaxis(arr, axis, 0)
+    if arr.shape[0] < 2:
+        raise ValueError(
+            f"the stack holds {arr.shape[0]} version along axis {axis}; multichannel "
+            "restoration needs at least 2 (use restore() for a single image)."
+        )
+    if channel_axis is not None and arr.ndim == 4:
+        ch = int(channel_axis) % 4
+        if ch == axis:
+            raise ValueError("channel_axis and axis must differ.")
+        # position of the channel axis after moving `axis` to the front
+        ch = ch if ch > axis else ch + 1
+        arr = np.moveaxis(arr, ch, -1)
+        cax = -1
+    else:
+        cax = None if arr.ndim == 3 else -1
+    return [as_channel_last_float(v, channel_axis=cax, name=f"version {i}")
+            for i, v in enumerate(arr)]
+
+
+def _run_directions(source, context, targets_var, *, forgetting, directions, outputs, prior):
+    """Adaptive scans in several directions, two at a time on two cores (the
+    kernels release the GIL). Yields (direction, ScanResult) as they finish."""
+    for direction in directions:
+        check_size(np.empty(scan_shape(source.shape, direction)), context.reach)
+
+    def run(direction):
+        return direction, adaptive_scan(source, context, targets_var, forgetting=forgetting,
+                                        direction=direction, prior=prior, outputs=outputs)
+
+    workers = max(1, min(len(directions), os.cpu_count() or 1, 4))
+    if workers == 1:
+        for direction in directions:
+            yield run(direction)
+        return
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        futures = [pool.submit(run, d) for d in directions]
+        try:
+            for future in futures:
+                yield future.result()
+        finally:  # closing the generator early: do not start what is queued
+            for future in futures:
+                future.cancel()
+
+
+class _Average:
+    """Combination of the directional predictions, weighted per pixel by each
+    direction's local precision: the inverse of its mean squared prediction
+    error over the EDGE_WINDOW square around the pixel. Across an edge the
+    scans that run along it predict well and the ones crossing it do not;
+    a plain average would blur the edge. NaN (no neighbourhood) = no vote.
+    """
+
+    def __init__(self, observed, offset):
+        self.observed = observed
+        self.offset = np.asarray(offset, dtype=np.float64).reshape(-1)
+        self.mean_sum = np.zeros(observed.shape)
+        self.prob_sum = np.zeros(observed.shape[:2])
+        self.weight_sum = np.zeros(observed.shape[:2])
+        # unweighted first and second moments: the directions' disagreement
+        self.plain_sum = np.zeros(observed.shape)
+        self.square_sum = np.zeros(observed.shape)
+        self.count = np.zeros(observed.shape[:2])
+
+    def add(self, mean, logrel):
+        from scipy import ndimage
+
+        ok = np.isfinite(mean[..., 0]) & np.isfinite(logrel)
+        mean = np.where(ok[..., None], mean, 0.0)
+        err2 = np.where(ok, np.sum((self.observed - mean) ** 2, axis=-1), 0.0)
+        size = DIRECTION_WINDOW
+        local = ndimage.uniform_filter(err2, size, mode="reflect")
+        share = ndimage.uniform_filter(ok.astype(np.float64), size, mode="reflect")
+        precision = np.where(ok, share / np.maximum(local, 1e-30), 0.0)
+        precision = np.minimum(precision, 1e30) ** DIRECTION_POWER
+        self.mean_sum += precision[..., None] * mean
+        self.prob_sum += precision * np.exp(np.where(ok, logrel, 0.0))
+        self.weight_sum += precision
+        self.plain_sum += mean
+        self.square_sum += mean * mean
+        self.count += ok
+
+    def spread(self):
+        """(H, W, C) variance of the directional predictions (0 with < 2)."""
+        n = np.maximum(self.count, 1)[..., None]
+        var = self.square_sum / n - (self.plain_sum / n) ** 2
+        return np.where(self.count[..., None] > 1, np.maximum(var, 0.0), 0.0)
+
+    def prediction(self):
+        """(prediction + offset, probability) in image shape."""
+        has = self.weight_sum > 0
+        pred = self.observed.copy()
+        pred[has] = self.mean_sum[has] / self.weight_sum[has, None]
+        prob = np.ones(self.weight_sum.shape)  # no prediction: the pixel stays
+        prob[has] = self.prob_sum[has] / self.weight_sum[has]
+        return pred + self.offset, prob
+
+
+def _edge_weight(observed, prediction, spread, noise):
+    """The edge rule (14.40), our reading: the weight of the observation.
+
+    1. Edges: where the directional models disagree (the variance of their
+       predictions, averaged over 3x3 pixels, exceeds ``EDGE_SPREAD`` times
+       the noise variance), the observation is kept (weight 1). At an edge,
+       the scans running along it predict it and the ones crossing it do not;
+       in flat or well-modelled parts they agree to a fraction of the noise.
+    2. Elsewhere the observation is blended in with weight ``1 - sigma^2 / v``
+       (clipped to [0, 1]), ``v`` the local mean squared prediction error
+       over EDGE_WINDOW pixels: where the error is all noise the prediction
+       replaces the pixel; where it is larger (detail the model cannot
+       predict) the observation comes back in proportion.
+    (Literally, (14.40) keeps ``X_r`` when its error exceeds the mean error
+    of its neighbours: about 40 % of the pixels of a flat noisy region, so it
+    hardly denoises.)
+    """
+    from scipy import ndimage
+
+    err2 = (observed - prediction) ** 2
+    local = ndimage.uniform_filter(err2, size=(EDGE_WINDOW, EDGE_WINDOW, 1), mode="reflect")
+    weight = np.clip(1.0 - noise**2 / np.maximum(local, 1e-30), 0.0, 1.0)
+    pooled = ndimage.uniform_filter(spread.mean(axis=-1), size=3, mode="reflect")
+    edge = pooled > EDGE_SPREAD * float(np.mean(noise**2))
+    weight[edge] = 1.0
+    return weight
+
+
+def _to_layout(out, image_ndim, channel_axis):
+    if image_ndim == 2 or channel_axis is None:
+        return out[..., 0]
+    return np.moveaxis(out, -1, channel_axis)
+
+
+# --- single image --------------------------------------------------------------
+
+
+def iter_restore(image, *, neighbourhood=2, forgetting=0.995, directions="all",
+                 keep_edges=True, kappa=0.0, noise=None, channel_axis=-1):
+    """:func:`restore` as a generator: yields :class:`RestorationState` after
+    each scan direction (with the running restored image), returns a
+    :class:`RestorationResult`."""
+    kappa = _check_kappa(kappa)
+    forgetting, directions = _check_options(forgetting, directions)
+    data = as_channel_last_float(image, channel_axis=channel_axis)
+    summary = summarize(data)
+    check_not_constant(data, summary=summary)
+    offsets = _offsets(neighbourhood, data)
+    context = Context.spatial(offsets, data.shape[2])
+    check_size(data, context.reach)
+    noise = estimate_noise(data) if noise is None else np.broadcast_to(
+        np.asarray(noise, float), (data.shape[2],)).copy()
+    if np.any(noise < 0) or not np.all(np.isfinite(noise)):
+        raise ValueError(f"noise must be finite and >= 0; got {noise}.")
+    yield RestorationState("start", 0.0)
+    centred = np.ascontiguousarray(data - summary.mean)
+    average = _Average(centred, summary.mean)
+    for k, (_, result) in enumerate(_run_directions(
+            centred, context, summary.var, forgetting=forgetting, directions=directions,
+            outputs=("mean", "logrel"), prior=1e-6), start=1):
+        average.add(result["mean"], result["logrel"])
+        running = average.prediction()[0] if k < len(directions) else None
+        yield RestorationState(f"direction {k}/{len(directions)}", 0.95 * k / len(directions),
+                               running)
+    pred, prob = average.prediction()
+    weight = _edge_weight(data, pred, average.spread(), noise) if keep_edges else None
+    return RestorationResult(data, pred, prob, weight, None, kappa, noise)
+
+
+def restore(image, *, neighbourhood=2, forgetting=0.995, directions="all", keep_edges=True,
+            kappa=0.0, noise=None, channel_axis=-1):
+    """Restore a degraded image by the conditional mean of an adaptive CAR model.
+
+    SPEC section 4: ``E{X_r | X^(r-1)} = gamma_hat_{r-1} Z_r`` (14.44)-(14.45)
+    from the adaptive 3DCAR model of the observed image, averaged over the
+    four scan directions, with the edge rule (14.40).
+
+    Parameters
+    ----------
+    image : (H, W) or (H, W, C) array
+        The degraded image; integers are scaled to [0, 1].
+    neighbourhood : int, (eta, 2) array or 'auto', optional
+        Causal neighbourhood order (default 2: 4 neighbours) or offsets;
+        'auto' chooses the order by the decision rule (14.6) on the image.
+        On noisy images the rule picks high orders that cost time and gain
+        little (order 3 vs 2: +0.06 dB measured), hence the fixed default.
+    forgetting : float in (0, 1], optional
+        Forgetting factor of the adaptive model (SPEC 1.4).
+    directions : 'all' or sequence of {'down', 'up', 'right', 'left'}, optional
+        Scan directions whose predictions are averaged.
+    keep_edges : bool, optional
+        Apply the edge rule: keep the observed value where the local
+        prediction error exceeds what the noise explains (see
+        :class:`RestorationResult`). (14.40) read literally (keep ``X_r`` when
+        its error exceeds the mean error of its neighbours) keeps about 40 %
+        of the pixels of a flat noisy region, so no denoising; we compare with
+        the noise level instead and blend smoothly.
+    kappa : float in [0, 1), optional
+        Also keep observed pixels whose prediction probability is at most
+        ``kappa`` (14.50); 0 (default) disables this.
+    noise : float or (C,) array, optional
+        Noise standard deviation (image units after scaling); default
+        :func:`estimate_noise`.
+    channel_axis : int or None, optional
+
+    Returns
+    -------
+    restored : ndarray of float64, the shape of ``image``.
+
+    See Also
+    --------
+    iter_restore : the same, with progress, live results and the
+        prediction-probability map.
+    """
+    gen = iter_restore(image, neighbourhood=neighbourhood, forgetting=forgetting,
+                       directions=directions, keep_edges=keep_edges, kappa=kappa, noise=noise,
+                       channel_axis=channel_axis)
+    result = _drain(gen)
+    return _to_layout(result.restored(), np.ndim(image), channel_axis)
+
+
+def _drain(gen):
+    while True:
+        try:
+            next(gen)
+        except StopIteration as stop:
+            return stop.value
+
+
+# --- several versions of one scene ---------------------------------------------
+
+
+def multichannel_context(offsets, n_versions, reference):
+    """The 2.5D context (SPEC 5): target = the reference version; regressors =
+    causal neighbours in every version, then the other versions at ``r``."""
+    offsets = np.asarray(offsets, np.int64)
+    taps = [(di, dj, v) for v in range(n_versions) for di, dj in offsets]
+    taps += [(0, 0, v) for v in range(n_versions) if v != reference]
+    return Context(np.array(taps, np.int64), np.array([reference]))
+
+
+def iter_restore_multichannel(stack, *, axis=0, kappa=DEFAULT_KAPPA, reference="auto",
+                              neighbourhood=1, forgetting=0.9995, directions="all",
+                              keep_edges=True, channel_axis=None):
+    """:func:`restore_multichannel` as a generator: yields
+    :class:`RestorationState` (with the running restored reference), returns a
+    :class:`RestorationResult` (``reference`` set)."""
+    kappa = _check_kappa(kappa)
+    forgetting, directions = _check_options(forgetting, directions)
+    versions = _versions(stack, axis=axis, channel_axis=channel_axis)
+    n = len(versions)
+    shape = versions[0].shape
+    if isinstance(reference, str):
+        if reference != "auto":
+            raise ValueError(f"reference must be 'auto' or a version index; got {reference!r}.")
+        reference = int(np.argmax(sharpness(np.stack(versions), axis=0, channel_axis=-1)))
+    else:
+        if int(reference) != reference or not -n <= int(reference) < n:
+            raise ValueError(f"reference must be 'auto' or an index in 0..{n - 1}; "
+                             f"got {reference!r}.")
+        reference = int(reference) % n
+    observed = versions[reference]
+    summary = summarize(observed)
+    check_not_constant(observed, name=f"the reference version {reference}", summary=summary)
+    offsets = _offsets(neighbourhood, observed)
+    context = multichannel_context(offsets, n, reference)
+    yield RestorationState(f"reference version {reference}", 0.0)
+    C = shape[2]
+    pred = np.empty(shape)
+    prob_sum = np.zeros(shape[:2])
+    spread = np.zeros(shape)
+    steps = C * len(directions)
+    done = 0
+    for c in range(C):  # colour versions: one 2.5D model per colour channel
+        source = np.stack([v[..., c] for v in versions], axis=-1)
+        means = source.reshape(-1, n).mean(axis=0)
+        source = np.ascontiguousarray(source - means)
+        var = source.reshape(-1, n).var(axis=0)
+        var = np.where(var > 0, var, 1.0)
+        average = _Average(source[..., reference : reference + 1], means[[reference]])
+        for _, result in _run_directions(source, context, var[[reference]],
+                                         forgetting=forgetting, directions=directions,
+                                         outputs=("mean", "logrel"), prior=1e-6):
+            average.add(result["mean"], result["logrel"])
+            done += 1
+            pred[..., c] = average.prediction()[0][..., 0]
+            running = pred.copy()
+            running[..., c + 1 :] = observed[..., c + 1 :]
+            yield RestorationState(f"channel {c + 1}/{C}, direction {done}/{steps}",
+                                   0.95 * done / steps, running)
+        _, prob_c = average.prediction()
+        prob_sum += prob_c
+        spread[..., c] = average.spread()[..., 0]
+    noise = estimate_noise(observed)
+    weight = _edge_weight(observed, pred, spread, noise) if keep_edges else None
+    return RestorationResult(observed, pred, prob_sum / C, weight, reference, kappa, noise)
+
+
+def restore_multichannel(stack, *, axis=0, kappa=DEFAULT_KAPPA, reference="auto",
+                         neighbourhood=1, forgetting=0.9995, directions="all", keep_edges=True,
+                         channel_axis=None):
+    """Restore one scene from several registered degraded versions (SPEC 5).
+
+    The reference version is modelled by the adaptive 2.5D CAR model whose
+    regression vector holds the causal neighbours (``neighbourhood``) in all
+    versions and the other versions' pixels at ``r`` (14.52); the one-step
+    conditional means of the four scan directions are averaged, and a pixel
+    takes its prediction where the prediction probability exceeds ``kappa``
+    (14.50), else keeps its observed value.
+
+    Parameters
+    ----------
+    stack : (n, H, W) or (n, H, W, C) array (versions along ``axis``)
+        At least two registered versions of one shape (a telescope burst,
+        repeated scans, frames of a static scene).
+    axis : int, optional
+        The axis holding the versions.
+    kappa : float in [0, 1), optional
+        Threshold on the prediction probability; default :data:`DEFAULT_KAPPA`.
+    reference : 'auto' or int, optional
+        The version restored; 'auto' takes the sharpest by :func:`sharpness`.
+    neighbourhood : int or (eta, 2) array, optional
+        Causal neighbourhood in every version (default order 1: 2 neighbours,
+        so ``3n - 1`` regressors; colour channels get one model each).
+    forgetting, directions : see :func:`restore`.
+    keep_edges : bool, optional
+        Also apply the single-image edge rule (default off: with several
+        versions the prediction keeps the edges by itself).
+    channel_axis : int or None, optional
+        Colour axis of a 4-D stack (default: the last when the stack is 4-D).
+
+    Returns
+    -------
+    restored : (H, W) or (H, W, C) float64 array
+        The restored reference version.
+    probability : (H, W) float64 array in [0, 1]
+        The prediction-probability image (SPEC 1.6, see
+        :class:`RestorationResult`).
+    """
+    result = _drain(iter_restore_multichannel(
+        stack, axis=axis, kappa=kappa, reference=reference, neighbourhood=neighbourhood,
+        forgetting=forgetting, directions=directions, keep_edges=keep_edges,
+        channel_axis=channel_axis))
+    restored = result.restored()
+    return (restored[..., 0] if restored.shape[2] == 1 else restored), result.probability
+
+
+# --- point-spread function ------------------------------------------------------
+
+
+def estimate_psf(observed, restored, *, size=7, window=None, channel_axis=-1):
+    """Least-squares point-spread function from a restored to an observed image.
+
+    (14.46)-(14.47): ``psi = V_W^{-1} V_WX`` where ``W_r`` is the
+    ``size x size`` neighbourhood of the restored image around ``r`` and
+    ``X_r`` the observed pixel, summed over the image (or over each window).
+    Colour channels share one PSF. Means are removed first, so a brightness
+    offset does not bias it.
+
+    Parameters
+    ----------
+    observed, restored : (H, W) or (H, W, C) arrays of one shape
+    size : odd int, optional
+        PSF support (pixels).
+    window : int or None, optional
+        None: one global PSF. An int: PSFs of non-overlapping
+        ``window x window`` tiles (the local PSFs of a slowly varying blur).
+
+    Returns
+    -------
+    psf : (size, size) array, or (H // window, W // window, size, size)
+        ``observed ~ convolve(restored, psf)``.
+    """
+    obs = as_channel_last_float(observed, channel_axis=channel_axis, name="observed")
+    res = as_channel_last_float(restored, channel_axis=channel_axis, name="restored")
+    if obs.shape != res.shape:
+        raise ValueError(f"observed {obs.shape} and restored {res.shape} must have one shape.")
+    if int(size) != size or size < 1 or size % 2 == 0:
+        raise ValueError(f"size must be a positive odd integer; got {size}.")
+    size = int(size)
+    half = size // 2
+    H, W, _ = obs.shape
+    if window is None:
+        tiles = [(slice(0, H), slice(0, W))]
+        grid = None
+    else:
+        if int(window) != window or window < size + 2 * half:
+            raise ValueError(f"window must be an integer of at least {size + 2 * half} "
+                             f"(size + 2 * (size // 2)); got {window}.")
+        window = int(window)
+        grid = (H // window, W // window)
+        if 0 in grid:
+            raise ValueError(f"window {window} is larger than the image {obs.shape[:2]}.")
+        tiles = [(slice(i * window, (i + 1) * window), slice(j * window, (j + 1) * window))
+                 for i in range(grid[0]) for j in range(grid[1])]
+    check_size(res, ((half, half), (half, half)), name="restored")
+    psfs = []
+    for rows, cols in tiles:
+        o = obs[rows, cols] - obs[rows, cols].mean(axis=(0, 1))
+        r = res[rows, cols] - res[rows, cols].mean(axis=(0, 1))
+        h, w = o.shape[:2]
+        # design matrix: one column per PSF tap, rows = interior pixels x channels
+        cols_ = [r[half + di : h - half + di, half + dj : w - half + dj].ravel()
+                 for di in range(-half, half + 1) for dj in range(-half, half + 1)]
+        A = np.stack(cols_, axis=1)
+        b = o[half : h - half, half : w - half].ravel()
+        gram = A.T @ A
+        if not np.isfinite(gram).all() or np.linalg.matrix_rank(gram) < gram.shape[0]:
+            raise ValueError("the restored image is too flat to estimate a PSF of this size "
+                             "(its neighbourhoods are linearly dependent); use a smaller size "
+                             "or a more textured region.")
+        psi = np.linalg.solve(gram, A.T @ b)
+        # (14.46) fits X_r on W_r = restored[r + s]; convolution flips the taps
+        psfs.append(psi.reshape(size, size)[::-1, ::-1])
+    if grid is None:
+        return psfs[0]
+    return np.array(psfs).reshape(grid[0], grid[1], size, size)
+
+
+def psf_width(psf):
+    """Gaussian-equivalent standard deviation of a PSF (pixels): the root mean
+    of its second moments about its centroid along rows and columns, negative
+    taps clipped."""
+    psf = np.clip(np.asarray(psf, float), 0, None)
+    total = psf.sum()
+    if total <= 0:
+        raise ValueError("the PSF has no positive mass.")
+    r, c = np.indices(psf.shape)
+    mr, mc = (psf * r).sum() / total, (psf * c).sum() / total
+    var = ((psf * (r - mr) ** 2).sum() + (psf * (c - mc) ** 2).sum()) / (2 * total)
+    return float(np.sqrt(var))

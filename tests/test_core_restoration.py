@@ -1,0 +1,228 @@
+"""Restoration (SPEC 4, 5): each piece against an independent computation."""
+
+import numpy as np
+import pytest
+from scipy import ndimage
+from skimage import data as skdata
+from skimage import img_as_float
+from skimage.metrics import peak_signal_noise_ratio as psnr
+
+from car_napari.neighbourhood import causal_neighbourhood
+from car_napari.restoration import (
+    estimate_noise,
+    estimate_psf,
+    iter_restore,
+    iter_restore_multichannel,
+    psf_width,
+    restore,
+    restore_multichannel,
+    sharpness,
+)
+
+
+def _run(gen):
+    while True:
+        try:
+            next(gen)
+        except StopIteration as stop:
+            return stop.value
+
+
+def _dense_one_step(image, offsets, strength=1e-6):
+    """One-step prediction and relative density by plain NumPy: for every
+    pixel, the regression of Y on [neighbours, 1] over all earlier pixels
+    (raster order, prior V_0 as in the core), the Student-t of SPEC 1.6."""
+    y = image - image.mean()
+    H, W = y.shape
+    m = len(offsets)
+    p = m + 1
+    V = np.diag(np.r_[np.full(m, strength * y.var()), strength, strength * y.var()])
+    count = 0
+    pred = np.full((H, W), np.nan)
+    rel = np.full((H, W), np.nan)
+    for i in range(H):
+        for j in range(W):
+            nb = [(i - di, j - dj) for di, dj in offsets]
+            if any(not (0 <= a < H and 0 <= b < W) for a, b in nb):
+                continue
+            x = np.r_[[y[a, b] for a, b in nb], 1.0]
+            Vxx, Vxy, Vyy = V[:p, :p], V[:p, p], V[p, p]
+            gamma = np.linalg.solve(Vxx, Vxy)
+            lam = Vyy - Vxy @ gamma
+            q = 1.0 + x @ np.linalg.solve(Vxx, x)
+            e = y[i, j] - gamma @ x
+            nu = (p - 1 + count) - p + 2
+            pred[i, j] = gamma @ x + image.mean()
+            rel[i, j] = (1.0 + e * e / (q * lam)) ** (-(nu + 1) / 2)
+            z = np.r_[x, y[i, j]]
+            V = V + np.outer(z, z)
+            count += 1
+    return pred, rel
+
+
+def test_conditional_mean_and_probability_match_dense_numpy():
+    rng = np.random.default_rng(3)
+    image = ndimage.uniform_filter(rng.random((14, 15)), 3) + 0.05 * rng.random((14, 15))
+    result = _run(iter_restore(image, channel_axis=None, forgetting=1.0, directions=("down",),
+                               keep_edges=False))
+    pred, rel = _dense_one_step(image, causal_neighbourhood(2))
+    have = np.isfinite(pred)
+    np.testing.assert_allclose(result.prediction[..., 0][have], pred[have], rtol=1e-6)
+    np.testing.assert_allclose(result.probability[have], rel[have], rtol=1e-6, atol=1e-12)
+    # pixels without a whole neighbourhood keep their value, probability 1
+    np.testing.assert_array_equal(result.prediction[..., 0][~have], image[~have])
+    assert np.all(result.probability[~have] == 1.0)
+
+
+def _degraded(image, rng, blur=1.0, noise=0.05):
+    sigma = (blur, blur, 0) if image.ndim == 3 else blur
+    return ndimage.gaussian_filter(image, sigma) + rng.normal(0, noise, image.shape)
+
+
+def test_restore_denoises_colour_and_grey_and_keeps_layout():
+    rng = np.random.default_rng(0)
+    clean = img_as_float(skdata.astronaut())[:128, :128]
+    noisy = _degraded(clean, rng)
+    out = restore(noisy)
+    assert out.shape == clean.shape and out.dtype == np.float64
+    assert psnr(clean, out, data_range=1) > psnr(clean, noisy, data_range=1) + 2.0
+    # channel_axis=0 gives the same numbers in that layout
+    first = restore(np.moveaxis(noisy, -1, 0), channel_axis=0)
+    np.testing.assert_allclose(np.moveaxis(first, 0, -1), out, atol=1e-12)
+    grey = restore(noisy[..., 1], channel_axis=None)
+    assert grey.shape == (128, 128)
+    assert psnr(clean[..., 1], grey, data_range=1) > psnr(clean[..., 1], noisy[..., 1],
+                                                          data_range=1) + 2.0
+
+
+def _rise_distance(profile, lo=0.2, hi=0.8):
+    """Pixels between the 10 % and 90 % crossings of a rising edge profile."""
+    t = (profile - lo) / (hi - lo)
+    x = np.arange(len(t), dtype=float)
+
+    def crossing(level):
+        k = int(np.argmax(t >= level))
+        return x[k - 1] + (level - t[k - 1]) / (t[k] - t[k - 1])
+
+    return crossing(0.9) - crossing(0.1)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_edge_rule_keeps_a_step_sharp_and_denoises_flat_parts(seed):
+    rng = np.random.default_rng(seed)
+    step = np.where(np.arange(64) < 32, 0.2, 0.8)[None, :].repeat(64, axis=0)
+    noisy = step + rng.normal(0, 0.05, step.shape)
+    out = restore(noisy, channel_axis=None)
+    rows = slice(4, 60)
+    # as sharp as the input (to 0.01 px: the row-averaged profiles are noisy)
+    assert _rise_distance(out[rows].mean(axis=0)) <= _rise_distance(
+        noisy[rows].mean(axis=0)) + 0.01
+    flat = (slice(4, 60), slice(4, 24))
+    assert out[flat].std() < 0.7 * noisy[flat].std()
+    # without the rule the conditional mean blurs the step
+    plain = restore(noisy, channel_axis=None, keep_edges=False)
+    assert _rise_distance(plain[rows].mean(axis=0)) > _rise_distance(out[rows].mean(axis=0))
+
+
+def test_noise_estimate():
+    rng = np.random.default_rng(1)
+    clean = img_as_float(skdata.camera())[:256, :256]
+    for sigma in (0.02, 0.05, 0.1):
+        est = estimate_noise(_degraded(clean, rng, noise=sigma), channel_axis=None)
+        assert est.shape == (1,) and abs(est[0] - sigma) < 0.15 * sigma
+
+
+def _stack(clean, rng, blurs):
+    return np.stack([_degraded(clean, rng, blur=b) for b in blurs])
+
+
+def test_multichannel_beats_its_inputs_and_picks_the_sharpest():
+    rng = np.random.default_rng(0)
+    clean = img_as_float(skdata.camera())[100:228, 100:228]
+    blurs = [1.5, 0.5, 2.0, 1.0, 1.75, 0.75]
+    stack = _stack(clean, rng, blurs)
+    assert int(np.argmax(sharpness(stack))) == 1
+    restored, probability = restore_multichannel(stack)
+    assert restored.shape == clean.shape and probability.shape == clean.shape
+    assert probability.min() >= 0 and probability.max() <= 1
+    ours = psnr(clean, restored, data_range=1)
+    assert ours > psnr(clean, stack.mean(axis=0), data_range=1)
+    assert ours > psnr(clean, stack[1], data_range=1) + 3
+    # versions on another axis, and an explicit reference
+    moved, _ = restore_multichannel(np.moveaxis(stack, 0, 2), axis=2, reference=1)
+    np.testing.assert_allclose(moved, restored, atol=1e-12)
+
+
+def test_kappa_rethresholds_without_recomputing():
+    rng = np.random.default_rng(0)
+    clean = img_as_float(skdata.astronaut())[:96, :96]
+    stack = _stack(clean, rng, [0.5, 1.0, 1.5])
+    result = _run(iter_restore_multichannel(stack, channel_axis=-1))
+    assert result.reference == 0
+    changed = [result.changed(k).sum() for k in (0.0, 0.05, 0.3, 0.6, 0.9)]
+    assert changed == sorted(changed, reverse=True) and changed[0] > changed[-1]
+    high = result.restored(0.9)
+    keep = result.probability <= 0.9
+    np.testing.assert_array_equal(high[keep], result.observed[keep])
+    restored, _ = restore_multichannel(stack, kappa=0.3, channel_axis=-1)
+    np.testing.assert_allclose(restored, result.restored(0.3), atol=1e-12)
+
+
+def test_live_states_fill_in():
+    rng = np.random.default_rng(0)
+    noisy = _degraded(img_as_float(skdata.camera())[:64, :64], rng)
+    states = []
+    gen = iter_restore(noisy, channel_axis=None)
+    while True:
+        try:
+            states.append(next(gen))
+        except StopIteration:
+            break
+    running = [s for s in states if s.restored is not None]
+    assert len(running) >= 2
+    fractions = [s.fraction for s in states]
+    assert fractions == sorted(fractions) and fractions[-1] <= 1
+
+
+def test_psf_recovers_a_gaussian_width():
+    rng = np.random.default_rng(0)
+    sharp = img_as_float(skdata.astronaut())[:256, :256]
+    for sigma in (1.0, 1.5):
+        blurred = ndimage.gaussian_filter(sharp, (sigma, sigma, 0))
+        observed = blurred + rng.normal(0, 0.01, sharp.shape)
+        psf = estimate_psf(observed, sharp, size=9)
+        assert psf.shape == (9, 9)
+        assert abs(psf_width(psf) - sigma) < 0.2 * sigma
+        assert abs(psf.sum() - 1) < 0.1
+    local = estimate_psf(observed, sharp, size=9, window=128)
+    assert local.shape == (2, 2, 9, 9)
+    widths = [psf_width(local[i, j]) for i in range(2) for j in range(2)]
+    assert all(abs(w - 1.5) < 0.3 for w in widths)
+
+
+def test_bad_input():
+    rng = np.random.default_rng(0)
+    image = rng.random((32, 32))
+    with pytest.raises(ValueError, match="differ in shape"):
+        restore_multichannel([image, image[:30]])
+    with pytest.raises(ValueError, match="at least 2"):
+        restore_multichannel(image[None])
+    bad = image.copy()
+    bad[3, 4] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        restore(bad, channel_axis=None)
+    with pytest.raises(ValueError, match="NaN"):
+        restore_multichannel(np.stack([image, bad]))
+    for kappa in (-0.1, 1.0, 3):
+        with pytest.raises(ValueError, match="kappa must be in"):
+            restore_multichannel(np.stack([image, image]), kappa=kappa)
+    with pytest.raises(ValueError, match="constant"):
+        restore(np.ones((16, 16)), channel_axis=None)
+    with pytest.raises(ValueError, match="too small|smaller"):
+        restore(image[:1, :2], channel_axis=None)
+    with pytest.raises(ValueError, match="reference"):
+        restore_multichannel(np.stack([image, image]), reference=5)
+    with pytest.raises(ValueError, match="odd"):
+        estimate_psf(image, image, size=4)
+    with pytest.raises(ValueError, match="one shape"):
+        estimate_psf(image, image[:16])
