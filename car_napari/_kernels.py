@@ -433,34 +433,3 @@ def channel_summary(data):
         out[4, c] = bad[c]
     return out
 
-
-@njit(cache=True, nogil=True)
-def accumulate_prediction(mean_sum, prob_sum, count, mean, logrel):
-    """Add one scan direction's conditional mean (N, d) and relative log
-    density (N,) to running sums, skipping pixels without a prediction (NaN)."""
-    n, d = mean.shape
-    for i in range(n):
-        lr = logrel[i]
-        if not (lr == lr) or not (mean[i, 0] == mean[i, 0]):
-            continue
-        for c in range(d):
-            mean_sum[i, c] += mean[i, c]
-        prob_sum[i] += math.exp(lr)
-        count[i] += 1.0
-
-
-@njit(cache=True, nogil=True)
-def average_prediction(mean_sum, prob_sum, count, observed, offset, pred_out, prob_out):
-    """Averages of :func:`accumulate_prediction`'s sums plus ``offset`` (d,);
-    where no direction predicted, the observed value and probability 1."""
-    n, d = mean_sum.shape
-    for i in range(n):
-        k = count[i]
-        if k > 0:
-            for c in range(d):
-                pred_out[i, c] = mean_sum[i, c] / k + offset[c]
-            prob_out[i] = prob_sum[i] / k
-        else:
-            for c in range(d):
-                pred_out[i, c] = observed[i, c] + offset[c]
-            prob_out[i] = 1.0

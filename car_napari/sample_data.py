@@ -48,3 +48,19 @@ def damaged_film():
         (frame, {"name": "damaged film", "rgb": True}, "image"),
         (mask, {"name": "scratch mask", "opacity": 0.6}, "labels"),
     ]
+
+
+def degraded_stack(n_versions=8, seed=0):
+    """Eight degraded versions of the VisTex sample, as from a burst of
+    exposures: Gaussian blurs of 0.5 to 2 pixels in shuffled order and
+    independent Gaussian noise of 0.05 (the restoration benchmark's setting);
+    float32 in [0, 1], versions along axis 0."""
+    from scipy import ndimage
+
+    clean = _read("texture_vistex_VS50.png")[..., :3] / 255.0
+    rng = np.random.default_rng(seed)
+    blurs = rng.permutation(np.linspace(0.5, 2.0, n_versions))
+    versions = [ndimage.gaussian_filter(clean, (b, b, 0)) + rng.normal(0, 0.05, clean.shape)
+                for b in blurs]
+    stack = np.clip(np.stack(versions), 0.0, 1.0).astype(np.float32)
+    return [(stack, {"name": "degraded burst", "rgb": True}, "image")]

@@ -19,7 +19,7 @@ def test_manifest_validates_and_is_the_top_level_one():
     assert manifest.name == "car-napari"
     assert {w.display_name for w in manifest.contributions.widgets} >= {"CAR model"}
     keys = {s.key for s in manifest.contributions.sample_data}
-    assert keys == {"texture", "mammogram", "film"}
+    assert keys == {"texture", "mammogram", "film", "burst"}
 
 
 def test_sample_data():
