@@ -1,4 +1,4 @@
-"""Command line: ``car-napari fit | synthesize | segment | mammo``.
+"""Command line: ``car-napari fit | synthesize | segment | mammo | restore``.
 
 Uses only the public core API; no Qt, no napari.
 """
@@ -183,6 +183,70 @@ def cmd_mammo(args):
         raise ValueError("no mammogram could be processed (see the messages above).")
 
 
+def _like_input(image, source):
+    """Float result in [0, 1] units back to the input's integer type, if any."""
+    if source.dtype == np.uint8:
+        return np.round(np.clip(image, 0, 1) * 255).astype(np.uint8)
+    if source.dtype == np.uint16:
+        return np.round(np.clip(image, 0, 1) * 65535).astype(np.uint16)
+    return image.astype(np.float32)
+
+
+def _kappa(text):
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"kappa must be a number in [0, 1); got {text!r}") \
+            from None
+    if not 0.0 <= value < 1.0:
+        raise argparse.ArgumentTypeError(f"kappa must be in [0, 1); got {value}")
+    return value
+
+
+def cmd_restore(args):
+    import time
+    from pathlib import Path
+
+    from skimage import io
+
+    from .restoration import DEFAULT_KAPPA, iter_restore, iter_restore_multichannel
+
+    out = Path(args.output)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = expand_inputs(args.inputs)
+    for i, path in enumerate(paths):
+        _progress(i, len(paths), path.name)
+        t0 = time.perf_counter()
+        image = _read(str(path))
+        if args.stack_axis is None:
+            gen = iter_restore(image, channel_axis=-1 if image.ndim == 3 else None,
+                               kappa=args.kappa or 0.0)
+        else:
+            kappa = DEFAULT_KAPPA if args.kappa is None else args.kappa
+            colour = image.ndim == 4
+            gen = iter_restore_multichannel(image, axis=args.stack_axis, kappa=kappa,
+                                            channel_axis=-1 if colour else None)
+        while True:
+            try:
+                next(gen)
+            except StopIteration as stop:
+                result = stop.value
+                break
+        restored = result.restored()
+        restored = restored[..., 0] if restored.shape[2] == 1 else restored
+        source = image if args.stack_axis is None else np.take(image, 0, axis=args.stack_axis)
+        restored = _like_input(restored, source)
+        suffix = ".tif" if restored.dtype == np.float32 else ".png"
+        io.imsave(out / f"{path.stem}_restored{suffix}", restored, check_contrast=False)
+        if args.probability:
+            io.imsave(out / f"{path.stem}_probability.tif",
+                      result.probability.astype(np.float32), check_contrast=False)
+        ref = "" if result.reference is None else f", reference version {result.reference}"
+        print(f"{path.name}: restored{ref}, {time.perf_counter() - t0:.1f} s",
+              file=sys.stderr if args.quiet else sys.stdout)
+    _progress(len(paths), len(paths), "done")
+
+
 def build_parser():
     parser = argparse.ArgumentParser(
         prog="car-napari",
@@ -221,6 +285,20 @@ def build_parser():
                    help="regions kept per image, best first (default: learned; 0: all)")
     p.add_argument("--quiet", action="store_true", help="per-image lines to stderr")
     p.set_defaults(run=cmd_mammo)
+    p = sub.add_parser("restore", help="CAR restoration of degraded images or stacks")
+    p.add_argument("inputs", nargs="+", help="images or stacks (e.g. multi-page TIFF), "
+                                             "folders or globs")
+    p.add_argument("-o", "--output", required=True, help="output folder")
+    p.add_argument("--stack-axis", type=int, default=None,
+                   help="each input is a stack of degraded versions along this axis "
+                        "(multichannel restoration of the sharpest)")
+    p.add_argument("--kappa", type=_kappa, default=None,
+                   help="prediction-probability threshold in [0, 1) (default: 0.05 for "
+                        "stacks, off for single images)")
+    p.add_argument("--probability", action="store_true",
+                   help="also write <name>_probability.tif (prediction probability)")
+    p.add_argument("--quiet", action="store_true", help="per-image lines to stderr")
+    p.set_defaults(run=cmd_restore)
     return parser
 
 

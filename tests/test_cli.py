@@ -107,3 +107,37 @@ def test_mammo_writes_labels_and_one_table(tmp_path, capsys):
     assert len(png) == labels.max()
     assert {r["image"] for r in rows} == {"mdb001.png", "mdb001.dcm"}
     assert main(["mammo", str(src / "black.png"), "-o", str(out)]) == 2
+
+
+def test_restore_single_and_stack(tmp_path, capsys):
+    import tifffile
+
+    rng = np.random.default_rng(0)
+    clean = skdata.camera()[:64, :64] / 255.0
+    noisy = np.clip(clean + rng.normal(0, 0.05, clean.shape), 0, 1)
+    src = tmp_path / "in"
+    src.mkdir()
+    io.imsave(src / "noisy.png", np.round(noisy * 255).astype(np.uint8))
+    out = tmp_path / "out"
+    assert main(["restore", str(src / "noisy.png"), "-o", str(out), "--probability"]) == 0
+    restored = io.imread(out / "noisy_restored.png")
+    assert restored.shape == (64, 64) and restored.dtype == np.uint8
+    probability = tifffile.imread(out / "noisy_probability.tif")
+    assert probability.shape == (64, 64) and 0 <= probability.min() <= probability.max() <= 1
+    stack = np.stack([clean + rng.normal(0, 0.05, clean.shape) for _ in range(3)], axis=-1)
+    tifffile.imwrite(src / "burst.tif", stack.astype(np.float32))
+    assert main(["restore", str(src / "burst.tif"), "-o", str(out), "--stack-axis", "2",
+                 "--kappa", "0.1"]) == 0
+    restored = tifffile.imread(out / "burst_restored.tif")
+    assert restored.shape == (64, 64) and restored.dtype == np.float32
+    assert "reference version" in capsys.readouterr().out
+    assert main(["restore", str(src / "noisy.png"), "-o", str(out), "--stack-axis", "0"]) == 2
+    assert "stack" in capsys.readouterr().err
+
+
+def test_restore_bad_kappa_is_a_usage_error(tmp_path, capsys):
+    import pytest
+
+    with pytest.raises(SystemExit):
+        main(["restore", "x.png", "-o", str(tmp_path), "--kappa", "1.5"])
+    assert "kappa must be in [0, 1)" in capsys.readouterr().err
