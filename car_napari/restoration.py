@@ -392,7 +392,7 @@ def iter_restore(image, *, neighbourhood=2, forgetting=0.995, directions="all",
 
 
 def restore(image, *, neighbourhood=2, forgetting=0.995, directions="all", keep_edges=True,
-            kappa=0.0, noise=None, channel_axis=-1):
+            kappa=0.0, noise=None, channel_axis=-1, return_result=False):
     """Restore a degraded image by the conditional mean of an adaptive CAR model.
 
     SPEC section 4: ``E{X_r | X^(r-1)} = gamma_hat_{r-1} Z_r`` (14.44)-(14.45)
@@ -426,6 +426,9 @@ def restore(image, *, neighbourhood=2, forgetting=0.995, directions="all", keep_
         Noise standard deviation (image units after scaling); default
         :func:`estimate_noise`.
     channel_axis : int or None, optional
+    return_result : bool, optional
+        Return the :class:`RestorationResult` instead (prediction, prediction
+        probability, edge weights; ``.restored(kappa)`` re-thresholds).
 
     Returns
     -------
@@ -440,6 +443,8 @@ def restore(image, *, neighbourhood=2, forgetting=0.995, directions="all", keep_
                        directions=directions, keep_edges=keep_edges, kappa=kappa, noise=noise,
                        channel_axis=channel_axis)
     result = _drain(gen)
+    if return_result:
+        return result
     return _to_layout(result.restored(), np.ndim(image), channel_axis)
 
 
@@ -542,7 +547,7 @@ def iter_restore_multichannel(stack, *, axis=0, kappa=DEFAULT_KAPPA, reference="
 
 def restore_multichannel(stack, *, axis=0, kappa=DEFAULT_KAPPA, reference="auto",
                          neighbourhood=1, forgetting=0.9995, directions="all", keep_edges=True,
-                         reference_prediction=True, channel_axis=None):
+                         reference_prediction=True, channel_axis=None, return_result=False):
     """Restore one scene from several registered degraded versions (SPEC 5).
 
     The reference version is modelled by the adaptive 2.5D CAR model whose
@@ -575,6 +580,9 @@ def restore_multichannel(stack, *, axis=0, kappa=DEFAULT_KAPPA, reference="auto"
         +0.5 dB measured on 5 scenes of 8 versions. Our extension of (14.52).
     channel_axis : int or None, optional
         Colour axis of a 4-D stack (default: the last when the stack is 4-D).
+    return_result : bool, optional
+        Return the :class:`RestorationResult` instead (``.reference``,
+        ``.prediction``, ``.probability``; ``.restored(kappa)``).
 
     Returns
     -------
@@ -588,6 +596,8 @@ def restore_multichannel(stack, *, axis=0, kappa=DEFAULT_KAPPA, reference="auto"
         stack, axis=axis, kappa=kappa, reference=reference, neighbourhood=neighbourhood,
         forgetting=forgetting, directions=directions, keep_edges=keep_edges,
         reference_prediction=reference_prediction, channel_axis=channel_axis))
+    if return_result:
+        return result
     restored = result.restored()
     return (restored[..., 0] if restored.shape[2] == 1 else restored), result.probability
 

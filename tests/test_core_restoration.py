@@ -226,3 +226,15 @@ def test_bad_input():
         estimate_psf(image, image, size=4)
     with pytest.raises(ValueError, match="one shape"):
         estimate_psf(image, image[:16])
+
+
+def test_return_result_matches_the_plain_call():
+    rng = np.random.default_rng(0)
+    noisy = _degraded(img_as_float(skdata.camera())[:64, :64], rng)
+    result = restore(noisy, channel_axis=None, return_result=True)
+    np.testing.assert_array_equal(result.restored()[..., 0], restore(noisy, channel_axis=None))
+    stack = np.stack([noisy, _degraded(img_as_float(skdata.camera())[:64, :64], rng)])
+    result = restore_multichannel(stack, return_result=True)
+    restored, probability = restore_multichannel(stack)
+    np.testing.assert_array_equal(result.restored()[..., 0], restored)
+    np.testing.assert_array_equal(result.probability, probability)
