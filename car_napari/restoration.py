@@ -29,6 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ._kernels import accumulate_direction, combine_directions
 from ._validation import as_channel_last_float, check_not_constant, check_size, summarize
 from .neighbourhood import Context, as_offsets
 from .recursive import DIRECTIONS, adaptive_scan, scan_shape
@@ -269,42 +270,29 @@ def _run_directions(source, context, targets_var, *, forgetting, directions, out
 class _Average:
     """Combination of the directional predictions, weighted per pixel by each
     direction's local precision: the inverse of its mean squared prediction
-    error over the EDGE_WINDOW square around the pixel. Across an edge the
-    scans that run along it predict well and the ones crossing it do not;
-    a plain average would blur the edge. NaN (no neighbourhood) = no vote.
+    error over the DIRECTION_WINDOW square around the pixel (the pixel itself
+    left out, so the weights never depend on ``X_r``), to DIRECTION_POWER.
+    Across an edge the scans that run along it predict well and the ones
+    crossing it do not; a plain average would blur the edge. NaN (no
+    neighbourhood) = no vote. The sums are kept by Numba kernels.
     """
 
     def __init__(self, observed, offset):
-        self.observed = observed
-        self.offset = np.asarray(offset, dtype=np.float64).reshape(-1)
-        self.mean_sum = np.zeros(observed.shape)
-        self.prob_sum = np.zeros(observed.shape[:2])
-        self.weight_sum = np.zeros(observed.shape[:2])
-        # unweighted first and second moments: the directions' disagreement
-        self.plain_sum = np.zeros(observed.shape)
-        self.square_sum = np.zeros(observed.shape)
-        self.count = np.zeros(observed.shape[:2])
+        self.observed = np.ascontiguousarray(observed, dtype=np.float64)
+        self.offset = np.ascontiguousarray(offset, dtype=np.float64).reshape(-1)
+        shape = observed.shape
+        self.mean_sum = np.zeros(shape)
+        self.plain_sum = np.zeros(shape)
+        self.square_sum = np.zeros(shape)
+        self.prob_sum = np.zeros(shape[:2])
+        self.weight_sum = np.zeros(shape[:2])
+        self.count = np.zeros(shape[:2])
 
     def add(self, mean, logrel):
-        from scipy import ndimage
-
-        ok = np.isfinite(mean[..., 0]) & np.isfinite(logrel)
-        mean = np.where(ok[..., None], mean, 0.0)
-        err2 = np.where(ok, np.sum((self.observed - mean) ** 2, axis=-1), 0.0)
-        # the window leaves out the pixel itself: the weights, and so the
-        # prediction, never depend on X_r
-        size = DIRECTION_WINDOW
-        area = float(size * size)
-        local = ndimage.uniform_filter(err2, size, mode="reflect") * area - err2
-        share = ndimage.uniform_filter(ok.astype(np.float64), size, mode="reflect") * area - ok
-        precision = np.where(ok, share / np.maximum(local, 1e-30), 0.0)
-        precision = np.minimum(precision, 1e30) ** DIRECTION_POWER
-        self.mean_sum += precision[..., None] * mean
-        self.prob_sum += precision * np.exp(np.where(ok, logrel, 0.0))
-        self.weight_sum += precision
-        self.plain_sum += mean
-        self.square_sum += mean * mean
-        self.count += ok
+        accumulate_direction(self.observed, np.ascontiguousarray(mean),
+                             np.ascontiguousarray(logrel), DIRECTION_WINDOW // 2,
+                             int(DIRECTION_POWER), self.mean_sum, self.prob_sum,
+                             self.weight_sum, self.plain_sum, self.square_sum, self.count)
 
     def spread(self):
         """(H, W, C) variance of the directional predictions (0 with < 2)."""
@@ -314,12 +302,11 @@ class _Average:
 
     def prediction(self):
         """(prediction + offset, probability) in image shape."""
-        has = self.weight_sum > 0
-        pred = self.observed.copy()
-        pred[has] = self.mean_sum[has] / self.weight_sum[has, None]
-        prob = np.ones(self.weight_sum.shape)  # no prediction: the pixel stays
-        prob[has] = self.prob_sum[has] / self.weight_sum[has]
-        return pred + self.offset, prob
+        pred = np.empty(self.observed.shape)
+        prob = np.empty(self.observed.shape[:2])
+        combine_directions(self.mean_sum, self.prob_sum, self.weight_sum, self.observed,
+                           self.offset, pred, prob)
+        return pred, prob
 
 
 def _edge_weight(observed, prediction, spread, noise):

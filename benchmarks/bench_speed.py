@@ -1,0 +1,98 @@
+"""End-to-end seconds and peak memory of the applications, run by hand.
+
+    PYTHONPATH=. python benchmarks/bench_speed.py [--repeat 2]
+
+Each case runs in a fresh Python process (Numba cache warm: one untimed
+small run first), so that its peak resident memory (``ru_maxrss``) is its
+own. Cases:
+
+* segmentation: a 512x512 RGB mosaic of five VisTex textures (the segmentation
+  benchmark's first, seed 0), ``segment`` with the number of segments found
+  automatically;
+* mammogram: ``detect_mammogram_rois`` on mini-MIAS mdb001 (1024x1024,
+  shipped sample);
+* restoration: ``restore`` on scikit-image's astronaut resized to
+  1024x1024x3, blurred by 1 px, noise 0.05; and, in the same process,
+  ``scipy.ndimage.median_filter(size=(5, 5, 1))`` on the same image.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+CASES = {
+    "segmentation 512x512 RGB": """
+sys.path.insert(0, {root!r} + "/benchmarks")
+from mosaics import mosaic_set
+from car_napari.segmentation import segment
+image, truth = next(mosaic_set("vistex", count=1, seed=0))
+segment(image[:64, :64], levels=1)
+t0 = time.perf_counter(); result = segment(image); seconds = time.perf_counter() - t0
+extra = {"segments": int(result.n_segments)}
+""",
+    "mammogram 1024x1024": """
+from car_napari.sample_data import mammogram
+from car_napari.mammography import detect_mammogram_rois
+(image, _, _), = mammogram()
+t0 = time.perf_counter(); labels, table = detect_mammogram_rois(image)
+seconds = time.perf_counter() - t0
+extra = {"regions": int(len(table["label"]))}
+""",
+    "restore 1024x1024x3": """
+import numpy as np
+from scipy import ndimage
+from skimage import data
+from skimage.transform import resize
+from car_napari.restoration import restore
+image = resize(data.astronaut() / 255.0, (1024, 1024), order=1)
+noisy = ndimage.gaussian_filter(image, (1, 1, 0))
+noisy += np.random.default_rng(0).normal(0, 0.05, image.shape)
+restore(noisy[:64, :64])
+t0 = time.perf_counter(); restore(noisy); seconds = time.perf_counter() - t0
+t0 = time.perf_counter(); ndimage.median_filter(noisy, size=(5, 5, 1))
+median = time.perf_counter() - t0
+extra = {"median_5x5_s": round(median, 2), "median/ours": round(median / seconds, 2)}
+""",
+}
+
+RUNNER = """
+import json, resource, sys, time
+sys.path.insert(0, {root!r})
+{body}
+peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+print(json.dumps({{"seconds": seconds, "peak_mb": peak, **extra}}))
+"""
+
+
+def run(body):
+    code = RUNNER.format(root=str(ROOT), body=body.replace("{root!r}", repr(str(ROOT))))
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         cwd=ROOT, check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeat", type=int, default=2)
+    ap.add_argument("--only", default=None, help="substring of a case name")
+    args = ap.parse_args()
+    print("| case | seconds (runs) | peak memory (MB) | notes |")
+    print("|---|---|---|---|")
+    for name, body in CASES.items():
+        if args.only and args.only not in name:
+            continue
+        runs = [run(body) for _ in range(args.repeat)]
+        seconds = ", ".join(f"{r['seconds']:.1f}" for r in runs)
+        peak = max(r["peak_mb"] for r in runs)
+        notes = {k: v for k, v in runs[-1].items() if k not in ("seconds", "peak_mb")}
+        print(f"| {name} | {seconds} | {peak:.0f} | {notes} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
