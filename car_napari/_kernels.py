@@ -147,6 +147,10 @@ def recursive_scan(
     q_out,
     maha_out,
     logrel_out,
+    missing,
+    tap_px,
+    fill_lo,
+    fill_hi,
     T_final,
     G_final,
     lam_final,
@@ -186,6 +190,13 @@ def recursive_scan(
     logrel_out : float64[N] or empty. Log of the predictive density relative
         to its peak (at the conditional mean): ``-(nu + d)/2 log(1 + maha/q)``,
         in (-inf, 0]; scale-free, so thresholds on it need no units.
+    missing : uint8[N] or empty. Pixels to fill (SPEC 6): their targets in
+        ``data`` are overwritten by the conditional mean as the scan reaches
+        them, so later pixels use them as neighbours; they never update the
+        statistics, nor do pixels whose neighbourhood holds a missing pixel.
+    tap_px : int64[m] pixel-index offset of each tap (used with ``missing``).
+    fill_lo, fill_hi : float64[d] bounds of the filled values (a chain of
+        predictions through a long hole must not run away).
     T_final, G_final, lam_final, state_final : the final statistics and
         ``[beta, count]``.
     """
@@ -229,6 +240,7 @@ def recursive_scan(
     want_maha = maha_out.shape[0] > 0
     want_logrel = logrel_out.shape[0] > 0
     want_pred = want_mean or want_logp or want_q or want_maha or want_logrel
+    fill = missing.shape[0] > 0
 
     x = np.empty(p)
     y = np.empty(d)
@@ -280,6 +292,21 @@ def recursive_scan(
                     acc += G[t, k] * x[k]
                 e[t] = y[t] - acc
             learn = update and not flat
+            hole = False
+            if fill:
+                hole = missing[px] != 0
+                if hole:
+                    # the conditional mean fills the pixel for the rest of the scan
+                    for t in range(d):
+                        y[t] = min(max(y[t] - e[t], fill_lo[t]), fill_hi[t])
+                        data[pos + target_off[t]] = y[t]
+                        e[t] = 0.0
+                    learn = False
+                elif learn:
+                    for k in range(m):
+                        if missing[px + tap_px[k]] != 0:
+                            learn = False
+                            break
             vv = 0.0
             if want_pred or learn:
                 vv = _project(T, x, v, p)

@@ -88,6 +88,8 @@ def scan(
     initial=None,
     update=True,
     outputs=("gamma",),
+    missing=None,
+    fill_range=None,
 ):
     """Run the recursive estimator over ``data`` (H, W, C) float64, C-ordered.
 
@@ -107,6 +109,12 @@ def scan(
     update : bool, False predicts with fixed statistics.
     outputs : subset of {'gamma', 'mean', 'logp', 'q', 'maha', 'logrel'}
         (``logrel``: log predictive density relative to its peak, <= 0).
+    missing : (H, W) bool array, optional
+        Pixels to fill in place in ``data`` (its target channels) with the
+        conditional mean as the scan reaches them (SPEC 6); they and pixels
+        whose neighbourhood holds one do not update the statistics.
+    fill_range : (lo, hi) arrays of d values, optional
+        Bounds for the filled values (default: unbounded).
 
     Returns
     -------
@@ -150,6 +158,19 @@ def scan(
         "maha": np.empty(npx) if "maha" in outputs else empty,
         "logrel": np.empty(npx) if "logrel" in outputs else empty,
     }
+    if missing is None:
+        missing_flat = np.empty(0, np.uint8)
+    else:
+        missing_flat = np.ascontiguousarray(missing, dtype=np.uint8).reshape(-1)
+        if missing_flat.size != h * w:
+            raise ValueError(f"missing must be an (H, W) mask like the data {(h, w)}.")
+    if fill_range is None:
+        fill_lo, fill_hi = np.full(d, -np.inf), np.full(d, np.inf)
+    else:
+        fill_lo = np.ascontiguousarray(np.broadcast_to(fill_range[0], (d,)), dtype=np.float64)
+        fill_hi = np.ascontiguousarray(np.broadcast_to(fill_range[1], (d,)), dtype=np.float64)
+    di, dj = context.taps[:, 0], context.taps[:, 1]
+    tap_px = np.ascontiguousarray(-(di * geom[6] + dj * geom[7]), dtype=np.int64)
     T_final = np.empty((p, p))
     G_final = np.empty((d, p))
     lam_final = np.empty((d, d))
@@ -175,6 +196,10 @@ def scan(
         arrays["q"],
         arrays["maha"],
         arrays["logrel"],
+        missing_flat,
+        tap_px,
+        fill_lo,
+        fill_hi,
         T_final,
         G_final,
         lam_final,
