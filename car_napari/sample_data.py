@@ -46,7 +46,7 @@ def damaged_film():
     mask = (_read("film_cinestill50d_mask.png") > 127).astype(np.uint8)
     return [
         (frame, {"name": "damaged film", "rgb": True}, "image"),
-        (mask, {"name": "scratch mask", "opacity": 0.6}, "labels"),
+        (mask, {"name": "damaged film scratch mask", "opacity": 0.6}, "labels"),
     ]
 
 
