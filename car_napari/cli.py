@@ -1,4 +1,5 @@
-"""Command line: ``car-napari fit | synthesize | segment | mammo | restore``.
+"""Command line: ``car-napari fit | synthesize | segment | mammo | restore |
+inpaint | descratch``.
 
 Uses only the public core API; no Qt, no napari.
 """
@@ -247,6 +248,73 @@ def cmd_restore(args):
     _progress(len(paths), len(paths), "done")
 
 
+def _read_mask(path, shape):
+    from skimage.transform import resize
+
+    mask = _read(str(path))
+    if mask.ndim == 3:
+        mask = mask[..., :3].max(axis=2)
+    mask = mask > (127 if mask.dtype == np.uint8 else 0.5 * mask.max())
+    if mask.shape != shape:  # masks are often drawn at another resolution
+        mask = resize(mask, shape, order=0, anti_aliasing=False).astype(bool)
+    return mask
+
+
+def cmd_inpaint(args):
+    import time
+
+    from skimage import io
+
+    from .inpainting import inpaint
+
+    image = _read(args.image)
+    mask = _read_mask(args.mask, image.shape[:2])
+    t0 = time.perf_counter()
+    out = inpaint(image, mask, channel_axis=-1 if image.ndim == 3 else None)
+    io.imsave(args.output, out, check_contrast=False)
+    print(f"wrote {args.output}: {int(mask.sum())} pixels restored "
+          f"({100 * mask.mean():.1f} %), {time.perf_counter() - t0:.1f} s", file=sys.stderr)
+
+
+def cmd_descratch(args):
+    import re
+    from pathlib import Path
+
+    from skimage import io
+
+    from .inpainting import detect_scratches, iter_inpaint
+
+    folder = Path(args.input)
+    if not folder.is_dir():
+        raise ValueError(f"{folder} is not a folder of numbered frames.")
+    paths = [p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES]
+    numbered = [p for p in paths if re.search(r"\d+", p.stem)]
+    if not numbered:
+        raise ValueError(f"no numbered frames (like 0001.png) in {folder}.")
+    numbered.sort(key=lambda p: (int(re.findall(r"\d+", p.stem)[-1]), p.name))
+    frames = np.stack([_read(str(p)) for p in numbered])
+    colour = frames.ndim == 4
+    kinds = ("line", "blotch") if len(frames) >= 3 else ("line",)
+    masks = detect_scratches(frames, kinds=kinds, channel_axis=-1 if colour else None)
+    out = Path(args.output)
+    out.mkdir(parents=True, exist_ok=True)
+    gen = iter_inpaint(frames, masks, channel_axis=-1 if colour else None)
+    n = len(numbered)
+    while True:
+        try:
+            state = next(gen)
+        except StopIteration:
+            break
+        path = numbered[state.frame]
+        io.imsave(out / path.name, state.restored, check_contrast=False)
+        if args.masks:
+            io.imsave(out / f"{path.stem}_mask.png",
+                      (masks[state.frame] * 255).astype(np.uint8), check_contrast=False)
+        _progress(state.frame + 1, n, path.name)
+    print(f"{n} frames, {100 * masks.mean():.2f} % of pixels restored -> {out}",
+          file=sys.stderr)
+
+
 def build_parser():
     parser = argparse.ArgumentParser(
         prog="car-napari",
@@ -299,6 +367,18 @@ def build_parser():
                    help="also write <name>_probability.tif (prediction probability)")
     p.add_argument("--quiet", action="store_true", help="per-image lines to stderr")
     p.set_defaults(run=cmd_restore)
+    p = sub.add_parser("inpaint", help="fill the masked pixels of a frame (SPEC 6)")
+    p.add_argument("image", help="damaged frame")
+    p.add_argument("-m", "--mask", required=True,
+                   help="mask image, white (nonzero) = damaged; resized to the frame if needed")
+    p.add_argument("-o", "--output", required=True, help="output image file")
+    p.set_defaults(run=cmd_inpaint)
+    p = sub.add_parser("descratch", help="detect and restore scratches and blotches in a "
+                                         "folder of numbered frames")
+    p.add_argument("input", help="folder of numbered frames (0001.png, 0002.png, ...)")
+    p.add_argument("-o", "--output", required=True, help="output folder (same file names)")
+    p.add_argument("--masks", action="store_true", help="also write <frame>_mask.png")
+    p.set_defaults(run=cmd_descratch)
     return parser
 
 

@@ -141,3 +141,31 @@ def test_restore_bad_kappa_is_a_usage_error(tmp_path, capsys):
     with pytest.raises(SystemExit):
         main(["restore", "x.png", "-o", str(tmp_path), "--kappa", "1.5"])
     assert "kappa must be in [0, 1)" in capsys.readouterr().err
+
+
+def test_inpaint_and_descratch(tmp_path, capsys):
+    frame = skdata.astronaut()[:96, :96].copy()
+    frame[:, 40:43] = 255
+    mask = np.zeros((48, 48), np.uint8)  # drawn at half resolution
+    mask[:, 20:22] = 255
+    io.imsave(tmp_path / "frame.png", frame)
+    io.imsave(tmp_path / "mask.png", mask, check_contrast=False)
+    out = tmp_path / "out.png"
+    assert main(["inpaint", str(tmp_path / "frame.png"), "-m", str(tmp_path / "mask.png"),
+                 "-o", str(out)]) == 0
+    restored = io.imread(out)
+    assert restored.shape == frame.shape and np.all(restored[:, 41] != 255)
+    np.testing.assert_array_equal(restored[:, :38], frame[:, :38])
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    base = skdata.camera()[:80, :80]
+    for t in range(4):
+        f = base.copy()
+        f[:, 30 + 5 * t : 32 + 5 * t] = 250
+        io.imsave(frames / f"{t + 1:04d}.png", f)
+    assert main(["descratch", str(frames), "-o", str(tmp_path / "clean"), "--masks"]) == 0
+    cleaned = io.imread(tmp_path / "clean" / "0003.png")
+    assert np.abs(cleaned[:, 40:42].astype(int) - base[:, 40:42]).mean() < 25
+    assert (tmp_path / "clean" / "0004_mask.png").exists()
+    assert main(["descratch", str(tmp_path / "nothing"), "-o", str(tmp_path / "x")]) == 2
+    assert "not a folder" in capsys.readouterr().err
