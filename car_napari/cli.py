@@ -12,6 +12,8 @@ import sys
 
 import numpy as np
 
+from ._generators import drain
+
 
 def _read(path):
     from pathlib import Path
@@ -227,12 +229,7 @@ def cmd_restore(args):
             colour = image.ndim == 4
             gen = iter_restore_multichannel(image, axis=args.stack_axis, kappa=kappa,
                                             channel_axis=-1 if colour else None)
-        while True:
-            try:
-                next(gen)
-            except StopIteration as stop:
-                result = stop.value
-                break
+        result = drain(gen)
         restored = result.restored()
         restored = restored[..., 0] if restored.shape[2] == 1 else restored
         source = image if args.stack_axis is None else np.take(image, 0, axis=args.stack_axis)

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ._generators import drain
 from ._validation import as_channel_last_float
 from .neighbourhood import Context
 from .recursive import default_prior, scan
@@ -272,14 +273,9 @@ def inpaint(image, mask, *, temporal=True, neighbourhood=1, forgetting=0.9995,
     UserWarning
         When the mask is empty (the input is returned unchanged).
     """
-    gen = iter_inpaint(image, mask, temporal=temporal, neighbourhood=neighbourhood,
-                       forgetting=forgetting, interleave=interleave,
-                       channel_axis=channel_axis)
-    while True:
-        try:
-            next(gen)
-        except StopIteration as stop:
-            return stop.value
+    return drain(iter_inpaint(image, mask, temporal=temporal, neighbourhood=neighbourhood,
+                              forgetting=forgetting, interleave=interleave,
+                              channel_axis=channel_axis))
 
 
 # --- detection ------------------------------------------------------------------------

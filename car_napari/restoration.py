@@ -29,6 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ._generators import drain
 from ._kernels import accumulate_direction, combine_directions
 from ._validation import as_channel_last_float, check_not_constant, check_size, summarize
 from .neighbourhood import Context, as_offsets
@@ -429,18 +430,10 @@ def restore(image, *, neighbourhood=2, forgetting=0.995, directions="all", keep_
     gen = iter_restore(image, neighbourhood=neighbourhood, forgetting=forgetting,
                        directions=directions, keep_edges=keep_edges, kappa=kappa, noise=noise,
                        channel_axis=channel_axis)
-    result = _drain(gen)
+    result = drain(gen)
     if return_result:
         return result
     return _to_layout(result.restored(), np.ndim(image), channel_axis)
-
-
-def _drain(gen):
-    while True:
-        try:
-            next(gen)
-        except StopIteration as stop:
-            return stop.value
 
 
 # --- several versions of one scene ---------------------------------------------
@@ -579,7 +572,7 @@ def restore_multichannel(stack, *, axis=0, kappa=DEFAULT_KAPPA, reference="auto"
         The prediction-probability image (SPEC 1.6, see
         :class:`RestorationResult`).
     """
-    result = _drain(iter_restore_multichannel(
+    result = drain(iter_restore_multichannel(
         stack, axis=axis, kappa=kappa, reference=reference, neighbourhood=neighbourhood,
         forgetting=forgetting, directions=directions, keep_edges=keep_edges,
         reference_prediction=reference_prediction, channel_axis=channel_axis))

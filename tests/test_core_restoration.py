@@ -7,6 +7,7 @@ from skimage import data as skdata
 from skimage import img_as_float
 from skimage.metrics import peak_signal_noise_ratio as psnr
 
+from car_napari._generators import drain
 from car_napari.neighbourhood import causal_neighbourhood
 from car_napari.restoration import (
     estimate_noise,
@@ -18,14 +19,6 @@ from car_napari.restoration import (
     restore_multichannel,
     sharpness,
 )
-
-
-def _run(gen):
-    while True:
-        try:
-            next(gen)
-        except StopIteration as stop:
-            return stop.value
 
 
 def _dense_one_step(image, offsets, strength=1e-6):
@@ -63,7 +56,7 @@ def _dense_one_step(image, offsets, strength=1e-6):
 def test_conditional_mean_and_probability_match_dense_numpy():
     rng = np.random.default_rng(3)
     image = ndimage.uniform_filter(rng.random((14, 15)), 3) + 0.05 * rng.random((14, 15))
-    result = _run(iter_restore(image, channel_axis=None, forgetting=1.0, directions=("down",),
+    result = drain(iter_restore(image, channel_axis=None, forgetting=1.0, directions=("down",),
                                keep_edges=False))
     pred, rel = _dense_one_step(image, causal_neighbourhood(2))
     have = np.isfinite(pred)
@@ -157,7 +150,7 @@ def test_kappa_rethresholds_without_recomputing():
     rng = np.random.default_rng(0)
     clean = img_as_float(skdata.astronaut())[:96, :96]
     stack = _stack(clean, rng, [0.5, 1.0, 1.5])
-    result = _run(iter_restore_multichannel(stack, channel_axis=-1))
+    result = drain(iter_restore_multichannel(stack, channel_axis=-1))
     assert result.reference == 0
     changed = [result.changed(k).sum() for k in (0.0, 0.05, 0.3, 0.6, 0.9)]
     assert changed == sorted(changed, reverse=True) and changed[0] > changed[-1]

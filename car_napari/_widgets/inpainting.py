@@ -7,6 +7,7 @@ from magicgui.widgets import CheckBox, Container, Label, ProgressBar, PushButton
 from napari.utils.notifications import show_error, show_info
 
 from ..inpainting import detect_scratches, iter_inpaint
+from .._generators import relay
 from ._jobs import Job
 
 BRUSH_SIZE = 5
@@ -14,14 +15,8 @@ BRUSH_SIZE = 5
 
 def _inpaint_job(data, mask, channel_axis, temporal):
     """Relay the core generator: progress, each restored frame; returns all."""
-    gen = iter_inpaint(data, mask, channel_axis=channel_axis, temporal=temporal)
-    while True:
-        try:
-            state = next(gen)
-        except StopIteration as stop:
-            return stop.value
-        yield float(state.fraction)
-        yield state
+    return (yield from relay(iter_inpaint(data, mask, channel_axis=channel_axis,
+                                          temporal=temporal)))
 
 
 class InpaintingWidget(Container):

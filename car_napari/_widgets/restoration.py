@@ -23,6 +23,7 @@ from ..restoration import (
     iter_restore,
     iter_restore_multichannel,
 )
+from .._generators import relay
 from ._jobs import Job
 
 SINGLE = "single image"
@@ -35,13 +36,7 @@ def _restore_job(data, channel_axis, stack_axis, options):
     else:
         gen = iter_restore_multichannel(data, axis=stack_axis, channel_axis=channel_axis,
                                         **options)
-    while True:
-        try:
-            state = next(gen)
-        except StopIteration as stop:
-            return stop.value
-        yield float(state.fraction)
-        yield state
+    return (yield from relay(gen))
 
 
 def _layer_array(layer):

@@ -12,3 +12,11 @@ def docked(make_napari_viewer):
         return viewer, widget
 
     return make
+
+
+@pytest.fixture
+def last_notification():
+    """The message of napari's latest notification (errors the user sees)."""
+    from napari.utils.notifications import notification_manager
+
+    return lambda: str(notification_manager.records[-1].message)

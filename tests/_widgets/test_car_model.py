@@ -56,34 +56,28 @@ def test_fit_grey_inside_rectangle(widget, qtbot):
     assert viewer.layers["camera CAR sample"].data.shape == (33, 21)
 
 
-def _last_notification():
-    from napari.utils.notifications import notification_manager
-
-    return str(notification_manager.records[-1].message)
-
-
-def test_errors_become_notifications(widget, qtbot):
+def test_errors_become_notifications(widget, qtbot, last_notification):
     viewer, w = widget
     w.start_fit()  # no layer at all
-    assert "no image layer" in _last_notification()
+    assert "no image layer" in last_notification()
     layer = viewer.add_image(np.random.default_rng(0).random((3, 3)), name="tiny")
     w._image.value = layer
     job = w.start_fit()
     _wait(qtbot, job)
-    assert "too small" in _last_notification()
+    assert "too small" in last_notification()
     flat = viewer.add_image(np.full((64, 64), 7.0), name="flat")
     w._image.value = flat
     job = w.start_fit()
     _wait(qtbot, job)
-    assert "constant" in _last_notification()
+    assert "constant" in last_notification()
     assert w._fit.enabled and not w._cancel.enabled
     assert w.model is None
     w.start_synthesis()
-    assert "fit a model first" in _last_notification()
+    assert "fit a model first" in last_notification()
     stack = viewer.add_image(np.zeros((4, 32, 32)), name="stack")
     w._image.value = stack
     w.start_fit()
-    assert "2-D grey or RGB" in _last_notification()
+    assert "2-D grey or RGB" in last_notification()
 
 
 def test_cancel_leaves_the_viewer_unchanged(widget, qtbot):

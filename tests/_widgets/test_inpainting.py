@@ -7,12 +7,6 @@ from skimage import data as skdata
 from car_napari._widgets.inpainting import InpaintingWidget
 
 
-def _last_notification():
-    from napari.utils.notifications import notification_manager
-
-    return str(notification_manager.records[-1].message)
-
-
 @pytest.fixture
 def widget(docked):
     return docked(InpaintingWidget, "Scratch restoration")
@@ -62,17 +56,17 @@ def test_clip_restores_frame_by_frame_and_detect_is_undoable(widget, qtbot):
     np.testing.assert_array_equal(layer.data, clip)
 
 
-def test_empty_mask_and_cancel(widget, qtbot):
+def test_empty_mask_and_cancel(widget, qtbot, last_notification):
     viewer, w = widget
     w.start()
-    assert "no image layer" in _last_notification()
+    assert "no image layer" in last_notification()
     layer = viewer.add_image(skdata.camera()[:64, :64], name="cam")
     w._image.value = layer
     w.start()
-    assert "no scratch mask" in _last_notification()
+    assert "no scratch mask" in last_notification()
     w.mask_layer()
     assert w.start() is None
-    assert "empty" in _last_notification()
+    assert "empty" in last_notification()
     names = [lay.name for lay in viewer.layers]
     viewer.layers["cam scratch mask"].data[10:20, 10:12] = 1
     job = w.start()

@@ -7,12 +7,6 @@ from car_napari._widgets.mammography import MammogramWidget
 from car_napari.sample_data import mammogram
 
 
-def _last_notification():
-    from napari.utils.notifications import notification_manager
-
-    return str(notification_manager.records[-1].message)
-
-
 @pytest.fixture
 def widget(docked):
     return docked(MammogramWidget, "Mammogram ROI")
@@ -52,15 +46,15 @@ def test_detect_gives_labels_outlines_and_table(widget, qtbot, small_mammogram):
     assert len(viewer.layers) == count
 
 
-def test_bad_input_is_a_notification(widget, qtbot):
+def test_bad_input_is_a_notification(widget, qtbot, last_notification):
     viewer, w = widget
     w.start()
-    assert "no image layer" in _last_notification()
+    assert "no image layer" in last_notification()
     black = viewer.add_image(np.zeros((256, 256), np.uint8), name="black")
     w._image.value = black
     job = w.start()
     qtbot.waitUntil(lambda: job.done, timeout=60000)
-    assert "constant" in _last_notification()
+    assert "constant" in last_notification()
     assert [lay.name for lay in viewer.layers] == ["black"]
     assert w._run.enabled and not w._cancel.enabled
 

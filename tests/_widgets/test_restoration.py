@@ -8,12 +8,6 @@ from car_napari._widgets.restoration import RestorationWidget
 from car_napari.sample_data import degraded_stack
 
 
-def _last_notification():
-    from napari.utils.notifications import notification_manager
-
-    return str(notification_manager.records[-1].message)
-
-
 @pytest.fixture
 def widget(docked):
     return docked(RestorationWidget, "Restoration")
@@ -79,17 +73,17 @@ def test_single_image_and_cancel(widget, qtbot):
     np.testing.assert_array_equal(layer.data, noisy)
 
 
-def test_bad_input_is_a_notification(widget, qtbot):
+def test_bad_input_is_a_notification(widget, qtbot, last_notification):
     viewer, w = widget
     w.start()
-    assert "no image layer" in _last_notification()
+    assert "no image layer" in last_notification()
     layer = viewer.add_image(np.zeros((3, 16, 16)), name="flat stack")
     w._image.value = layer
     w._axis.value = "single image"
     w.start()
-    assert "non-colour axes" in _last_notification()
+    assert "non-colour axes" in last_notification()
     w._axis.value = "axis 0"
     job = w.start()
     qtbot.waitUntil(lambda: job.done, timeout=60000)
-    assert "constant" in _last_notification()
+    assert "constant" in last_notification()
     assert [lay.name for lay in viewer.layers] == ["flat stack"]
