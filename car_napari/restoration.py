@@ -348,10 +348,10 @@ def _to_layout(out, image_ndim, channel_axis):
 
 
 def iter_restore(image, *, neighbourhood=2, forgetting=0.995, directions="all",
-                 keep_edges=True, kappa=0.0, noise=None, channel_axis=-1):
+                 keep_edges=True, kappa=0.0, noise=None, channel_axis=-1, live=True):
     """:func:`restore` as a generator: yields :class:`RestorationState` after
-    each scan direction (with the running restored image), returns a
-    :class:`RestorationResult`."""
+    each scan direction (with the running restored image unless ``live`` is
+    False), returns a :class:`RestorationResult`."""
     kappa = _check_kappa(kappa)
     forgetting, directions = _check_options(forgetting, directions)
     data = as_channel_last_float(image, channel_axis=channel_axis)
@@ -371,7 +371,7 @@ def iter_restore(image, *, neighbourhood=2, forgetting=0.995, directions="all",
             centred, context, summary.var, forgetting=forgetting, directions=directions,
             outputs=("mean", "logrel"), prior=1e-6), start=1):
         average.add(result["mean"], result["logrel"])
-        running = average.prediction()[0] if k < len(directions) else None
+        running = average.prediction()[0] if live and k < len(directions) else None
         yield RestorationState(f"direction {k}/{len(directions)}", 0.95 * k / len(directions),
                                running)
     pred, prob = average.prediction()
@@ -429,7 +429,7 @@ def restore(image, *, neighbourhood=2, forgetting=0.995, directions="all", keep_
     """
     gen = iter_restore(image, neighbourhood=neighbourhood, forgetting=forgetting,
                        directions=directions, keep_edges=keep_edges, kappa=kappa, noise=noise,
-                       channel_axis=channel_axis)
+                       channel_axis=channel_axis, live=False)
     result = drain(gen)
     if return_result:
         return result
@@ -485,7 +485,7 @@ def iter_restore_multichannel(stack, *, axis=0, kappa=DEFAULT_KAPPA, reference="
         # neighbourhood on every side that never uses the pixel itself.
         share = 0.3
         gen = iter_restore(observed, forgetting=forgetting, directions=directions,
-                           keep_edges=False, channel_axis=-1)
+                           keep_edges=False, channel_axis=-1, live=False)
         while True:
             try:
                 state = next(gen)
