@@ -83,13 +83,15 @@ def main():
     parser = argparse.ArgumentParser()
     parser.add_argument("--count", type=int, default=6)
     parser.add_argument("--kind", nargs="+", default=["vistex", "brodatz"])
+    parser.add_argument("--only", nargs="+", default=None, help="method names to run")
     args = parser.parse_args()
     for kind in args.kind:
-        rows = {name: [] for name in METHODS}
-        secs = {name: [] for name in METHODS}
+        methods = {n: m for n, m in METHODS.items() if not args.only or n in args.only}
+        rows = {name: [] for name in methods}
+        secs = {name: [] for name in methods}
         for image, truth in mosaic_set(kind, count=args.count, seed=0):
             k = len(np.unique(truth))
-            for name, method in METHODS.items():
+            for name, method in methods.items():
                 t0 = time.perf_counter()
                 labels = method(image, k)
                 secs[name].append(time.perf_counter() - t0)
@@ -97,9 +99,10 @@ def main():
         print(f"\n{kind}: {args.count} mosaics 512x512, 5 textures each, seed 0\n")
         print("| method | " + " | ".join(KEYS) + " | s/image |")
         print("|---" * (len(KEYS) + 2) + "|")
-        for name in METHODS:
+        for name in methods:
             means = [np.mean([r[key] for r in rows[name]]) for key in KEYS]
-            print(f"| {name} | " + " | ".join(f"{m:.2f}" for m in means)
+            print(f"| {name} | " + " | ".join(f"{m:.3f}" if key in ("ARI", "VI") else f"{m:.2f}"
+                                              for key, m in zip(KEYS, means))
                   + f" | {np.mean(secs[name]):.1f} |")
 
 
