@@ -9,6 +9,7 @@ from .invariants import illumination_invariants
 from .neighbourhood import Context, causal_neighbourhood
 from .recursive import local_parameters
 from .synthesis import spectral_radius, synthesize
+from .texture import TextureModel
 
 __version__ = "0.1.0"
 
@@ -23,4 +24,5 @@ __all__ = [
     "select_support",
     "spectral_radius",
     "synthesize",
+    "TextureModel",
 ]
