@@ -64,22 +64,56 @@ def cmd_fit(args):
     sys.stdout.write("\n")
 
 
-def cmd_synthesize(args):
+def _write_texture(path, sample, *, uint16=False):
+    """PNG/JPEG/BMP: 8-bit (16-bit PNG with ``uint16``) of values in [0, 1];
+    TIFF: float32 as is."""
+    from pathlib import Path
+
     from skimage import io
 
-    from . import synthesize
-
-    image = _read(args.image)
-    model = _fit(image, args.order)
-    sample = synthesize(model, tuple(args.size), seed=args.seed)
-    if image.dtype == np.uint8:
-        sample = np.round(np.clip(sample, 0.0, 1.0) * 255).astype(np.uint8)
-    elif image.dtype == np.uint16:
-        sample = np.round(np.clip(sample, 0.0, 1.0) * 65535).astype(np.uint16)
+    suffix = Path(path).suffix.lower()
+    if suffix in (".tif", ".tiff"):
+        out = sample.astype(np.float32)
+    elif suffix in (".png", ".jpg", ".jpeg", ".bmp"):
+        if uint16 and suffix == ".png":
+            out = np.round(np.clip(sample, 0.0, 1.0) * 65535).astype(np.uint16)
+        else:
+            out = np.round(np.clip(sample, 0.0, 1.0) * 255).astype(np.uint8)
     else:
-        sample = np.clip(sample, image.min(), image.max()).astype(np.float32)
-    io.imsave(args.output, sample, check_contrast=False)
-    print(f"wrote {args.output}: {sample.shape}, order {model.order}", file=sys.stderr)
+        raise ValueError(f"cannot write {path}: use .png, .jpg, .bmp (8-bit) or .tif (float).")
+    io.imsave(path, out, check_contrast=False)
+    return out
+
+
+def _texture_model(args):
+    """A TextureModel from a saved model (.npz) or fitted to an image."""
+    from .texture import TextureModel
+
+    if str(args.source).lower().endswith(".npz"):
+        return TextureModel.load(args.source), None
+    image = _read(args.source)
+    neighbourhood = "auto" if args.order == "auto" else int(args.order)
+    model = TextureModel.fit(image, levels=args.levels, neighbourhood=neighbourhood,
+                             channel_axis=-1 if image.ndim == 3 else None)
+    return model, image
+
+
+def cmd_fit_texture(args):
+    model, image = _texture_model(args)
+    model.save(args.output)
+    print(f"wrote {args.output}: orders {list(model.orders)} per band, {model.nbytes} bytes "
+          f"of parameters, compression {model.compression_ratio(image.shape):.0f}:1 at "
+          f"{'x'.join(map(str, image.shape))}", file=sys.stderr)
+
+
+def cmd_synthesize(args):
+    model, image = _texture_model(args)
+    sample = model.synthesize(tuple(args.size), seed=args.seed, tileable=args.tileable)
+    uint16 = image is not None and image.dtype == np.uint16
+    _write_texture(args.output, sample, uint16=uint16)
+    print(f"wrote {args.output}: {sample.shape}, orders {list(model.orders)}",
+          file=sys.stderr)
+
 
 
 DICOM_SUFFIXES = {".dcm", ".dicom"}
@@ -323,13 +357,25 @@ def build_parser():
     p.add_argument("--order", default="auto", type=_order,
                    help="neighbourhood order, or 'auto' for the decision rule (default)")
     p.set_defaults(run=cmd_fit)
-    p = sub.add_parser("synthesize", help="fit a model to IMAGE and write a synthesised texture")
-    p.add_argument("image", help="example texture (grey or RGB)")
-    p.add_argument("-o", "--output", required=True, help="output image file")
-    p.add_argument("--size", nargs=2, type=int, metavar=("H", "W"), default=(256, 256))
-    p.add_argument("--seed", type=int, default=None)
+    p = sub.add_parser("fit-texture", help="fit a multiresolution texture model; write it "
+                                           "(.npz, a few kB)")
+    p.add_argument("source", help="example texture (grey or RGB)")
+    p.add_argument("-o", "--output", required=True, help="model file (.npz)")
+    p.add_argument("--levels", type=int, default=3, help="pyramid levels (default 3)")
     p.add_argument("--order", default="auto", type=_order,
                    help="neighbourhood order, or 'auto' for the decision rule (default)")
+    p.set_defaults(run=cmd_fit_texture)
+    p = sub.add_parser("synthesize", help="synthesise a texture of any size from a model "
+                                          "file or an example image")
+    p.add_argument("source", help="model file (.npz from fit-texture) or example texture")
+    p.add_argument("-o", "--output", required=True,
+                   help="output image (.png/.jpg: 8-bit; .tif: float)")
+    p.add_argument("--size", nargs=2, type=int, metavar=("H", "W"), default=(256, 256))
+    p.add_argument("--seed", type=int, default=None)
+    p.add_argument("--tileable", action="store_true", help="wrap seamlessly (toroidal)")
+    p.add_argument("--levels", type=int, default=3, help="pyramid levels when fitting")
+    p.add_argument("--order", default="auto", type=_order,
+                   help="neighbourhood order when fitting, or 'auto' (default)")
     p.set_defaults(run=cmd_synthesize)
     p = sub.add_parser("segment", help="unsupervised texture segmentation; label PNGs")
     p.add_argument("inputs", nargs="+", help="images, folders or glob patterns")

@@ -169,3 +169,22 @@ def test_inpaint_and_descratch(tmp_path, capsys):
     assert (tmp_path / "clean" / "0004_mask.png").exists()
     assert main(["descratch", str(tmp_path / "nothing"), "-o", str(tmp_path / "x")]) == 2
     assert "not a folder" in capsys.readouterr().err
+
+
+def test_fit_texture_then_synthesize_from_the_model(tmp_path, capsys):
+    src = tmp_path / "gravel.png"
+    io.imsave(src, skdata.gravel()[:128, :128])
+    model = tmp_path / "gravel.npz"
+    assert main(["fit-texture", str(src), "-o", str(model)]) == 0
+    assert "compression" in capsys.readouterr().err
+    assert model.stat().st_size < 10_000
+    out = tmp_path / "big.png"
+    assert main(["synthesize", str(model), "-o", str(out), "--size", "200", "300",
+                 "--seed", "2", "--tileable"]) == 0
+    big = io.imread(out)
+    assert big.shape == (200, 300) and big.dtype == np.uint8
+    assert main(["synthesize", str(model), "-o", str(tmp_path / "x.gif2")]) == 2
+    assert "use .png" in capsys.readouterr().err
+    (tmp_path / "broken.npz").write_bytes(b"not a model")
+    assert main(["synthesize", str(tmp_path / "broken.npz"), "-o", str(out)]) == 2
+    assert "not a readable" in capsys.readouterr().err
