@@ -392,12 +392,15 @@ def recursive_scan(
 def synthesize_field(gamma, chol_sigma, noise, tap_di, tap_dj, tap_ch, limit):
     """Generate a zero-mean CAR field in raster order (SPEC 1.7).
 
-    ``noise`` (H, W, d) holds standard normal draws; it is overwritten by the
-    field. Pixels whose neighbours leave the lattice use zeros (the burn-in
-    margin removed by the caller absorbs that transient). Returns False as
-    soon as a value exceeds ``limit`` (an unstable model).
+    ``noise`` (H, W, C) holds standard normal draws in its first ``d``
+    channels (``d`` = rows of ``gamma``); they are overwritten by the field.
+    Further channels are fixed context the taps may read (the previous frame
+    of the 3.5D model). Pixels whose neighbours leave the lattice use zeros
+    (the burn-in margin removed by the caller absorbs that transient).
+    Returns False as soon as a value exceeds ``limit`` (an unstable model).
     """
-    H, W, d = noise.shape
+    H, W, _ = noise.shape
+    d = gamma.shape[0]
     m = tap_di.shape[0]
     x = np.empty(m)
     innov = np.empty(d)
