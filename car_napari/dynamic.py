@@ -110,6 +110,19 @@ class DynamicTextureModel:
     def n_channels(self):
         return int(self.mean.size)
 
+    @property
+    def nbytes(self):
+        """Stored numbers as float32: gamma, sigma, mean, offsets, range and
+        the first frame's spatial model."""
+        first = self.first
+        arrays = (self.gamma, self.sigma, self.mean, self.offsets, self.value_range,
+                  first.gamma, first.sigma, first.mean)
+        return 4 * sum(int(np.size(a)) for a in arrays)
+
+    def compression_ratio(self, clip_shape):
+        """Raw float32 bytes of a clip of ``clip_shape`` over :attr:`nbytes`."""
+        return 4.0 * float(np.prod(clip_shape)) / self.nbytes
+
     def synthesize(self, n_frames, shape, *, seed=None, burn_in=10):
         """Generate ``n_frames`` frames of ``shape`` (H, W): (n, H, W[, C]).
 

@@ -47,3 +47,29 @@ def test_too_small_texture_is_a_notification(widget, qtbot, last_notification):
     qtbot.waitUntil(lambda: job.done, timeout=60000)
     assert "at least 64x64" in last_notification()
     assert w.model is None
+
+
+def test_stack_modes_btf_and_dynamic(widget, qtbot, last_notification):
+    from car_napari.sample_data import degraded_stack
+
+    viewer, w = widget
+    (stack, meta, _), = degraded_stack()
+    layer = viewer.add_image(stack[:4, :96, :96], **meta)  # four "illuminations"
+    w._image.value = layer
+    assert w._mode.value.startswith("BTF")
+    w._subspaces.value, w._levels.value = 2, 2
+    job = w.start_fit()
+    qtbot.waitUntil(lambda: job.done, timeout=120000)
+    assert "BTF, 2 subspaces" in w._model_info.value
+    w._height.value, w._width.value = 40, 50
+    job = w.start_synthesis()
+    qtbot.waitUntil(lambda: job.done, timeout=120000)
+    assert viewer.layers["degraded burst synthesis"].data.shape == (4, 40, 50, 3)
+    w._mode.value = "dynamic: frames"
+    w._frames.value = 3
+    job = w.start_fit()
+    qtbot.waitUntil(lambda: job.done, timeout=120000)
+    assert "dynamic" in w._model_info.value and not w._save.enabled
+    job = w.start_synthesis()
+    qtbot.waitUntil(lambda: job.done, timeout=120000)
+    assert viewer.layers["degraded burst synthesis"].data.shape == (3, 40, 50, 3)
