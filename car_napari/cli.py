@@ -1,5 +1,5 @@
-"""Command line: ``car-napari fit | synthesize | segment | mammo | restore |
-inpaint | descratch``.
+"""Command line: ``car-napari fit | fit-texture | synthesize | retrieve | segment |
+mammo | restore | inpaint | descratch``.
 
 Uses only the public core API; no Qt, no napari.
 """
@@ -346,6 +346,37 @@ def cmd_descratch(args):
           file=sys.stderr)
 
 
+def cmd_retrieve(args):
+    from pathlib import Path
+
+    from .retrieval import rank
+
+    query = _read(args.query)
+    folder = Path(args.gallery)
+    if not folder.is_dir():
+        raise ValueError(f"{folder} is not a folder of images.")
+    colour = query.ndim == 3
+    paths, images, skipped = [], [], []
+    for path in sorted(folder.iterdir()):
+        if path.suffix.lower() not in IMAGE_SUFFIXES - DICOM_SUFFIXES:
+            continue
+        image = _read(str(path))
+        if (image.ndim == 3) != colour:
+            skipped.append(path.name)
+            continue
+        paths.append(path)
+        images.append(image)
+    if not images:
+        raise ValueError(f"no {'colour' if colour else 'grey'} images in {folder}.")
+    indices, distances = rank(query, images, channel_axis=-1 if colour else None)
+    top = len(paths) if args.top is None else args.top
+    for k, (i, dist) in enumerate(zip(indices[:top], distances[:top]), start=1):
+        print(f"{k}\t{dist:.4g}\t{paths[i]}")
+    if skipped:
+        print(f"skipped ({'grey' if colour else 'colour'}, the query is "
+              f"{'colour' if colour else 'grey'}): {', '.join(skipped)}", file=sys.stderr)
+
+
 def build_parser():
     parser = argparse.ArgumentParser(
         prog="car-napari",
@@ -377,6 +408,12 @@ def build_parser():
     p.add_argument("--order", default="auto", type=_order,
                    help="neighbourhood order when fitting, or 'auto' (default)")
     p.set_defaults(run=cmd_synthesize)
+    p = sub.add_parser("retrieve", help="rank a folder of textures by illumination-invariant "
+                                        "distance to a query")
+    p.add_argument("query", help="query texture")
+    p.add_argument("gallery", help="folder of images")
+    p.add_argument("--top", type=int, default=None, help="print only the N nearest")
+    p.set_defaults(run=cmd_retrieve)
     p = sub.add_parser("segment", help="unsupervised texture segmentation; label PNGs")
     p.add_argument("inputs", nargs="+", help="images, folders or glob patterns")
     p.add_argument("-o", "--output", required=True, help="output folder")

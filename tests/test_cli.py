@@ -188,3 +188,22 @@ def test_fit_texture_then_synthesize_from_the_model(tmp_path, capsys):
     (tmp_path / "broken.npz").write_bytes(b"not a model")
     assert main(["synthesize", str(tmp_path / "broken.npz"), "-o", str(out)]) == 2
     assert "not a readable" in capsys.readouterr().err
+
+
+def test_retrieve_ranks_a_folder(tmp_path, capsys):
+    from car_napari.sample_data import colour_texture
+
+    vistex = colour_texture()[0][0]
+    gallery = tmp_path / "gallery"
+    gallery.mkdir()
+    io.imsave(gallery / "same.png", vistex[128:])
+    io.imsave(gallery / "cells.png", skdata.immunohistochemistry()[:128, :256])
+    io.imsave(gallery / "coffee.png", skdata.coffee()[:128, :256])
+    io.imsave(gallery / "grey.png", skdata.camera()[:128, :256])
+    io.imsave(tmp_path / "query.png", vistex[:128])
+    assert main(["retrieve", str(tmp_path / "query.png"), str(gallery), "--top", "2"]) == 0
+    captured = capsys.readouterr()
+    lines = captured.out.strip().splitlines()
+    assert len(lines) == 2 and lines[0].endswith("same.png")
+    assert "grey.png" in captured.err
+    assert main(["retrieve", str(tmp_path / "query.png"), str(tmp_path / "nope")]) == 2

@@ -1,0 +1,174 @@
+"""Dock widget "Texture retrieval": find a texture again under another
+illumination, among the open image layers or the images of a folder."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from magicgui.widgets import ComboBox, Container, FileEdit, Label, ProgressBar, PushButton
+from magicgui.widgets import create_widget
+from napari.utils.notifications import show_error
+from qtpy.QtCore import QSize, Qt
+from qtpy.QtGui import QIcon, QImage, QPixmap
+from qtpy.QtWidgets import QListWidget, QListWidgetItem
+
+from ..retrieval import rank
+from ._jobs import Job
+from ._layers import image_data
+
+LAYERS, FOLDER = "open image layers", "a folder"
+THUMBNAIL = 64
+IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp"}
+
+
+def _rank_job(query, gallery):
+    yield 0.05
+    indices, distances = rank(query, gallery, channel_axis=-1 if query.ndim == 3 else None)
+    return indices, distances
+
+
+def _thumbnail(image):
+    """A QIcon of an (H, W[, 3]) image, scaled to its own range."""
+    a = np.asarray(image, dtype=np.float64)
+    step = max(1, max(a.shape[:2]) // THUMBNAIL)
+    a = a[::step, ::step]
+    lo, hi = float(a.min()), float(a.max())
+    a = np.zeros_like(a) if hi <= lo else (a - lo) / (hi - lo)
+    if a.ndim == 2:
+        a = np.repeat(a[..., None], 3, axis=2)
+    rgb = np.ascontiguousarray(np.round(a[..., :3] * 255).astype(np.uint8))
+    h, w = rgb.shape[:2]
+    qimage = QImage(rgb.data, w, h, 3 * w, QImage.Format_RGB888).copy()
+    return QIcon(QPixmap.fromImage(qimage))
+
+
+class TextureRetrievalWidget(Container):
+    """Rank a gallery of textures by illumination-invariant CAR features
+    (SPEC section 2): a query layer (or a rectangle on it) against the open
+    image layers or a folder of images."""
+
+    def __init__(self, napari_viewer):
+        super().__init__(labels=True)
+        self._viewer = napari_viewer
+        self._job = None
+        self.ranking = []  # (name, distance) nearest first
+        self._entries = []  # gallery entries: ("layer", name) or ("file", path)
+        self._query = create_widget(annotation="napari.layers.Image", label="query")
+        self._region = create_widget(
+            annotation="napari.layers.Shapes", label="rectangle",
+            options={"nullable": True, "tooltip": "optional: the query is this rectangle"},
+        )
+        self._source = ComboBox(value=LAYERS, choices=[LAYERS, FOLDER], label="gallery")
+        self._folder = FileEdit(mode="d", label="folder")
+        self._run = PushButton(text="Rank")
+        self._cancel = PushButton(text="Cancel", enabled=False)
+        self._progress = ProgressBar(value=0, min=0, max=100, label="progress")
+        self._status = Label(value="")
+        self._results = QListWidget()
+        self._results.setIconSize(QSize(THUMBNAIL, THUMBNAIL))
+        self._results.setMinimumHeight(200)
+        self.extend([self._query, self._region, self._source, self._folder, self._run,
+                     self._cancel, self._progress, self._status])
+        self.native.layout().addWidget(self._results)
+        self._run.changed.connect(self.start)
+        self._cancel.changed.connect(self.cancel)
+        self._results.itemClicked.connect(lambda item: self.show(self._results.row(item)))
+
+    def cancel(self, *_):
+        if self._job is not None:
+            self._job.cancel()
+
+    def _gallery(self, query_layer, query_colour, use_region):
+        """(entries, images) of the gallery with the query's colour-ness."""
+        entries, images, skipped = [], [], 0
+        if self._source.value == LAYERS:
+            for layer in self._viewer.layers:
+                if getattr(layer, "_type_string", "") != "image":
+                    continue
+                if layer is query_layer and not use_region:
+                    continue  # the query itself would always come first
+                try:
+                    data, channel_axis = image_data(layer)
+                except ValueError:
+                    skipped += 1
+                    continue
+                if (channel_axis is not None) != query_colour:
+                    skipped += 1
+                    continue
+                entries.append(("layer", layer.name))
+                images.append(data)
+        else:
+            from skimage import io
+
+            folder = Path(self._folder.value)
+            if not folder.is_dir():
+                raise ValueError(f"{folder} is not a folder; choose one with images.")
+            for path in sorted(folder.iterdir()):
+                if path.suffix.lower() not in IMAGE_SUFFIXES:
+                    continue
+                data = io.imread(path)
+                colour = data.ndim == 3
+                if colour != query_colour:
+                    skipped += 1
+                    continue
+                entries.append(("file", path))
+                images.append(data[..., :3] if colour else data)
+        if not images:
+            raise ValueError("the gallery is empty: open other image layers (of the same "
+                             "kind, grey or colour, as the query) or choose a folder.")
+        return entries, images, skipped
+
+    def start(self, *_):
+        try:
+            layer = self._query.value
+            region = self._region.value
+            query, channel_axis = image_data(layer, region)
+            use_region = region is not None and len(region.data) > 0
+            entries, images, skipped = self._gallery(layer, channel_axis is not None,
+                                                     use_region)
+        except (ValueError, OSError) as exc:
+            show_error(str(exc))
+            return None
+        self._entries, self._images = entries, images
+        self._skipped = skipped
+        self._job = Job(_rank_job, query, images, progress=self._progress,
+                        cancel=self._cancel, buttons=(self._run,), on_done=self._show_ranking)
+        return self._job
+
+    def _name(self, entry):
+        kind, value = entry
+        return value if kind == "layer" else Path(value).name
+
+    def _show_ranking(self, result):
+        indices, distances = result
+        self._results.clear()
+        self.ranking = []
+        order = [int(i) for i in indices]
+        self._order = order
+        for rank_, (i, dist) in enumerate(zip(order, distances), start=1):
+            name = self._name(self._entries[i])
+            self.ranking.append((name, float(dist)))
+            item = QListWidgetItem(_thumbnail(self._images[i]), f"{rank_}. {name}   {dist:.3g}")
+            item.setData(Qt.UserRole, i)
+            self._results.addItem(item)
+        note = f" ({self._skipped} of another kind skipped)" if self._skipped else ""
+        self._status.value = f"{len(order)} ranked{note}"
+
+    def show(self, row):
+        """Show the gallery entry at ``row`` of the ranking: select its layer,
+        or open the file as a layer."""
+        i = self._order[row]
+        kind, value = self._entries[i]
+        if kind == "layer":
+            layer = self._viewer.layers[value]
+        else:
+            name = f"retrieved: {Path(value).name}"
+            if name in self._viewer.layers:
+                layer = self._viewer.layers[name]
+            else:
+                image = self._images[i]
+                layer = self._viewer.add_image(image, name=name, rgb=image.ndim == 3)
+        layer.visible = True
+        self._viewer.layers.selection.active = layer
+        return layer

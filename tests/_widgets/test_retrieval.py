@@ -1,0 +1,67 @@
+"""The "Texture retrieval" widget in a real napari viewer."""
+
+import numpy as np
+import pytest
+from skimage import io
+
+from car_napari._widgets.retrieval import TextureRetrievalWidget
+from car_napari.sample_data import colour_texture
+
+
+def _relit(image, seed):
+    """The texture under a random positive 3x3 illumination matrix + noise."""
+    rng = np.random.default_rng(seed)
+    B = rng.uniform(0.2, 1.0, (3, 3))
+    B /= B.sum(axis=1, keepdims=True)
+    return image @ B.T + rng.normal(0, 0.01, image.shape)
+
+
+@pytest.fixture
+def widget(docked):
+    return docked(TextureRetrievalWidget, "Texture retrieval")
+
+
+@pytest.fixture(scope="module")
+def textures():
+    from skimage import data
+
+    vistex = colour_texture()[0][0] / 255.0  # 256x256: two 128x256 tiles
+    return {"vistex": vistex[:128], "vistex other tile": vistex[128:],
+            "cells": data.immunohistochemistry()[:128, :256] / 255.0,
+            "coffee": data.coffee()[:128, :256] / 255.0,
+            "cat": data.chelsea()[:128, :256] / 255.0}
+
+
+def test_rank_the_open_layers_and_click(widget, qtbot, textures):
+    viewer, w = widget
+    query = viewer.add_image(_relit(textures["vistex"], 0), name="query", rgb=True)
+    for name in ("cells", "coffee", "cat", "vistex other tile"):
+        viewer.add_image(_relit(textures[name], 1), name=name, rgb=True)
+    w._query.value = query
+    job = w.start()
+    qtbot.waitUntil(lambda: job.done, timeout=60000)
+    names = [name for name, _ in w.ranking]
+    assert names[0] == "vistex other tile" and "query" not in names
+    assert w._results.count() == 4 and not w._results.item(0).icon().isNull()
+    viewer.layers["vistex other tile"].visible = False
+    layer = w.show(0)
+    assert layer.name == "vistex other tile" and layer.visible
+    assert viewer.layers.selection.active is layer
+
+
+def test_folder_gallery(widget, qtbot, textures, tmp_path, last_notification):
+    viewer, w = widget
+    for name in ("cells", "coffee", "cat", "vistex other tile"):
+        io.imsave(tmp_path / f"{name}.png",
+                  np.round(np.clip(_relit(textures[name], 2), 0, 1) * 255).astype(np.uint8))
+    w._query.value = viewer.add_image(_relit(textures["vistex"], 0), name="query", rgb=True)
+    w._source.value = "a folder"
+    w._folder.value = tmp_path / "missing"
+    w.start()
+    assert "not a folder" in last_notification()
+    w._folder.value = tmp_path
+    job = w.start()
+    qtbot.waitUntil(lambda: job.done, timeout=60000)
+    assert w.ranking[0][0] == "vistex other tile.png"
+    layer = w.show(0)
+    assert layer.name == "retrieved: vistex other tile.png" and layer.data.shape[2] == 3
