@@ -149,19 +149,27 @@ def _progress(i, n, label, stream=sys.stderr):
         stream.write("\n")
 
 
+def _each_input(inputs, output):
+    """(output folder, input path) for every input, with a progress bar."""
+    from pathlib import Path
+
+    out = Path(output)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = expand_inputs(inputs)
+    for i, path in enumerate(paths):
+        _progress(i, len(paths), path.name)
+        yield out, path
+    _progress(len(paths), len(paths), "done")
+
+
 def cmd_segment(args):
     import time
-    from pathlib import Path
 
     from skimage import io
 
     from .segmentation import segment
 
-    out = Path(args.output)
-    out.mkdir(parents=True, exist_ok=True)
-    paths = expand_inputs(args.inputs)
-    for i, path in enumerate(paths):
-        _progress(i, len(paths), path.name)
+    for out, path in _each_input(args.inputs, args.output):
         image = _read(str(path))
         t0 = time.perf_counter()
         result = segment(image, n_segments=args.segments, levels=args.levels,
@@ -170,7 +178,6 @@ def cmd_segment(args):
         io.imsave(out / f"{path.stem}_segments.png", labels, check_contrast=False)
         print(f"{path.name}: {result.n_segments} segments, {time.perf_counter() - t0:.1f} s",
               file=sys.stderr if args.quiet else sys.stdout)
-    _progress(len(paths), len(paths), "done")
 
 
 def cmd_mammo(args):
@@ -242,17 +249,12 @@ def _kappa(text):
 
 def cmd_restore(args):
     import time
-    from pathlib import Path
 
     from skimage import io
 
     from .restoration import DEFAULT_KAPPA, iter_restore, iter_restore_multichannel
 
-    out = Path(args.output)
-    out.mkdir(parents=True, exist_ok=True)
-    paths = expand_inputs(args.inputs)
-    for i, path in enumerate(paths):
-        _progress(i, len(paths), path.name)
+    for out, path in _each_input(args.inputs, args.output):
         t0 = time.perf_counter()
         image = _read(str(path))
         if args.stack_axis is None:
@@ -276,7 +278,6 @@ def cmd_restore(args):
         ref = "" if result.reference is None else f", reference version {result.reference}"
         print(f"{path.name}: restored{ref}, {time.perf_counter() - t0:.1f} s",
               file=sys.stderr if args.quiet else sys.stdout)
-    _progress(len(paths), len(paths), "done")
 
 
 def _read_mask(path, shape):
