@@ -172,8 +172,9 @@ def main():
     learn, held = names[0::2], names[1::2]
     if args.limit is not None:
         # every mass image, plus the first N images without a mass, per split
-        pick = lambda ns: [n for n in ns if masses[n]] + [n for n in ns if not masses[n]][
-            : args.limit]
+        def pick(ns):
+            return [n for n in ns if masses[n]] + [n for n in ns if not masses[n]][: args.limit]
+
         learn, held = sorted(pick(learn)), sorted(pick(held))
     everything = sorted(learn + held)
 
