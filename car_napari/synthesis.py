@@ -14,6 +14,20 @@ __all__ = ["synthesize", "spectral_radius"]
 
 _FREQUENCIES = 256
 _MARGIN_TOLERANCE = 1e-4
+_RADIUS_CACHE = {}  # (gamma, offsets) bytes -> spectral radius; small and bounded
+
+
+def _cached_radius(model):
+    """spectral_radius, remembered for repeated synthesis from one model
+    (it costs more than a 512x512 field); keyed by the numbers it uses."""
+    key = (np.ascontiguousarray(model.gamma).tobytes(), model.gamma.shape,
+           np.ascontiguousarray(model.offsets).tobytes())
+    radius = _RADIUS_CACHE.get(key)
+    if radius is None:
+        if len(_RADIUS_CACHE) > 256:
+            _RADIUS_CACHE.clear()
+        radius = _RADIUS_CACHE[key] = spectral_radius(model)
+    return radius
 
 
 def _companion_radius(coeffs, lead=None):
@@ -117,7 +131,7 @@ def synthesize(model, shape, *, seed=None, margin=None):
         raise ValueError(f"shape must be (height, width); got {shape!r}.") from None
     if h < 1 or w < 1:
         raise ValueError(f"shape must be positive; got {(h, w)}.")
-    radius = spectral_radius(model)
+    radius = _cached_radius(model)
     if not radius < 1.0:
         raise ValueError(
             f"the model is unstable (spectral radius {radius:.4g} >= 1): its field would "

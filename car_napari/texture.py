@@ -3,8 +3,9 @@
 A texture is analysed by a Gaussian-Laplacian pyramid; every sub-band gets
 its own CAR model with its own optimal support (SPEC 1.5). The few numbers of
 those models are the compressed texture: synthesis generates every sub-band
-from its model (SPEC 1.7) at any size, collapses the pyramid and restores the
-mean and the value range of the input.
+from its model (SPEC 1.7) at any size, matches every generated band's
+histogram to a few stored quantiles of the analysed band, collapses the
+pyramid and restores the histogram of the input (from its stored quantiles).
 
 The pyramid (Burt and Adelson, with operators chosen so that analysis and
 synthesis match at any image size):
@@ -41,12 +42,14 @@ __all__ = [
 ]
 
 FORMAT_NAME = "car-napari texture model"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 
 _BLUR_SIGMA = 1.0  # pyramid smoothing before 2x2 decimation, in pixels
 _MIN_TOP = 16  # smallest side of the coarsest level: the order-5 decision rule needs it
 _MAX_ORDER = 5  # largest candidate order for neighbourhood='auto'
 _SHRINK_RADIUS = 0.99  # last-resort target when even order 1 is unstable
+_BAND_QUANTILES = 32  # stored quantiles per band and channel (histogram matching)
+_OUT_QUANTILES = 64  # stored quantiles of the input per channel
 
 
 def _reduce(image):
@@ -200,7 +203,8 @@ def _fit_level(band, neighbourhood, model):
     Returns ``(CARModel, note)`` where ``note`` is None when the first fit was
     stable, else a sentence saying what was done.
     """
-    first = fit_car(band, neighbourhood, model=model, channel_axis=-1)
+    orders = range(1, _MAX_ORDER + 1)
+    first = fit_car(band, neighbourhood, model=model, orders=orders, channel_axis=-1)
     radius = spectral_radius(first)
     if radius < 1.0:
         return first, None
@@ -245,6 +249,48 @@ def _torus(field, shape, mean):
             body = np.take(f, np.arange(b, n), axis=axis)
             f = np.concatenate([own * head + extra * tail, body], axis=axis)
     return f + mean
+
+
+def _probabilities(n):
+    """Probabilities of ``n`` stored quantiles: equally spaced, 0 and 1 included
+    (the minimum and the maximum)."""
+    return np.linspace(0.0, 1.0, n)
+
+
+def _quantiles(values, n):
+    """(n, d) quantiles of each channel of (h, w, d) ``values``, float32-exact."""
+    return _f32(np.quantile(values.reshape(-1, values.shape[2]), _probabilities(n), axis=0))
+
+
+def _match(values, quantiles, bins=4096):
+    """Map each channel of (h, w, d) ``values`` monotonically onto the
+    quantile function given by (q, d) ``quantiles`` (equally spaced
+    probabilities 0..1, linear in between): histogram matching.
+
+    Each value's probability is read off its channel's empirical CDF, taken
+    from a ``bins``-bin histogram (linear within a bin) rather than a full
+    sort: O(n) arithmetic, within 1/bins of the exact rank.
+    """
+    h, w, d = values.shape
+    flat = values.reshape(-1, d)
+    out = np.empty_like(flat)
+    q = quantiles.shape[0]
+    for c in range(d):
+        v = flat[:, c]
+        lo, hi = float(v.min()), float(v.max())
+        if hi <= lo:
+            out[:, c] = quantiles[q // 2, c]
+            continue
+        counts, _ = np.histogram(v, bins=bins, range=(lo, hi))
+        cdf = np.concatenate([[0.0], np.cumsum(counts) / v.size])
+        pos = (v - lo) * (bins / (hi - lo))
+        k = np.minimum(pos.astype(np.int64), bins - 1)
+        p = cdf[k] + (pos - k) * (cdf[k + 1] - cdf[k])
+        # quantiles sit at equally spaced probabilities: index arithmetic again
+        pos = p * (q - 1)
+        k = np.minimum(pos.astype(np.int64), q - 2)
+        out[:, c] = quantiles[k, c] + (pos - k) * (quantiles[k + 1, c] - quantiles[k, c])
+    return out.reshape(h, w, d)
 
 
 def _blend_width(n):
@@ -294,6 +340,18 @@ class TextureModel:
         was used instead (a lower order, chosen by the decision-rule score
         when the support was 'auto'; as a last resort order 1 with a scaled
         ``gamma``). Empty when every first fit was stable.
+    band_quantiles : (levels, 32, d) ndarray or None
+        Per band and channel, the quantiles of the analysed band at the
+        probabilities 0, 1/31, ..., 1. Every synthesised band is mapped onto
+        them by rank (histogram matching): the CAR models are Gaussian, the
+        bands of real textures are not (heavy-tailed, skewed), and the local
+        sign patterns of a texture (LBP) depend on those marginals. None for
+        models read from version-1 files (no matching).
+    quantiles : (64, d) ndarray or None
+        Per channel, the quantiles of the input at 0, 1/63, ..., 1; the
+        collapsed output is mapped onto them (the histogram restore, after
+        the mean and contrast restore). None for version-1 files (then only
+        the mean, contrast and range are restored).
     """
 
     models: tuple
@@ -304,6 +362,8 @@ class TextureModel:
     grey: bool
     model: str = "3d"
     fallbacks: tuple = field(default=())
+    band_quantiles: np.ndarray = field(default=None)
+    quantiles: np.ndarray = field(default=None)
 
     # ------------------------------------------------------------------ fit
     @classmethod
@@ -376,6 +436,7 @@ class TextureModel:
         band_ranges = np.stack(
             [np.stack([b.min(axis=(0, 1)), b.max(axis=(0, 1))]) for b in bands]
         )
+        band_quantiles = np.stack([_quantiles(b, _BAND_QUANTILES) for b in bands])
         # The file stores float32: round now, so that a saved and loaded model
         # synthesises exactly what this one does.
         for m in models:
@@ -384,7 +445,8 @@ class TextureModel:
             models=tuple(models), band_ranges=_f32(band_ranges), mean=_f32(summary.mean),
             std=_f32(np.sqrt(np.asarray(summary.var, float))),
             value_range=_f32(np.stack([summary.min, summary.max])), grey=grey,
-            model=model, fallbacks=tuple(fallbacks),
+            model=model, fallbacks=tuple(fallbacks), band_quantiles=band_quantiles,
+            quantiles=_quantiles(data, _OUT_QUANTILES),
         )
 
     # ----------------------------------------------------------- properties
@@ -411,6 +473,10 @@ class TextureModel:
             arrays[f"band{k}_mean"] = m.mean
             arrays[f"band{k}_offsets"] = m.offsets
             arrays[f"band{k}_range"] = self.band_ranges[k]
+            if self.band_quantiles is not None:
+                arrays[f"band{k}_quantiles"] = self.band_quantiles[k]
+        if self.quantiles is not None:
+            arrays["quantiles"] = self.quantiles
         return arrays
 
     @property
@@ -443,10 +509,13 @@ class TextureModel:
         """Generate a texture of any size from the model.
 
         Every band is generated from its CAR model at its pyramid size (SPEC
-        1.7) and clipped to its analysed range; the pyramid is collapsed
+        1.7), mapped by rank onto the band's stored quantiles (histogram
+        matching) and clipped to its analysed range; the pyramid is collapsed
         (expand and add, as in the analysis); the input's per-channel mean
-        and standard deviation are restored and the result clipped to the
-        input's value range (the histogram-range restore).
+        and standard deviation are restored, the result is mapped onto the
+        input's stored quantiles and clipped to its value range (the
+        histogram restore). The matching is monotone per pixel value, so
+        it keeps a tileable texture periodic.
 
         Parameters
         ----------
@@ -483,6 +552,8 @@ class TextureModel:
                 band = _torus(big.reshape(hk + bh, wk + bw, -1), (hk, wk), model.mean)
             else:
                 band = synthesize(model, (hk, wk), seed=streams[k]).reshape(hk, wk, -1)
+            if self.band_quantiles is not None:
+                band = _match(band, self.band_quantiles[k])
             bands.append(np.clip(band, self.band_ranges[k, 0], self.band_ranges[k, 1]))
         out = collapse_pyramid(bands, wrap=bool(tileable))
         # the bands' sample means drift, and independent bands lose the
@@ -491,6 +562,8 @@ class TextureModel:
         spread = centred.std(axis=(0, 1))
         gain = np.where(spread > 0, self.std / np.where(spread > 0, spread, 1.0), 1.0)
         out = self.mean + centred * gain
+        if self.quantiles is not None:
+            out = _match(out, self.quantiles)
         out = np.clip(out, self.value_range[0], self.value_range[1])
         return out[..., 0] if self.grey else out
 
@@ -498,16 +571,21 @@ class TextureModel:
     def save(self, path):
         """Write the model to an ``.npz`` file.
 
-        Format (version 1): a compressed NumPy ``.npz`` archive (no pickles) holding
+        Format (version 2): a compressed NumPy ``.npz`` archive (no pickles) holding
 
         - ``header``: a JSON string ``{"format": "car-napari texture model",
-          "version": 1, "levels": L, "n_channels": d, "grey": bool,
+          "version": 2, "levels": L, "n_channels": d, "grey": bool,
           "model": "3d"|"2d", "direction": [...], "order": [...], "beta": [...],
           "n_pixels": [...], "fallbacks": [...], "pyramid": {...}}``;
         - ``mean`` (d,), ``std`` (d,), ``value_range`` (2, d) and, per band ``k``,
           ``band{k}_gamma`` (d, d*eta), ``band{k}_sigma`` (d, d),
           ``band{k}_mean`` (d,), ``band{k}_offsets`` (eta, 2) int64,
-          ``band{k}_range`` (2, d).
+          ``band{k}_range`` (2, d), ``band{k}_quantiles`` (32, d);
+          ``quantiles`` (64, d) (the quantiles at equally spaced
+          probabilities from 0 to 1, see :attr:`band_quantiles`).
+
+        Version 1 is the same without the quantiles; :meth:`load` still
+        reads it (such a model synthesises without histogram matching).
 
         Numbers are stored as float32 (offsets as int16); :meth:`fit` rounds
         the parameters to float32 already, so a loaded model synthesises
@@ -592,19 +670,21 @@ class TextureModel:
                 f"car-napari reads (up to {FORMAT_VERSION}); upgrade car-napari to load it."
             )
         try:
-            return cls._from_arrays(header, arrays)
+            return cls._from_arrays(header, arrays, version)
         except (KeyError, ValueError, TypeError, IndexError) as exc:
             raise ValueError(
                 f"{path} is a damaged texture model: {type(exc).__name__}: {exc}."
             ) from exc
 
     @classmethod
-    def _from_arrays(cls, header, arrays):
+    def _from_arrays(cls, header, arrays, version=FORMAT_VERSION):
         levels, d = int(header["levels"]), int(header["n_channels"])
         mean = np.asarray(arrays["mean"], float).reshape(d)
         std = np.asarray(arrays["std"], float).reshape(d)
         value_range = np.asarray(arrays["value_range"], float).reshape(2, d)
-        models, ranges = [], []
+        models, ranges, band_quantiles, quantiles = [], [], [], None
+        if version >= 2:
+            quantiles = np.asarray(arrays["quantiles"], float).reshape(-1, d)
         for k in range(levels):
             gamma = np.asarray(arrays[f"band{k}_gamma"], float)
             offsets, _ = as_offsets(np.asarray(arrays[f"band{k}_offsets"]))
@@ -623,9 +703,15 @@ class TextureModel:
                 order=header["order"][k], direction=str(header["direction"][k]),
             ))
             ranges.append(np.asarray(arrays[f"band{k}_range"], float).reshape(2, d))
+            if version >= 2:
+                band_quantiles.append(
+                    np.asarray(arrays[f"band{k}_quantiles"], float).reshape(-1, d)
+                )
         return cls(
             models=tuple(models), band_ranges=np.stack(ranges), mean=mean, std=std,
             value_range=value_range, grey=bool(header["grey"]),
             model=str(header.get("model", "3d")),
             fallbacks=tuple(header.get("fallbacks", ())),
+            band_quantiles=np.stack(band_quantiles) if version >= 2 else None,
+            quantiles=quantiles,
         )

@@ -99,6 +99,36 @@ def test_save_load_round_trip(tmp_path, colour_model):
     assert header["format"] == "car-napari texture model" and header["version"] == FORMAT_VERSION
 
 
+def test_loads_version_1_files_without_quantiles(tmp_path, colour_model):
+    path = tmp_path / "grass.npz"
+    colour_model.save(path)
+    with np.load(path) as archive:
+        arrays = {k: archive[k] for k in archive.files if "quantiles" not in k}
+    header = json.loads(str(arrays["header"]))
+    old = tmp_path / "old.npz"
+    np.savez(old, **{**arrays, "header": np.array(json.dumps({**header, "version": 1}))})
+    loaded = TextureModel.load(old)
+    assert loaded.band_quantiles is None and loaded.quantiles is None
+    assert loaded.nbytes < colour_model.nbytes
+    out = loaded.synthesize((60, 70), seed=0)  # no histogram matching, as version 1 did
+    assert out.shape == (60, 70, 3) and np.isfinite(out).all()
+    assert not np.array_equal(out, colour_model.synthesize((60, 70), seed=0))
+
+
+def test_histograms_of_bands_and_output_are_restored(gravel_model):
+    texture = skdata.gravel() / 255.0
+    out = gravel_model.synthesize((512, 512), seed=0)
+    probs = np.linspace(0.05, 0.95, 19)
+    assert np.abs(np.quantile(out, probs) - np.quantile(texture, probs)).max() < 0.02
+    assert gravel_model.band_quantiles.shape == (3, 32, 1)
+    assert gravel_model.quantiles.shape == (64, 1)
+    # the stored quantiles are those of the analysed bands, ends at min and max
+    bands = laplacian_pyramid(texture[..., None], 3)
+    for band, q, r in zip(bands, gravel_model.band_quantiles, gravel_model.band_ranges):
+        np.testing.assert_allclose(q[[0, -1]], r, atol=1e-6)
+        np.testing.assert_allclose(q[16, 0], np.quantile(band, 16 / 31), atol=1e-6)
+
+
 def test_load_rejects_corrupt_and_newer_files(tmp_path, gravel_model):
     junk = tmp_path / "junk.npz"
     junk.write_bytes(b"PK\x03\x04 definitely not a zip archive")
@@ -149,10 +179,11 @@ def test_bad_arguments():
 def test_compression_ratio_at_512x512x3():
     model = TextureModel.fit(skdata.astronaut(), levels=3)  # 512 x 512 x 3
     # independent count: gamma d x d*eta, sigma d x d, band mean, band range,
-    # offsets eta x 2 per band; global mean, std and range
+    # offsets eta x 2, 32 quantiles x d per band; global mean, std, range and
+    # 64 quantiles x d
     d = 3
-    expected = sum(d * d * m.eta + d * d + d + 2 * d + 2 * m.eta for m in model.models)
-    expected = 4 * (expected + d + d + 2 * d)
+    expected = sum(d * d * m.eta + d * d + d + 2 * d + 2 * m.eta + 32 * d for m in model.models)
+    expected = 4 * (expected + d + d + 2 * d + 64 * d)
     assert model.nbytes == expected
     assert model.compression_ratio((512, 512, 3)) >= 500
     assert model.compression_ratio((512, 512)) == model.compression_ratio((512, 512, 3))
