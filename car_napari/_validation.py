@@ -104,3 +104,14 @@ def check_size(image, reach, *, minimum_pixels=1, name="image"):
             f"have a complete neighbourhood and at least {minimum_pixels} are needed. "
             "Use a larger image or a lower order."
         )
+
+
+def output_shape(shape):
+    """(height, width) as positive ints, or a ValueError that says so."""
+    try:
+        h, w = (int(v) for v in shape)
+    except Exception:
+        raise ValueError(f"shape must be (height, width); got {shape!r}.") from None
+    if h < 1 or w < 1:
+        raise ValueError(f"shape must be positive; got {(h, w)}.")
+    return h, w

@@ -18,7 +18,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._kernels import synthesize_field
-from ._validation import as_channel_last_float, check_not_constant, check_size, summarize
+from ._validation import (
+    as_channel_last_float,
+    check_not_constant,
+    check_size,
+    output_shape,
+    summarize,
+)
 from .estimation import CARModel, _estimate, data_statistics, fit_car
 from .neighbourhood import Context, as_offsets
 
@@ -130,12 +136,9 @@ class DynamicTextureModel:
         frames (from the spatial model onward) are generated and discarded so
         that the clip starts in the model's temporal steady state.
         """
-        try:
-            h, w = (int(v) for v in shape)
-        except Exception:
-            raise ValueError(f"shape must be (height, width); got {shape!r}.") from None
-        if int(n_frames) != n_frames or n_frames < 1 or h < 1 or w < 1:
-            raise ValueError(f"n_frames and shape must be positive; got {n_frames}, {shape}.")
+        h, w = output_shape(shape)
+        if int(n_frames) != n_frames or n_frames < 1:
+            raise ValueError(f"n_frames must be a positive integer; got {n_frames!r}.")
         rng = np.random.default_rng(seed)
         d = self.n_channels
         reach = int(np.abs(self.offsets).max())

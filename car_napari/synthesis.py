@@ -7,6 +7,7 @@ import math
 import numpy as np
 
 from ._kernels import synthesize_field
+from ._validation import output_shape
 from .estimation import CARModel
 from .recursive import unscan_view
 
@@ -125,12 +126,7 @@ def synthesize(model, shape, *, seed=None, margin=None):
     """
     if not isinstance(model, CARModel):
         raise TypeError(f"model must be a CARModel (from fit_car); got {type(model).__name__}.")
-    try:
-        h, w = (int(v) for v in shape)
-    except Exception:
-        raise ValueError(f"shape must be (height, width); got {shape!r}.") from None
-    if h < 1 or w < 1:
-        raise ValueError(f"shape must be positive; got {(h, w)}.")
+    h, w = output_shape(shape)
     radius = _cached_radius(model)
     if not radius < 1.0:
         raise ValueError(

@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import ndimage as ndi
 
-from ._validation import as_channel_last_float, check_not_constant, summarize
+from ._validation import as_channel_last_float, check_not_constant, output_shape, summarize
 from .estimation import CARModel, fit_car
 from .neighbourhood import as_offsets
 from .synthesis import spectral_radius, synthesize
@@ -535,12 +535,7 @@ class TextureModel:
             2-D when the model was fitted to a grey image, channel-last
             otherwise.
         """
-        try:
-            h, w = (int(v) for v in shape)
-        except Exception:
-            raise ValueError(f"shape must be (height, width); got {shape!r}.") from None
-        if h < 1 or w < 1:
-            raise ValueError(f"shape must be positive; got {(h, w)}.")
+        h, w = output_shape(shape)
         rng = np.random.default_rng(seed)
         # one independent stream per band, fixed by the seed
         streams = [np.random.default_rng(s) for s in rng.integers(0, 2**63, size=self.levels)]
