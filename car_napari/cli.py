@@ -64,6 +64,14 @@ def cmd_fit(args):
     sys.stdout.write("\n")
 
 
+def _from_unit(values, dtype):
+    """Float values on the core's [0, 1] scale as ``dtype``: uint8 and uint16
+    scaled and rounded, anything else float32."""
+    if dtype in (np.uint8, np.uint16):
+        return np.round(np.clip(values, 0.0, 1.0) * np.iinfo(dtype).max).astype(dtype)
+    return np.asarray(values).astype(np.float32)
+
+
 def _write_texture(path, sample, *, uint16=False):
     """PNG/JPEG/BMP: 8-bit (16-bit PNG with ``uint16``) of values in [0, 1];
     TIFF: float32 as is."""
@@ -73,12 +81,9 @@ def _write_texture(path, sample, *, uint16=False):
 
     suffix = Path(path).suffix.lower()
     if suffix in (".tif", ".tiff"):
-        out = sample.astype(np.float32)
+        out = _from_unit(sample, np.float32)
     elif suffix in (".png", ".jpg", ".jpeg", ".bmp"):
-        if uint16 and suffix == ".png":
-            out = np.round(np.clip(sample, 0.0, 1.0) * 65535).astype(np.uint16)
-        else:
-            out = np.round(np.clip(sample, 0.0, 1.0) * 255).astype(np.uint8)
+        out = _from_unit(sample, np.uint16 if uint16 and suffix == ".png" else np.uint8)
     else:
         raise ValueError(f"cannot write {path}: use .png, .jpg, .bmp (8-bit) or .tif (float).")
     io.imsave(path, out, check_contrast=False)
@@ -186,7 +191,6 @@ def cmd_mammo(args):
     from pathlib import Path
 
     from skimage import io
-    from skimage.color import rgb2gray
 
     from .mammography import DEFAULT_MAX_REGIONS, TABLE_COLUMNS, detect_mammogram_rois
 
@@ -204,11 +208,9 @@ def cmd_mammo(args):
             t0 = time.perf_counter()
             try:
                 image = _read(str(path))
-                if image.ndim == 3:  # an RGB export of a grey mammogram
-                    image = rgb2gray(image)
                 labels, table = detect_mammogram_rois(
                     image, reference=args.reference, tolerance=args.tolerance,
-                    max_regions=max_regions)
+                    max_regions=max_regions, channel_axis=-1 if image.ndim == 3 else None)
             except ValueError as exc:  # one bad file must not lose the others
                 failed += 1
                 print(f"\n{path.name}: skipped: {exc}", file=sys.stderr)
@@ -225,15 +227,6 @@ def cmd_mammo(args):
     print(f"table: {table_path}", file=sys.stderr)
     if failed == len(paths):
         raise ValueError("no mammogram could be processed (see the messages above).")
-
-
-def _like_input(image, source):
-    """Float result in [0, 1] units back to the input's integer type, if any."""
-    if source.dtype == np.uint8:
-        return np.round(np.clip(image, 0, 1) * 255).astype(np.uint8)
-    if source.dtype == np.uint16:
-        return np.round(np.clip(image, 0, 1) * 65535).astype(np.uint16)
-    return image.astype(np.float32)
 
 
 def _kappa(text):
@@ -269,7 +262,7 @@ def cmd_restore(args):
         restored = result.restored()
         restored = restored[..., 0] if restored.shape[2] == 1 else restored
         source = image if args.stack_axis is None else np.take(image, 0, axis=args.stack_axis)
-        restored = _like_input(restored, source)
+        restored = _from_unit(restored, source.dtype)
         suffix = ".tif" if restored.dtype == np.float32 else ".png"
         io.imsave(out / f"{path.stem}_restored{suffix}", restored, check_contrast=False)
         if args.probability:

@@ -150,12 +150,9 @@ def _fill_frame(frame, mask, previous, offsets, forgetting, interleave, prior):
         taps += [(di, dj, C + c) for di, dj in offsets for c in range(C)]
     context = Context(np.array(taps, np.int64), np.arange(C))
     pad = max(max(context.reach[0]), max(context.reach[1]))
-    source = frame - mean
-    if previous is not None:
-        source = np.concatenate([source, previous - mean], axis=2)
-    source = np.where(mask[..., None], 0.0, source)  # damaged values never enter
-    if previous is not None:
-        source[..., C:] = previous - mean
+    parts = [frame - mean] + ([] if previous is None else [previous - mean])
+    source = np.concatenate(parts, axis=2)
+    source[mask, :C] = 0.0  # damaged values never enter (the previous frame is restored)
     source = np.ascontiguousarray(np.pad(source, ((pad, pad), (pad, pad), (0, 0)),
                                           mode="reflect"))
     padded_mask = np.ascontiguousarray(np.pad(mask, pad, mode="reflect"))

@@ -75,6 +75,16 @@ def _grey01(image, name="image"):
     return data
 
 
+def _as_grey(image, channel_axis):
+    """A colour export of a grey mammogram (``channel_axis`` given) as the
+    luminance in [0, 1]; a grey image unchanged."""
+    if channel_axis is None:
+        return image
+    from skimage.color import rgb2gray
+
+    return rgb2gray(np.moveaxis(np.asarray(image), channel_axis, -1)[..., :3])
+
+
 def _block_mean(data, factor):
     """Downsample by an integer factor (block mean, edges cropped)."""
     if factor <= 1:
@@ -585,9 +595,11 @@ def region_outlines(labels):
 def iter_detect_mammogram_rois(image, *, reference=None, tolerance=None, levels=3,
                                n_segments=None, neighbourhood=2, n_init=16,
                                max_regions=DEFAULT_MAX_REGIONS, min_area=None, breast=None,
-                               work_side=512, seed=0, pool=DEFAULT_POOL_SEGMENTS, split=True):
+                               work_side=512, seed=0, pool=DEFAULT_POOL_SEGMENTS, split=True,
+                               channel_axis=None):
     """:func:`detect_mammogram_rois` as a generator: yields progress floats in
     [0, 1], then the ``(labels, table)`` tuple."""
+    image = _as_grey(image, channel_axis)
     out = None
     pool = None if n_segments is not None else pool
     for step in iter_segment_breast(image, breast=breast, n_segments=n_segments, levels=levels,
@@ -607,7 +619,7 @@ def iter_detect_mammogram_rois(image, *, reference=None, tolerance=None, levels=
 def detect_mammogram_rois(image, *, reference=None, tolerance=None, levels=3, n_segments=None,
                           neighbourhood=2, n_init=16, max_regions=DEFAULT_MAX_REGIONS,
                           min_area=None, breast=None, work_side=512, seed=0,
-                          pool=DEFAULT_POOL_SEGMENTS, split=True):
+                          pool=DEFAULT_POOL_SEGMENTS, split=True, channel_axis=None):
     """Regions of interest (candidate masses) in a mammogram (SPEC 3.1).
 
     1. Breast area: :func:`detect_breast` (or ``breast`` if given).
@@ -646,6 +658,9 @@ def detect_mammogram_rois(image, *, reference=None, tolerance=None, levels=3, n_
     split : bool, optional
         Also cut segments into their locally bright parts
         (:func:`filter_regions`).
+    channel_axis : int or None, optional
+        The colour axis of an RGB export of a grey mammogram (its luminance
+        is used); None (default) for a grey image.
     max_regions : int or None, optional
         Keep only the best-scoring regions (default
         :data:`DEFAULT_MAX_REGIONS`).
@@ -664,6 +679,7 @@ def detect_mammogram_rois(image, *, reference=None, tolerance=None, levels=3, n_
         image, reference=reference, tolerance=tolerance, levels=levels, n_segments=n_segments,
         neighbourhood=neighbourhood, n_init=n_init, max_regions=max_regions, min_area=min_area,
         breast=breast, work_side=work_side, seed=seed, pool=pool, split=split,
+        channel_axis=channel_axis,
     ):
         if isinstance(step, tuple):
             result = step
