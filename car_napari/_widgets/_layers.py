@@ -44,3 +44,39 @@ def value_range(data):
         info = np.iinfo(data.dtype)
         return float(data.min()) / info.max, float(data.max()) / info.max
     return float(data.min()), float(data.max())
+
+
+class RunLayers:
+    """What one run writes into the viewer, so that a cancelled or failed run
+    can be undone: layers it created are removed, layers it overwrote get
+    their data back. :meth:`commit` when the run completes."""
+
+    def __init__(self, viewer):
+        self._viewer = viewer
+        self._created = []
+        self._backup = {}
+
+    def put(self, name, data, add):
+        """Set layer ``name``'s data, or create it with ``add(data, name)``."""
+        layers = self._viewer.layers
+        if name in layers:
+            if name not in self._backup and name not in self._created:
+                self._backup[name] = layers[name].data
+            layers[name].data = data
+            return layers[name]
+        layer = add(data, name)
+        self._created.append(name)
+        return layer
+
+    def undo(self):
+        layers = self._viewer.layers
+        for name in self._created:
+            if name in layers:
+                layers.remove(name)
+        for name, data in self._backup.items():
+            if name in layers:
+                layers[name].data = data
+        self.commit()
+
+    def commit(self):
+        self._created, self._backup = [], {}

@@ -9,6 +9,7 @@ from napari.utils.notifications import show_error, show_info
 from ..inpainting import detect_scratches, iter_inpaint
 from .._generators import relay
 from ._jobs import Job
+from ._layers import RunLayers
 
 BRUSH_SIZE = 5
 
@@ -27,6 +28,7 @@ class InpaintingWidget(Container):
         super().__init__(labels=True)
         self._viewer = napari_viewer
         self._job = None
+        self._run_layers = RunLayers(napari_viewer)  # undone if a run is cancelled
         self.updates = 0
         self._image = create_widget(annotation="napari.layers.Image", label="image or clip")
         self._new_mask = PushButton(text="New mask layer",
@@ -107,7 +109,7 @@ class InpaintingWidget(Container):
     def cancel(self, *_):
         if self._job is not None:
             self._job.cancel()
-            self._undo()
+            self._run_layers.undo()
 
     def start(self, *_):
         try:
@@ -128,10 +130,7 @@ class InpaintingWidget(Container):
         self._layer = layer
         self._rgb = rgb
         self._out_name = f"{layer.name} restored"
-        existing = self._viewer.layers[self._out_name] \
-            if self._out_name in self._viewer.layers else None
-        self._backup = None if existing is None else existing.data
-        self._created = existing is None
+        self._run_layers.commit()
         self._frames = data.copy()  # the output, filled in frame by frame
         self._clip = data.ndim - rgb == 3
         self.updates = 0
@@ -139,20 +138,18 @@ class InpaintingWidget(Container):
                         bool(self._temporal.value), progress=self._progress,
                         cancel=self._cancel, buttons=(self._run, self._detect),
                         on_yield=self._show_frame, on_done=self._finished,
-                        on_error=lambda exc: self._undo())
+                        on_error=lambda exc: self._run_layers.undo())
         return self._job
 
+    def _add_output(self, data, name):
+        layer = self._layer
+        kwargs = dict(rgb=self._rgb, scale=layer.scale, translate=layer.translate)
+        if not self._rgb:
+            kwargs.update(colormap=layer.colormap.name, contrast_limits=layer.contrast_limits)
+        return self._viewer.add_image(data, name=name, **kwargs)
+
     def _put(self, data):
-        layers = self._viewer.layers
-        if self._out_name in layers:
-            layers[self._out_name].data = data
-        else:
-            layer = self._layer
-            kwargs = dict(rgb=self._rgb, scale=layer.scale, translate=layer.translate)
-            if not self._rgb:
-                kwargs.update(colormap=layer.colormap.name,
-                              contrast_limits=layer.contrast_limits)
-            self._viewer.add_image(data, name=self._out_name, **kwargs)
+        self._run_layers.put(self._out_name, data, self._add_output)
 
     def _show_frame(self, state):
         if self._clip:
@@ -164,15 +161,7 @@ class InpaintingWidget(Container):
         self.updates += 1
         self._status.value = f"frame {state.frame + 1} restored"
 
-    def _undo(self):
-        """A cancelled or failed run leaves the layer list as it was."""
-        layers = self._viewer.layers
-        if self._created:
-            if self._out_name in layers:
-                layers.remove(self._out_name)
-        elif self._backup is not None and self._out_name in layers:
-            layers[self._out_name].data = self._backup
-
     def _finished(self, restored):
         self._put(restored)
+        self._run_layers.commit()
         self._status.value = "restored"

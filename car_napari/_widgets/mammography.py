@@ -81,11 +81,7 @@ class MammogramWidget(Container):
         except ValueError as exc:
             show_error(str(exc))
             return None
-        if channel_axis is not None:  # an RGB export of a grey mammogram
-            from skimage.color import rgb2gray
-
-            data = rgb2gray(data)
-        options = dict(reference=float(self._reference.value),
+        options = dict(channel_axis=channel_axis, reference=float(self._reference.value),
                        tolerance=float(self._tolerance.value),
                        max_regions=int(self._max_regions.value) or None)
         self._name = layer.name

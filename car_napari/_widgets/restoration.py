@@ -25,6 +25,7 @@ from ..restoration import (
 )
 from .._generators import relay
 from ._jobs import Job
+from ._layers import RunLayers
 
 SINGLE = "single image"
 
@@ -59,8 +60,7 @@ class RestorationWidget(Container):
         self._viewer = napari_viewer
         self.result: RestorationResult | None = None
         self._job = None
-        self._made = []  # layers this run created (removed on cancel)
-        self._backup = {}  # name -> data of layers this run overwrote
+        self._run_layers = RunLayers(napari_viewer)  # undone if a run is cancelled
         self.updates = 0
         self._image = create_widget(annotation="napari.layers.Image", label="image")
         self._axis = ComboBox(value=SINGLE, choices=[SINGLE, "axis 0", "axis 1", "axis 2"],
@@ -107,7 +107,7 @@ class RestorationWidget(Container):
     def cancel(self, *_):
         if self._job is not None:
             self._job.cancel()
-            self._undo()
+            self._run_layers.undo()
 
     def start(self, *_):
         try:
@@ -134,14 +134,14 @@ class RestorationWidget(Container):
         self._source = layer
         self._name = layer.name
         self._rgb = channel_axis is not None
-        self._made, self._backup = [], {}
+        self._run_layers.commit()
         self.updates = 0
         self._kappa.enabled = self._show_changed.enabled = False
         self._status.value = ""
         self._job = Job(_restore_job, data, channel_axis, stack_axis, options,
                         progress=self._progress, cancel=self._cancel, buttons=(self._run,),
                         on_yield=self._show_state, on_done=self._finished,
-                        on_error=lambda exc: self._undo())
+                        on_error=lambda exc: self._run_layers.undo())
         return self._job
 
     # --- layers -----------------------------------------------------------------
@@ -149,19 +149,6 @@ class RestorationWidget(Container):
     def _names(self):
         base = self._name
         return (f"{base} restored", f"{base} prediction probability", f"{base} changed pixels")
-
-    def _put(self, name, data, add):
-        """Write ``data`` into layer ``name``, creating it if needed; keeps
-        what it overwrote so that a cancelled run can put it back."""
-        layers = self._viewer.layers
-        if name in layers:
-            if name not in self._backup and name not in self._made:
-                self._backup[name] = layers[name].data
-            layers[name].data = data
-            return layers[name]
-        layer = add(data, name)
-        self._made.append(name)
-        return layer
 
     def _add_restored(self, data, name):
         source = self._source
@@ -184,29 +171,18 @@ class RestorationWidget(Container):
             if not isinstance(state, float):
                 self._status.value = state.stage
             return
-        self._put(self._names()[0], self._display(state.restored), self._add_restored)
+        self._run_layers.put(self._names()[0], self._display(state.restored), self._add_restored)
         self.updates += 1
         self._status.value = state.stage
-
-    def _undo(self):
-        """A cancelled or failed run leaves the layer list as it was."""
-        layers = self._viewer.layers
-        for name in self._made:
-            if name in layers:
-                layers.remove(name)
-        for name, data in self._backup.items():
-            if name in layers:
-                layers[name].data = data
-        self._made, self._backup = [], {}
 
     def _finished(self, result):
         self.result = result
         restored_name, probability_name, _ = self._names()
         with self._kappa.changed.blocked():
             self._kappa.value = result.kappa
-        self._put(restored_name, self._display(result.restored()), self._add_restored)
-        self._put(probability_name, result.probability, self._add_probability)
-        self._made, self._backup = [], {}  # this run is complete: nothing to undo
+        self._run_layers.put(restored_name, self._display(result.restored()), self._add_restored)
+        self._run_layers.put(probability_name, result.probability, self._add_probability)
+        self._run_layers.commit()  # this run is complete: nothing to undo
         self._kappa.enabled = self._show_changed.enabled = True
         self._rethreshold()
         ref = "" if result.reference is None else f"reference: version {result.reference}; "
