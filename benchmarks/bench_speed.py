@@ -66,7 +66,7 @@ import json, resource, sys, time
 sys.path.insert(0, {root!r})
 {body}
 peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-print(json.dumps({{"seconds": seconds, "peak_mb": peak, **extra}}))
+print(json.dumps({{"seconds": round(seconds, 3), "peak_mb": peak, **extra}}))
 """
 
 
@@ -88,9 +88,9 @@ def main():
         if args.only and args.only not in name:
             continue
         runs = [run(body) for _ in range(args.repeat)]
-        seconds = ", ".join(f"{r['seconds']:.1f}" for r in runs)
+        seconds = ", ".join(f"{r['seconds']:.2f}" for r in runs)
         peak = max(r["peak_mb"] for r in runs)
-        notes = {k: v for k, v in runs[-1].items() if k not in ("seconds", "peak_mb")}
+        notes = {k: [r[k] for r in runs] for k in runs[-1] if k not in ("seconds", "peak_mb")}
         print(f"| {name} | {seconds} | {peak:.0f} | {notes} |", flush=True)
 
 

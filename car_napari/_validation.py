@@ -9,13 +9,16 @@ import numpy as np
 from ._kernels import channel_summary
 
 
-def as_channel_last_float(image, *, channel_axis=-1, name="image"):
-    """Return ``image`` as a C-contiguous float64 array of shape (H, W, d).
+def as_channel_last_float(image, *, channel_axis=-1, name="image", with_summary=False,
+                          copy=True):
+    """Return ``image`` as a C-contiguous float64 array of shape (H, W, d)
+    (and its :func:`summarize`, computed anyway, with ``with_summary``).
 
     Integer images are scaled to [0, 1] like ``skimage.util.img_as_float``;
     float images keep their values. ``channel_axis=None`` means a grey image.
     The input is never modified (a copy is made whenever the dtype or layout
-    changes; a float64 C-contiguous input is copied too, so callers may write).
+    changes; a float64 C-contiguous input is copied too, so callers may write,
+    unless ``copy`` is False: then it may be returned as it is, read only).
     """
     if image is None:
         raise TypeError(f"{name} is None: pass a 2-D grey or 3-D multichannel array.")
@@ -52,7 +55,7 @@ def as_channel_last_float(image, *, channel_axis=-1, name="image"):
             if info.min < 0:
                 out = np.maximum(out, -1.0)
     else:
-        out = arr.astype(np.float64)
+        out = arr.astype(np.float64, copy=copy)
     out = np.ascontiguousarray(out)
     if out.shape[-1] > 64:
         raise ValueError(
@@ -66,7 +69,7 @@ def as_channel_last_float(image, *, channel_axis=-1, name="image"):
             f"{name} contains {bad} NaN or infinite values; fill or mask them first "
             "(e.g. np.nan_to_num, or restrict the fit to a finite rectangle)."
         )
-    return out
+    return (out, summary) if with_summary else out
 
 
 Summary = namedtuple("Summary", "min max mean var nonfinite")

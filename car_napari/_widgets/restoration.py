@@ -67,8 +67,7 @@ class RestorationWidget(Container):
                               label="versions",
                               tooltip="a stack: the axis holding the degraded versions")
         self._order = SpinBox(value=0, min=0, max=5, label="order",
-                              tooltip="causal neighbourhood order; 0: the default "
-                                      "(2 for one image, 1 for a stack)")
+                              tooltip="causal neighbourhood order; 0: the default (1)")
         self._keep_edges = CheckBox(value=True, text="keep edges (14.40)")
         self._run = PushButton(text="Restore")
         self._cancel = PushButton(text="Cancel", enabled=False)
