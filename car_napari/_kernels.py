@@ -151,6 +151,7 @@ def recursive_scan(
     tap_px,
     fill_lo,
     fill_hi,
+    suspect_logrel,
     T_final,
     G_final,
     lam_final,
@@ -194,9 +195,16 @@ def recursive_scan(
         ``data`` are overwritten by the conditional mean as the scan reaches
         them, so later pixels use them as neighbours; they never update the
         statistics, nor do pixels whose neighbourhood holds a missing pixel.
+        A value of 2 marks a suspect known pixel (the edge of the damage):
+        if, when the scan reaches it, it is an outlier of the predictive
+        density (its log density relative to the peak, as ``logrel_out``,
+        below ``suspect_logrel``), it is filled like a missing pixel and its
+        entry becomes 1; otherwise it is kept and its entry becomes 0.
+        ``missing`` is written to: pass a copy per scan.
     tap_px : int64[m] pixel-index offset of each tap (used with ``missing``).
     fill_lo, fill_hi : float64[d] bounds of the filled values (a chain of
         predictions through a long hole must not run away).
+    suspect_logrel : float, the outlier threshold (<= 0) for suspect pixels.
     T_final, G_final, lam_final, state_final : the final statistics and
         ``[beta, count]``.
     """
@@ -295,6 +303,21 @@ def recursive_scan(
             hole = False
             if fill:
                 hole = missing[px] != 0
+                if missing[px] == 2:
+                    # a suspect edge pixel: damaged when the model finds it improbable
+                    svv = _project(T, x, v, p)
+                    sq = 1.0 + tau * tau * svv
+                    _cholesky_small(lam, L, d)
+                    smaha = 0.0
+                    for t in range(d):
+                        acc = e[t]
+                        for k in range(t):
+                            acc -= L[t, k] * u[k]
+                        u[t] = acc / L[t, t]
+                        smaha += u[t] * u[t]
+                    srel = -0.5 * (beta - p + 2.0 + d) * math.log1p(smaha / sq)
+                    hole = srel < suspect_logrel
+                    missing[px] = 1 if hole else 0
                 if hole:
                     # the conditional mean fills the pixel for the rest of the scan
                     for t in range(d):

@@ -90,6 +90,7 @@ def scan(
     outputs=("gamma",),
     missing=None,
     fill_range=None,
+    suspect_logrel=-np.inf,
 ):
     """Run the recursive estimator over ``data`` (H, W, C) float64, C-ordered.
 
@@ -115,6 +116,12 @@ def scan(
         whose neighbourhood holds one do not update the statistics.
     fill_range : (lo, hi) arrays of d values, optional
         Bounds for the filled values (default: unbounded).
+    suspect_logrel : float <= 0, optional
+        ``missing`` may also be a uint8 array holding 2 at suspect known
+        pixels (the edge of the damage): one the model finds improbable when
+        the scan reaches it (log predictive density relative to its peak, as
+        the ``logrel`` output, below this) is filled too. Such a ``missing``
+        is modified in place (1 where filled, 0 where kept).
 
     Returns
     -------
@@ -200,6 +207,7 @@ def scan(
         tap_px,
         fill_lo,
         fill_hi,
+        float(suspect_logrel),
         T_final,
         G_final,
         lam_final,

@@ -77,6 +77,50 @@ def test_frame_outside_mask_is_bit_identical_and_scratches_are_filled():
     assert err.mean() < 0.08
 
 
+def test_suspect_edge_pixels_are_tested_and_filled_when_improbable():
+    """The kernel's halo test: a known pixel marked 2 is filled (and marked
+    1) when it is an outlier of the predictive density, kept (marked 0)
+    otherwise; with the test off (threshold -inf) it is always kept."""
+    rng = np.random.default_rng(1)
+    image = ndimage.uniform_filter(rng.random((30, 31)), 5)
+    y = image - image.mean()
+    codes = np.zeros(image.shape, np.uint8)
+    codes[10:20, 15] = 1  # the damage
+    codes[10:20, 16] = 2  # its right edge: suspect
+    y[10:15, 16] += 5.0  # a bright halo on half of the edge
+    context = Context.spatial(np.array([(0, 1), (1, 0), (1, 1)]), 1)
+    prior = default_prior(np.array([image.var()]), 3, True, 1, 1e-6)
+    for threshold, halo_filled in ((-12.0, True), (-np.inf, False)):
+        work = np.ascontiguousarray(y[..., None].copy())
+        marks = codes.copy()
+        scan(work, context, direction="down", forgetting=1.0, intercept=True, prior=prior,
+             outputs=(), missing=marks, suspect_logrel=threshold)
+        assert np.all(marks[10:15, 16] == (1 if halo_filled else 0))
+        assert np.all(marks[15:20, 16] == 0)  # plausible edge pixels are kept
+        np.testing.assert_array_equal(work[15:20, 16, 0], y[15:20, 16])
+        if halo_filled:  # the halo is replaced by predictions near the image
+            assert np.abs(work[10:15, 16, 0] - image[10:15, 16] + image.mean()).max() < 0.5
+
+
+def test_halo_test_recovers_soft_edged_damage():
+    """A blotch with a one-pixel fringe outside its mask (half blended with
+    the blotch): with the halo test the fill is much closer to the truth
+    (measured 5.6 -> 15.1 dB); pixels outside the mask are unchanged."""
+    image = skdata.astronaut()[100:228, 100:228]
+    mask = np.zeros(image.shape[:2], bool)
+    mask[80:100, 60:100] = True
+    fringe = ndimage.binary_dilation(mask) & ~mask
+    damaged = image.copy()
+    damaged[mask] = 250
+    damaged[fringe] = (0.5 * image[fringe] + 0.5 * 250).astype(np.uint8)
+    on = inpaint(damaged, mask)
+    off = inpaint(damaged, mask, halo=None)
+    np.testing.assert_array_equal(on[~mask], damaged[~mask])
+    assert _psnr(image, on, mask) > _psnr(image, off, mask) + 5.0
+    with pytest.raises(ValueError, match="halo"):
+        inpaint(damaged, mask, halo=1.0)
+
+
 def test_clip_uses_the_previous_frame():
     """A static scene with different scratches in each frame: the previous
     restored frame predicts the hole far better than the frame alone."""
