@@ -150,7 +150,9 @@ def test_restore_denoises_colour_and_grey_and_keeps_layout():
     rng = np.random.default_rng(0)
     clean = img_as_float(skdata.astronaut())[:128, :128]
     noisy = _degraded(clean, rng)
+    given = noisy.copy()
     out = restore(noisy)
+    np.testing.assert_array_equal(noisy, given)  # read, never written (it is not copied)
     assert out.shape == clean.shape and out.dtype == np.float64
     assert psnr(clean, out, data_range=1) > psnr(clean, noisy, data_range=1) + 2.0
     # channel_axis=0 gives the same numbers in that layout
@@ -293,6 +295,14 @@ def test_bad_input():
         estimate_psf(image, image, size=4)
     with pytest.raises(ValueError, match="one shape"):
         estimate_psf(image, image[:16])
+    with pytest.raises(ValueError, match="estimator must be"):
+        restore(image, channel_axis=None, estimator="kalman")
+    with pytest.raises(ValueError, match="window must be"):
+        restore(image, channel_axis=None, window=3)
+    with pytest.raises(ValueError, match="up-left"):  # the windowed estimator's names
+        restore(image, channel_axis=None, directions=("down",))
+    with pytest.raises(ValueError, match="'down'"):
+        restore(image, channel_axis=None, estimator="recursive", directions=("up-left",))
 
 
 def test_return_result_matches_the_plain_call():
