@@ -82,21 +82,44 @@ def _project(T, x, v, p):
     return vv
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
-def _cholesky_small(A, L, d):
-    """Lower Cholesky factor of a small SPD matrix; returns log det A."""
-    logdet = 0.0
-    for i in range(d):
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def cholesky_lower(A, L, n, floor):
+    """Lower Cholesky factor of a small SPD matrix into ``L`` (the upper part
+    zeroed); pivots below ``floor`` are raised to it (-inf: none)."""
+    for i in range(n):
         for j in range(i + 1):
             acc = A[i, j]
             for k in range(j):
                 acc -= L[i, k] * L[j, k]
             if i == j:
-                L[i, i] = math.sqrt(acc)
-                logdet += 2.0 * math.log(L[i, i])
+                L[i, i] = math.sqrt(max(acc, floor))
             else:
                 L[i, j] = acc / L[j, j]
+        for j in range(i + 1, n):
+            L[i, j] = 0.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _cholesky_small(A, L, d):
+    """Lower Cholesky factor of a small SPD matrix; returns log det A."""
+    cholesky_lower(A, L, d, -np.inf)
+    logdet = 0.0
+    for i in range(d):
+        logdet += 2.0 * math.log(L[i, i])
     return logdet
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _mahalanobis(L, e, u, d):
+    """``e^T (L L^T)^-1 e`` by forward substitution (``u`` scratch)."""
+    maha = 0.0
+    for t in range(d):
+        acc = e[t]
+        for k in range(t):
+            acc -= L[t, k] * u[k]
+        u[t] = acc / L[t, t]
+        maha += u[t] * u[t]
+    return maha
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST, inline="always")
@@ -305,16 +328,9 @@ def recursive_scan(
                 hole = missing[px] != 0
                 if missing[px] == 2:
                     # a suspect edge pixel: damaged when the model finds it improbable
-                    svv = _project(T, x, v, p)
-                    sq = 1.0 + tau * tau * svv
+                    sq = 1.0 + tau * tau * _project(T, x, v, p)
                     _cholesky_small(lam, L, d)
-                    smaha = 0.0
-                    for t in range(d):
-                        acc = e[t]
-                        for k in range(t):
-                            acc -= L[t, k] * u[k]
-                        u[t] = acc / L[t, t]
-                        smaha += u[t] * u[t]
+                    smaha = _mahalanobis(L, e, u, d)
                     srel = -0.5 * (beta - p + 2.0 + d) * math.log1p(smaha / sq)
                     hole = srel < suspect_logrel
                     missing[px] = 1 if hole else 0
@@ -344,13 +360,7 @@ def recursive_scan(
                     q_out[px] = q
                 if want_logp or want_maha or want_logrel:
                     logdet = _cholesky_small(lam, L, d)
-                    maha = 0.0
-                    for t in range(d):
-                        acc = e[t]
-                        for k in range(t):
-                            acc -= L[t, k] * u[k]
-                        u[t] = acc / L[t, t]
-                        maha += u[t] * u[t]
+                    maha = _mahalanobis(L, e, u, d)
                     if want_maha:
                         maha_out[px] = maha
                     if want_logrel:

@@ -24,11 +24,11 @@ threads can share an image; they release the GIL (``nogil``) and are cached.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numba import njit
 from numba import uint64 as u8
+
+from ._kernels import cholesky_lower
 
 _FAST = {"reassoc", "contract", "arcp"}
 
@@ -137,7 +137,7 @@ def window_models(moments, ix, iy, prior_x, prior_y, want_density, gamma, x_inv,
                     Vxx[u, u] += prior_x[u]
                     for t in range(d):
                         B[u, t] = S[ix[k, u], iy[t]]
-                _cholesky(Vxx, Lx, p)
+                cholesky_lower(Vxx, Lx, p, 1e-300)
                 # lambda = Vyy - (Lx^-1 Vxy)^T (Lx^-1 Vxy); B <- Lx^-1 Vxy
                 _forward(Lx, B, p, d)
                 for t in range(d):
@@ -152,24 +152,9 @@ def window_models(moments, ix, iy, prior_x, prior_y, want_density, gamma, x_inv,
                     for u in range(p):
                         gamma[k, bi, bj, t, u] = B[u, t]
                 if want_density:
-                    _cholesky(lam, Ll, d)
+                    cholesky_lower(lam, Ll, d, 1e-300)
                     _lower_inverse(Lx, x_inv[k, bi, bj], p)
                     _lower_inverse(Ll, lam_inv[k, bi, bj], d)
-
-
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _cholesky(A, L, n):
-    for i in range(n):
-        for j in range(i + 1):
-            acc = A[i, j]
-            for k in range(j):
-                acc -= L[i, k] * L[j, k]
-            if i == j:
-                L[i, i] = math.sqrt(max(acc, 1e-300))
-            else:
-                L[i, j] = acc / L[j, j]
-        for j in range(i + 1, n):
-            L[i, j] = 0.0
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -314,31 +299,29 @@ def predict_block_models(planes, block, gamma, x_inv, lam_inv, tap_i, tap_j, tap
         if not want_ratio:
             continue
         q[:n] = 1.0
-        ak = 0
-        for a in range(p):  # q = 1 + |x_inv z|^2
-            acc[:n] = 0.0
-            for k in range(a + 1):
-                xk = x_row[ak]
-                zk = z[k]
-                for s in range(n):
-                    acc[u8(s)] += xk[u8(s)] * zk[u8(s)]
-                ak += 1
-            for s in range(n):
-                q[u8(s)] += acc[u8(s)] * acc[u8(s)]
+        _add_lower_norm2(x_row, z, p, n, acc, q)  # q = 1 + |x_inv z|^2
         maha[:n] = 0.0
-        ak = 0
-        for a in range(C):  # maha = |lam_inv e|^2
-            acc[:n] = 0.0
-            for k in range(a + 1):
-                lk = l_row[ak]
-                ek = e[k]
-                for s in range(n):
-                    acc[u8(s)] += lk[u8(s)] * ek[u8(s)]
-                ak += 1
-            for s in range(n):
-                maha[u8(s)] += acc[u8(s)] * acc[u8(s)]
+        _add_lower_norm2(l_row, e, C, n, acc, maha)  # |lam_inv e|^2
         for s in range(n):
             ratio_out[i - row0, j0 + s] = maha[u8(s)] / q[u8(s)]
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST, inline="always")
+def _add_lower_norm2(rows, vectors, size, n, acc, out):
+    """``out[s] += |M_s v_s|^2`` for the first ``n`` pixels ``s`` of a row,
+    ``M_s`` lower triangular (size x size) packed by rows in ``rows`` (one
+    entry per pixel) and ``v_s`` the columns of ``vectors``."""
+    ak = 0
+    for a in range(size):
+        acc[:n] = 0.0
+        for k in range(a + 1):
+            mk = rows[ak]
+            vk = vectors[k]
+            for s in range(n):
+                acc[u8(s)] += mk[u8(s)] * vk[u8(s)]
+            ak += 1
+        for s in range(n):
+            out[u8(s)] += acc[u8(s)] * acc[u8(s)]
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
