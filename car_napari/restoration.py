@@ -355,11 +355,11 @@ def _edge_weight(observed, prediction, spread, noise):
     return _edge_rule(observed, prediction, spread, noise)
 
 
-def _edge_rule(observed, prediction, spread, noise, pool=None, blend=False):
+def _edge_rule(observed, prediction, spread, noise, pool=None, blend=False, out=None):
     """The weight of :func:`_edge_weight`, or with ``blend`` the restored image
     ``prediction + weight (observed - prediction)``, by rows in two halves on
-    ``pool`` when given."""
-    out = np.empty(observed.shape)
+    ``pool`` when given; into ``out`` when given."""
+    out = np.empty(observed.shape) if out is None else out
     args = (observed, np.ascontiguousarray(prediction), np.ascontiguousarray(spread), noise**2,
             EDGE_WINDOW // 2, EDGE_SPREAD * float(np.mean(noise**2)), bool(blend), out)
     if pool is None:
@@ -560,8 +560,11 @@ def _iter_restore(image, *, neighbourhood, estimator, window, forgetting, direct
             if noise_future is not None:
                 noise = noise_future.result()
             weight = None
-            if keep_edges and blend:  # the restored image straight away, no weight array
-                pred = _edge_rule(data, pred, spread, noise, pool, blend=True)
+            if keep_edges and blend:  # the restored image straight away, no weight array,
+                # written over the planes, which are no longer needed (fresh memory is
+                # slow to touch: page faults cost as much as a kernel here)
+                pred = _edge_rule(data, pred, spread, noise, pool, blend=True,
+                                  out=planes.reshape(data.shape))
             elif keep_edges:
                 weight = _edge_rule(data, pred, spread, noise, pool)
         else:
