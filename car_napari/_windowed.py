@@ -256,23 +256,23 @@ def predict_block_models(planes, block, gamma, x_inv, lam_inv, tap_i, tap_j, tap
         bi = i // block
         if bi != current:  # spread this block row's models along the row
             current = bi
-            for s in range(n):
-                bj = (j0 + s) // block
+            for bj in range(j0 // block, (j1 + block - 1) // block):
+                s0 = max(bj * block, j0) - j0  # this block's pixels in the row
+                s1 = min((bj + 1) * block, j1) - j0
                 for t in range(C):
                     for k in range(p):
-                        g_row[t, k, s] = gamma[bi, bj, t, k]
-                if not want_ratio:
-                    continue
-                ak = 0
-                for a in range(p):
-                    for k in range(a + 1):
-                        x_row[ak, s] = x_inv[bi, bj, a, k]
-                        ak += 1
-                ak = 0
-                for a in range(C):
-                    for k in range(a + 1):
-                        l_row[ak, s] = lam_inv[bi, bj, a, k]
-                        ak += 1
+                        g_row[t, k, s0:s1] = gamma[bi, bj, t, k]
+                if want_ratio:
+                    ak = 0
+                    for a in range(p):
+                        for k in range(a + 1):
+                            x_row[ak, s0:s1] = x_inv[bi, bj, a, k]
+                            ak += 1
+                    ak = 0
+                    for a in range(C):
+                        for k in range(a + 1):
+                            l_row[ak, s0:s1] = lam_inv[bi, bj, a, k]
+                            ak += 1
         for k in range(m):
             src = planes[tap_c[k], i + tap_i[k]]
             first = u8(j0 + tap_j[k])

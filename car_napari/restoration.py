@@ -550,7 +550,9 @@ def _iter_restore(image, *, neighbourhood, estimator, window, forgetting, direct
         if estimator == "windowed":
             # channel-first: every kernel runs along contiguous rows
             planes = np.empty(np.roll(data.shape, 1))
-            np.subtract(np.moveaxis(data, -1, 0), summary.mean[:, None, None], out=planes)
+            source = np.moveaxis(data, -1, 0)
+            _in_halves(pool, lambda a, b: np.subtract(  # NumPy releases the GIL
+                source[:, a:b], summary.mean[:, None, None], out=planes[:, a:b]), data.shape[0])
             # the noise level is estimated beside the kernels (the queue keeps
             # two cores busy); the Laplacian ignores the mean
             noise_future = pool.submit(_noise_planes, planes) if noise is None else None
