@@ -1,8 +1,8 @@
 """The windowed CAR estimate behind single-image restoration (SPEC 4).
 
-Restoration needs, at every pixel and for each scan direction, the one-step
-conditional mean ``gamma_hat Z_r`` and the predictive density (SPEC 1.6) of a
-CAR model that is valid *around* the pixel. The adaptive estimator of SPEC
+Restoration needs, at every pixel and for each of four neighbourhoods, the
+one-step conditional mean ``gamma_hat Z_r`` and the predictive density (SPEC
+1.6) of a CAR model that is valid *around* the pixel. The adaptive estimator of SPEC
 1.4 gets ``gamma_hat`` by a recursive update with forgetting: about ``p^2``
 operations per pixel and direction, serial along the scan, too slow for the
 chapter's speed claim (five times faster than a 5x5 median). Here the local
@@ -10,8 +10,8 @@ model is instead the least-squares estimate over a window of pixels, as the
 chapter itself estimates local PSFs (14.46)-(14.47):
 
 1. One pass sums the outer products of the augmented vector (the pixel, its
-   neighbours in every direction's neighbourhood, 1) over blocks of pixels.
-   All four directions read their statistics from these sums.
+   neighbours in all four neighbourhoods, 1) over blocks of pixels. All
+   four models read their statistics from these sums.
 2. A window is 3 x 3 blocks; its statistics are the sum of theirs, and its
    model (``gamma``, ``lambda``, the factor of ``V_x``) is solved once per
    block with NumPy's batched linear algebra.
@@ -56,8 +56,7 @@ def block_moments(planes, disp_i, disp_j, block, out, b0, b1):
     Speed: each block's vectors ``a`` are copied into the rows of a small
     matrix (contiguous row segments), whose row products are dot products
     that vectorise; indices are unsigned (``u8``) so that Numba adds no
-    negative-index check, which would stop the vectoriser. (2.7x faster than
-    summing the products along image rows.)
+    negative-index check, which would stop the vectoriser.
     """
     C, H, W = planes.shape
     K = disp_i.shape[0]

@@ -100,7 +100,7 @@ class RestorationResult:
     Attributes
     ----------
     observed : the image that is restored (for a stack: the reference version).
-    prediction : the one-step conditional mean, averaged over scan directions.
+    prediction : the one-step conditional mean, combined over the directions.
     probability : (H, W) prediction probability in [0, 1]: the Student-t
         predictive density of the observed value (SPEC 1.6) divided by its
         peak value, averaged over directions. 1 where the observation is the
