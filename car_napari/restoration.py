@@ -334,7 +334,7 @@ class _Average:
         return pred, prob
 
 
-def _edge_weight(observed, prediction, spread, noise):
+def _edge_weight(observed, prediction, spread, noise, pool=None, blend=False, out=None):
     """The edge rule (14.40), our reading: the weight of the observation.
 
     1. Edges: where the directional models disagree (the variance of their
@@ -351,14 +351,10 @@ def _edge_weight(observed, prediction, spread, noise):
     (Literally, (14.40) keeps ``X_r`` when its error exceeds the mean error
     of its neighbours: about 40 % of the pixels of a flat noisy region, so it
     hardly denoises.) ``spread`` is (H, W), already averaged over channels.
+    With ``blend``, returns the restored image ``prediction + weight
+    (observed - prediction)`` instead (no weight array); rows run in two
+    halves on ``pool`` when given; the result goes into ``out`` if given.
     """
-    return _edge_rule(observed, prediction, spread, noise)
-
-
-def _edge_rule(observed, prediction, spread, noise, pool=None, blend=False, out=None):
-    """The weight of :func:`_edge_weight`, or with ``blend`` the restored image
-    ``prediction + weight (observed - prediction)``, by rows in two halves on
-    ``pool`` when given; into ``out`` when given."""
     out = np.empty(observed.shape) if out is None else out
     args = (observed, np.ascontiguousarray(prediction), np.ascontiguousarray(spread), noise**2,
             EDGE_WINDOW // 2, EDGE_SPREAD * float(np.mean(noise**2)), bool(blend), out)
@@ -447,7 +443,8 @@ def _iter_windowed(planes, mean, var, offsets, directions, window, pool, live, p
     pred = np.moveaxis(planes, 0, -1) + mean if live else np.empty((H, W, C))
     spread = np.zeros((H, W))
     density = np.ones((H, W)) if probability else None
-    exponent_px = np.repeat(np.repeat(exponent, block, axis=0), block, axis=1)[:H, :W]
+    exponent_px = (np.repeat(np.repeat(exponent, block, axis=0), block, axis=1)[:H, :W]
+                   if probability else None)
     height = int(np.clip(H // 8, 8, STRIP_ROWS))  # small images: still a few strips
     strips = [(r, min(H, r + height)) for r in range(0, H, height)]
     buffers = queue.SimpleQueue()
@@ -565,10 +562,10 @@ def _iter_restore(image, *, neighbourhood, estimator, window, forgetting, direct
             if keep_edges and blend:  # the restored image straight away, no weight array,
                 # written over the planes, which are no longer needed (fresh memory is
                 # slow to touch: page faults cost as much as a kernel here)
-                pred = _edge_rule(data, pred, spread, noise, pool, blend=True,
+                pred = _edge_weight(data, pred, spread, noise, pool, blend=True,
                                   out=planes.reshape(data.shape))
             elif keep_edges:
-                weight = _edge_rule(data, pred, spread, noise, pool)
+                weight = _edge_weight(data, pred, spread, noise, pool)
         else:
             noise_future = pool.submit(_noise, data) if noise is None else None
             centred = np.ascontiguousarray(data - summary.mean)
@@ -577,10 +574,11 @@ def _iter_restore(image, *, neighbourhood, estimator, window, forgetting, direct
             if noise_future is not None:
                 noise = noise_future.result()
             pred += summary.mean
-            weight = _edge_weight(data, pred, spread, noise) if keep_edges else None
-            if blend and weight is not None:
-                pred, weight = RestorationResult(data, pred, prob, weight, None, 0.0,
-                                                 noise).restored(), None
+            weight = None
+            if keep_edges and blend:
+                pred = _edge_weight(data, pred, spread, noise, blend=True)
+            elif keep_edges:
+                weight = _edge_weight(data, pred, spread, noise)
     return RestorationResult(data, pred, prob, weight, None, kappa, noise)
 
 
