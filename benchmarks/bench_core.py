@@ -83,7 +83,7 @@ def best_of(fn, repeat=3):
 
 def timings():
     import car_napari as cn
-    from car_napari.neighbourhood import causal_neighbourhood
+    from car_napari.model.neighbourhood import causal_neighbourhood
 
     rng = np.random.default_rng(0)
     from skimage import data

@@ -44,6 +44,7 @@ import numpy as np
 from skimage import io
 
 from car_napari import mammography as mm
+from car_napari.mammography._rois import _block_mean
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "mammograms" / "mini-mias"
 MASSES = ("CIRC", "SPIC", "MISC")
@@ -138,7 +139,7 @@ def blob_baseline(image, top=5, factor=4):
 
     grey = image / 255.0
     breast = mm.detect_breast(grey)
-    small = mm._block_mean(grey, factor)
+    small = _block_mean(grey, factor)
     blobs = blob_dog(small, min_sigma=2, max_sigma=24, threshold=0.02)
     keep = []
     for r, c, s in blobs:

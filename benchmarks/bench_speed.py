@@ -37,7 +37,7 @@ t0 = time.perf_counter(); result = segment(image); seconds = time.perf_counter()
 extra = {"segments": int(result.n_segments)}
 """,
     "mammogram 1024x1024": """
-from car_napari.sample_data import mammogram
+from car_napari.io.sample_data import mammogram
 from car_napari.mammography import detect_mammogram_rois
 (image, _, _), = mammogram()
 t0 = time.perf_counter(); labels, table = detect_mammogram_rois(image)

@@ -4,9 +4,46 @@ from __future__ import annotations
 
 from collections import namedtuple
 
-import numpy as np
+import math
 
-from ._kernels import channel_summary
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, nogil=True)
+def channel_summary(data):
+    """One pass over (N, d) data: per-channel min, max, mean, variance, and
+    the count of non-finite values (which are left out of the others)."""
+    n, d = data.shape
+    out = np.zeros((5, d))
+    lo = np.full(d, np.inf)
+    hi = np.full(d, -np.inf)
+    total = np.zeros(d)
+    count = np.zeros(d)
+    bad = np.zeros(d)
+    for i in range(n):
+        for c in range(d):
+            val = data[i, c]
+            if math.isfinite(val):
+                lo[c] = min(lo[c], val)
+                hi[c] = max(hi[c], val)
+                total[c] += val
+                count[c] += 1.0
+            else:
+                bad[c] += 1.0
+    for c in range(d):
+        mean = total[c] / max(count[c], 1.0)
+        acc = 0.0
+        for i in range(n):
+            val = data[i, c]
+            if math.isfinite(val):
+                acc += (val - mean) * (val - mean)
+        out[0, c] = lo[c]
+        out[1, c] = hi[c]
+        out[2, c] = mean
+        out[3, c] = acc / max(count[c], 1.0)
+        out[4, c] = bad[c]
+    return out
 
 
 def as_channel_last_float(image, *, channel_axis=-1, name="image", with_summary=False,

@@ -7,7 +7,7 @@ from magicgui.widgets import CheckBox, Container, Label, ProgressBar, PushButton
 from napari.utils.notifications import show_error, show_info
 
 from ..inpainting import detect_scratches, iter_inpaint
-from .._generators import relay
+from .._progress import relay
 from ._jobs import Job
 from ._layers import RunLayers
 

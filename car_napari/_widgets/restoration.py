@@ -23,7 +23,7 @@ from ..restoration import (
     iter_restore,
     iter_restore_multichannel,
 )
-from .._generators import relay
+from .._progress import relay
 from ._jobs import Job
 from ._layers import RunLayers
 

@@ -13,7 +13,7 @@ from qtpy.QtCore import QSize, Qt
 from qtpy.QtGui import QIcon, QImage, QPixmap
 from qtpy.QtWidgets import QListWidget, QListWidgetItem
 
-from ..retrieval import rank
+from ..texture.retrieval import rank
 from ._jobs import Job
 from ._layers import image_data
 

@@ -18,8 +18,8 @@ from napari.utils.notifications import show_error, show_info
 
 import numpy as np
 
-from ..btf import BTFModel
-from ..dynamic import DynamicTextureModel
+from ..texture.btf import BTFModel
+from ..texture.dynamic import DynamicTextureModel
 from ..texture import TextureModel
 from ._jobs import Job
 from ._layers import image_data

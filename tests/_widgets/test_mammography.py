@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from car_napari._widgets.mammography import MammogramWidget
-from car_napari.sample_data import mammogram
+from car_napari.io.sample_data import mammogram
 
 
 @pytest.fixture

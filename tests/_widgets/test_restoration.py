@@ -5,7 +5,7 @@ import pytest
 from skimage import data as skdata
 
 from car_napari._widgets.restoration import RestorationWidget
-from car_napari.sample_data import degraded_stack
+from car_napari.io.sample_data import degraded_stack
 
 
 @pytest.fixture

@@ -5,7 +5,7 @@ import pytest
 from skimage import io
 
 from car_napari._widgets.retrieval import TextureRetrievalWidget
-from car_napari.sample_data import colour_texture
+from car_napari.io.sample_data import colour_texture
 
 
 def _relit(image, seed):

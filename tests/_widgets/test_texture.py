@@ -50,7 +50,7 @@ def test_too_small_texture_is_a_notification(widget, qtbot, last_notification):
 
 
 def test_stack_modes_btf_and_dynamic(widget, qtbot, last_notification):
-    from car_napari.sample_data import degraded_stack
+    from car_napari.io.sample_data import degraded_stack
 
     viewer, w = widget
     (stack, meta, _), = degraded_stack()

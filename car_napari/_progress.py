@@ -1,0 +1,100 @@
+"""The job protocol of every long computation (Qt-free).
+
+A long computation is a generator ``iter_<name>(...)`` that yields
+:class:`Progress` records and *returns* its result; ``<name>(...)`` is the
+same call run to its end by :func:`drain`. A napari worker drives the
+generator directly (its ``yielded`` and ``returned`` signals), the command
+line turns the records into a progress bar, and closing the generator (a
+Cancel) stops the work at the next yield: kernels run in chunks (rows, tiles,
+EM iterations) with a yield between them.
+
+Generators that run another one as a stage use :func:`stage`, which maps
+the inner fractions into a part of the outer range. These helpers are the
+only code that steps a generator by hand.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+__all__ = ["Progress", "drain", "stage"]
+
+
+@dataclass(frozen=True)
+class Progress:
+    """One progress record of a long computation.
+
+    Attributes
+    ----------
+    stage : str
+        What the computation is doing, in a word or two ("features",
+        "merging", "rows").
+    fraction : float
+        The fraction of the whole work done, in [0, 1], proportional to the
+        work (not to the stages).
+    message : str
+        A short human-readable status line ("K = 7", "rows 128/512").
+    preview : object, optional
+        A partial result for live display (an image filling in, the labels
+        after a merge), or None.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import car_napari as car
+    >>> job = car.iter_restore(np.random.default_rng(0).random((64, 64)))
+    >>> first = next(job)
+    >>> isinstance(first, car.Progress) and 0.0 <= first.fraction <= 1.0
+    True
+    >>> job.close()
+    """
+
+    stage: str
+    fraction: float
+    message: str = ""
+    preview: Any = None
+
+
+def drain(job, on_progress=None):
+    """Run the generator ``job`` to its end and return its return value.
+
+    ``on_progress(record)`` is called with every :class:`Progress` record.
+    """
+    while True:
+        try:
+            record = next(job)
+        except StopIteration as stop:
+            return stop.value
+        if on_progress is not None:
+            on_progress(record)
+
+
+def stage(job, start, stop, *, name=None):
+    """Re-yield ``job``'s records with fractions mapped into [start, stop]
+    (and the stage renamed to ``name`` when given); return its result.
+
+    Use as ``result = yield from stage(iter_other(...), 0.1, 0.9)``.
+    """
+    span = stop - start
+    while True:
+        try:
+            record = next(job)
+        except StopIteration as done:
+            return done.value
+        yield Progress(
+            record.stage if name is None else name,
+            start + span * min(max(float(record.fraction), 0.0), 1.0),
+            record.message,
+            record.preview,
+        )
+
+
+def relay(gen):  # transitional: removed when every job yields Progress records
+    while True:
+        try:
+            state = next(gen)
+        except StopIteration as stop:
+            return stop.value
+        yield float(state.fraction)
+        yield state

@@ -1,0 +1,7 @@
+"""``python -m car_napari.cli``: the car-napari command."""
+
+import sys
+
+from . import main
+
+sys.exit(main())

@@ -1,0 +1,162 @@
+"""Synthesis from the model equation and the stability test (SPEC 1.7)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ._kernels import synthesize_field
+from .._validation import output_shape
+from .estimation import CARModel
+from .directions import unscan_view
+
+__all__ = ["synthesize", "spectral_radius"]
+
+_FREQUENCIES = 256
+_MARGIN_TOLERANCE = 1e-4
+_RADIUS_CACHE = {}  # (gamma, offsets) bytes -> spectral radius; small and bounded
+
+
+def _cached_radius(model):
+    """spectral_radius, remembered for repeated synthesis from one model
+    (it costs more than a 512x512 field); keyed by the numbers it uses."""
+    key = (np.ascontiguousarray(model.gamma).tobytes(), model.gamma.shape,
+           np.ascontiguousarray(model.offsets).tobytes())
+    radius = _RADIUS_CACHE.get(key)
+    if radius is None:
+        if len(_RADIUS_CACHE) > 256:
+            _RADIUS_CACHE.clear()
+        radius = _RADIUS_CACHE[key] = spectral_radius(model)
+    return radius
+
+
+def _companion_radius(coeffs, lead=None):
+    """Spectral radius of the VAR companion of ``y_t = sum_k C_k y_{t-k}``.
+
+    ``coeffs`` is a list of (d, d) complex matrices C_1..C_K; with ``lead``,
+    the recursion is ``lead y_t = sum_k C_k y_{t-k}``.
+    """
+    K = len(coeffs)
+    if K == 0:
+        return 0.0
+    d = coeffs[0].shape[0]
+    if lead is not None:
+        coeffs = [np.linalg.solve(lead, c) for c in coeffs]
+    comp = np.zeros((K * d, K * d), dtype=complex)
+    comp[:d, :] = np.hstack(coeffs)
+    comp[d:, :-d] = np.eye((K - 1) * d)
+    return float(np.max(np.abs(np.linalg.eigvals(comp))))
+
+
+def spectral_radius(model):
+    """Stability margin of a CAR model's causal filter; stable when below 1.
+
+    The raster-causal (non-symmetric half-plane) filter
+    ``A(w1, w2) = I - sum_s A_s w1^di w2^dj`` is stable when (i) the in-row
+    recursion ``A(0, w2)`` has all its zeros outside the unit disc and (ii)
+    for every ``|w2| = 1`` the row-to-row recursion in ``w1`` has too
+    (Ekstrom and Woods, 1976). Both become spectral radii of companion
+    matrices; (ii) is checked on a grid of frequencies. Returns the largest
+    radius found.
+    """
+    if not isinstance(model, CARModel):
+        raise TypeError(f"model must be a CARModel; got {type(model).__name__}.")
+    A = model.A
+    di, dj = model.offsets[:, 0], model.offsets[:, 1]
+    d = model.n_channels
+    row = [np.zeros((d, d), complex) for _ in range(int(dj[di == 0].max(initial=0)))]
+    for a, i, j in zip(A, di, dj):
+        if i == 0:
+            row[j - 1] = row[j - 1] + a
+    radius = _companion_radius(row)
+    K = int(di.max())
+    frequencies = np.linspace(0.0, 2 * np.pi, _FREQUENCIES, endpoint=False)
+    if row:
+        # The row-to-row recursion resonates where the in-row filter A(0, w2)
+        # is nearly singular on |w2| = 1, between grid points maybe: add the
+        # arguments of its zeros, 1 / (companion eigenvalues).
+        comp = np.zeros((len(row) * d, len(row) * d), dtype=complex)
+        comp[:d, :] = np.hstack(row)
+        comp[d:, :-d] = np.eye((len(row) - 1) * d)
+        frequencies = np.r_[frequencies, -np.angle(np.linalg.eigvals(comp))]
+    for omega in frequencies:
+        phase = np.exp(1j * omega * dj)
+        lead = np.eye(d, dtype=complex)
+        coeffs = [np.zeros((d, d), complex) for _ in range(K)]
+        for a, i, ph in zip(A, di, phase):
+            if i == 0:
+                lead -= a * ph
+            else:
+                coeffs[i - 1] = coeffs[i - 1] + a * ph
+        if abs(np.linalg.det(lead)) < 1e-12:
+            return math.inf
+        radius = max(radius, _companion_radius(coeffs, lead))
+    return radius
+
+
+def synthesize(model, shape, *, seed=None, margin=None):
+    """Generate a texture from a fitted CAR model (SPEC 1.7).
+
+    The field is generated directly from the model equation in scan order,
+    ``Y_r = gamma X_r + Sigma^{1/2} w_r`` with white Gaussian ``w_r``, on a
+    lattice enlarged by a burn-in margin that is cropped away; then the mean
+    is added. No Monte Carlo iterations are needed.
+
+    Parameters
+    ----------
+    model : CARModel
+    shape : tuple of 2 ints
+        (height, width) of the output.
+    seed : int, numpy Generator or None, optional
+        Random seed; the same seed gives the same texture.
+    margin : int, optional
+        Burn-in margin in pixels on the top, left and right; by default long
+        enough for the model's transient to decay to 1e-4 (16 to 256).
+
+    Returns
+    -------
+    texture : (H, W) or (H, W, d) ndarray of float64
+        Single-channel models give a 2-D image.
+
+    Raises
+    ------
+    ValueError
+        If the model is unstable (its field would grow without bound).
+    """
+    if not isinstance(model, CARModel):
+        raise TypeError(f"model must be a CARModel (from fit_car); got {type(model).__name__}.")
+    h, w = output_shape(shape)
+    radius = _cached_radius(model)
+    if not radius < 1.0:
+        raise ValueError(
+            f"the model is unstable (spectral radius {radius:.4g} >= 1): its field would "
+            "grow without bound. Fit it to a more stationary texture, use a lower order, "
+            "or shrink gamma."
+        )
+    if margin is None:
+        margin = math.ceil(math.log(_MARGIN_TOLERANCE) / math.log(max(radius, 1e-3)))
+        margin = int(min(max(margin, 16), 256))
+    rng = np.random.default_rng(seed)
+    d = model.n_channels
+    hs, ws = (w, h) if model.direction in ("right", "left") else (h, w)
+    reach = int(np.abs(model.offsets).max())
+    top, side = margin + reach, margin + reach
+    noise = rng.standard_normal((hs + top, ws + 2 * side, d))
+    taps = model.context.taps
+    chol = np.linalg.cholesky(0.5 * (model.sigma + model.sigma.T) + 1e-300 * np.eye(d))
+    scale = math.sqrt(float(np.trace(model.sigma)))
+    ok = synthesize_field(
+        np.ascontiguousarray(model.gamma), chol, noise,
+        taps[:, 0].copy(), taps[:, 1].copy(), taps[:, 2].copy(),
+        1e8 * max(scale, 1e-300) / max(1.0 - radius, 1e-6),
+    )
+    if not ok:
+        raise ValueError(
+            "the model is numerically unstable: the synthesised field exploded. "
+            "Use a lower order or a more stationary texture."
+        )
+    field = noise[top:, side : side + ws]
+    out = unscan_view(field, model.direction) + model.mean
+    out = np.ascontiguousarray(out)
+    return out[..., 0] if d == 1 else out

@@ -1,0 +1,712 @@
+"""Multiresolution CAR texture synthesis and compression (SPEC 7).
+
+A texture is analysed by a Gaussian-Laplacian pyramid; every sub-band gets
+its own CAR model with its own optimal support (SPEC 1.5). The few numbers of
+those models are the compressed texture: synthesis generates every sub-band
+from its model (SPEC 1.7) at any size, matches every generated band's
+histogram to a few stored quantiles of the analysed band, collapses the
+pyramid and restores the histogram of the input (from its stored quantiles).
+
+The pyramid (Burt and Adelson, with operators chosen so that analysis and
+synthesis match at any image size):
+
+- ``reduce``: Gaussian blur (sigma 1 pixel), then the mean of 2 x 2 blocks;
+  a level of size ``n`` gives ``ceil(n / 2)``.
+- ``expand``: separable cubic convolution (Keys, a = -0.5) back to the finer
+  level's size, pixel extents aligned; half-sample symmetric borders, or
+  periodic ones for tileable synthesis.
+- band ``k < levels - 1`` is ``G_k - expand(G_{k+1})`` (band-pass, about zero
+  mean); the last band is the low-pass residual ``G_{levels-1}``. Collapsing
+  ``G_k = band_k + expand(G_{k+1})`` reconstructs the input exactly.
+
+The stored file format is described in :meth:`TextureModel.save`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import zipfile
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import ndimage as ndi
+
+from .._validation import as_channel_last_float, check_not_constant, output_shape, summarize
+from ..model.estimation import CARModel, fit_car
+from ..model.neighbourhood import as_offsets
+from ..model.synthesis import spectral_radius, synthesize
+
+__all__ = [
+    "TextureModel", "laplacian_pyramid", "collapse_pyramid", "FORMAT_NAME", "FORMAT_VERSION",
+]
+
+FORMAT_NAME = "car-napari texture model"
+FORMAT_VERSION = 2
+
+_BLUR_SIGMA = 1.0  # pyramid smoothing before 2x2 decimation, in pixels
+_MIN_TOP = 16  # smallest side of the coarsest level: the order-5 decision rule needs it
+_MAX_ORDER = 5  # largest candidate order for neighbourhood='auto'
+_SHRINK_RADIUS = 0.99  # last-resort target when even order 1 is unstable
+_BAND_QUANTILES = 32  # stored quantiles per band and channel (histogram matching)
+_OUT_QUANTILES = 64  # stored quantiles of the input per channel
+
+
+def _reduce(image):
+    """One pyramid step down: blur, then average 2 x 2 blocks (odd sides are
+    padded by reflection so a size ``n`` level gives ``ceil(n / 2)``)."""
+    blurred = ndi.gaussian_filter(image, sigma=(_BLUR_SIGMA, _BLUR_SIGMA, 0), mode="reflect")
+    h, w = blurred.shape[:2]
+    blurred = np.pad(blurred, ((0, h % 2), (0, w % 2), (0, 0)), mode="symmetric")
+    return 0.25 * (
+        blurred[0::2, 0::2] + blurred[1::2, 0::2] + blurred[0::2, 1::2] + blurred[1::2, 1::2]
+    )
+
+
+def _cubic_axis(image, n_out, axis, wrap):
+    """Resample one axis to ``n_out`` samples by Keys cubic convolution
+    (a = -0.5), pixel extents aligned: output pixel ``i`` sits at input
+    coordinate ``(i + 0.5) * n_in / n_out - 0.5``. Borders are half-sample
+    symmetric, or periodic with ``wrap``."""
+    n_in = image.shape[axis]
+    x = (np.arange(n_out) + 0.5) * (n_in / n_out) - 0.5
+    base = np.floor(x).astype(np.int64)
+    t = x - base
+    out = 0.0
+    for shift in (-1, 0, 1, 2):
+        s = np.abs(t - shift)
+        weight = np.where(
+            s <= 1, (1.5 * s - 2.5) * s * s + 1,
+            np.where(s < 2, ((-0.5 * s + 2.5) * s - 4) * s + 2, 0.0),
+        )
+        idx = base + shift
+        if wrap:
+            idx = idx % n_in
+        else:  # half-sample symmetric: -1 -> 0, n -> n - 1
+            idx = np.where(idx < 0, -idx - 1, idx)
+            idx = np.where(idx >= n_in, 2 * n_in - idx - 1, idx)
+            idx = np.clip(idx, 0, n_in - 1)
+        shape = [1] * image.ndim
+        shape[axis] = n_out
+        out = out + weight.reshape(shape) * np.take(image, idx, axis=axis)
+    return out
+
+
+def _expand(image, shape, *, wrap=False):
+    """Cubic upsampling of (h, w, d) ``image`` to ``shape`` (h2, w2).
+
+    Pixel extents are aligned, which matches the 2 x 2 block averaging of
+    :func:`_reduce` (a coarse pixel's centre is the centre of its block).
+    With ``wrap`` the image is one period of a torus, so a periodic coarse
+    level expands to a periodic fine level at any size. (Separable Keys cubic
+    convolution: ten times faster than a spline zoom, same role.)
+    """
+    out = _cubic_axis(image, int(shape[0]), 0, wrap)
+    return _cubic_axis(out, int(shape[1]), 1, wrap)
+
+
+def _level_shapes(shape, levels):
+    shapes = [tuple(int(v) for v in shape)]
+    for _ in range(levels - 1):
+        h, w = shapes[-1]
+        shapes.append(((h + 1) // 2, (w + 1) // 2))
+    return shapes
+
+
+def laplacian_pyramid(image, levels):
+    """Bands of the Gaussian-Laplacian pyramid, finest first.
+
+    Parameters
+    ----------
+    image : (H, W, d) ndarray of float
+    levels : int
+        Number of bands: ``levels - 1`` band-pass bands and the low-pass
+        residual (see the module docstring for the operators).
+
+    Returns
+    -------
+    bands : list of ndarray
+        Band ``k`` has shape ``(ceil(H / 2**k), ceil(W / 2**k), d)``.
+    """
+    gauss = [image]
+    for _ in range(levels - 1):
+        gauss.append(_reduce(gauss[-1]))
+    bands = [g - _expand(g_next, g.shape[:2]) for g, g_next in zip(gauss[:-1], gauss[1:])]
+    bands.append(gauss[-1])
+    return bands
+
+
+def collapse_pyramid(bands, *, wrap=False):
+    """Inverse of :func:`laplacian_pyramid`: ``G_k = band_k + expand(G_{k+1})``.
+
+    Parameters
+    ----------
+    bands : list of (h_k, w_k, d) ndarray
+        Finest first, each about twice the size of the next.
+    wrap : bool, optional
+        Expand periodically (for bands that are each one period of a torus).
+
+    Returns
+    -------
+    image : (h_0, w_0, d) ndarray
+    """
+    out = bands[-1]
+    for band in bands[-2::-1]:
+        out = band + _expand(out, band.shape[:2], wrap=wrap)
+    return out
+
+
+def _max_order_below(offsets):
+    """Largest hierarchical order with fewer offsets than ``offsets``."""
+    eta = len(offsets)
+    best = 0
+    for k in range(1, _MAX_ORDER + 1):
+        if len(as_offsets(k)[0]) < eta:
+            best = k
+    return best
+
+
+def _fallback_orders(first):
+    """Orders to try, in turn, when the first fitted model is unstable."""
+    if first.scores is not None and all(isinstance(k, int) for k in first.scores):
+        ranked = sorted(first.scores, key=first.scores.get, reverse=True)
+        return [k for k in ranked if k != first.order]
+    if first.factors is not None:
+        top = max(int(f.order or _max_order_below(f.offsets) + 1) for f in first.factors)
+        # a 2DCAR whose factors all have the same order falls to the next lower one
+        return list(range(top - 1, 0, -1)) if top > 1 else []
+    top = first.order if first.order is not None else _max_order_below(first.offsets) + 1
+    return list(range(top - 1, 0, -1))
+
+
+def _shrunk(model, target=_SHRINK_RADIUS):
+    """Copy of ``model`` with ``gamma`` scaled down until its spectral radius is
+    ``target``: the last resort when even order 1 is unstable. The noise
+    covariance is raised so the field keeps about the same variance."""
+    lo, hi = 0.0, 1.0
+    trial = CARModel(**{**model.__dict__})
+    for _ in range(40):  # bisection on the scale factor
+        mid = 0.5 * (lo + hi)
+        trial.gamma = model.gamma * mid
+        if spectral_radius(trial) < target:
+            lo = mid
+        else:
+            hi = mid
+    trial.gamma = model.gamma * lo
+    trial.factors = None  # the per-factor models no longer match gamma
+    return trial, lo
+
+
+def _fit_level(band, neighbourhood, model):
+    """Fit one sub-band; fall back to lower orders while the model is unstable.
+
+    Returns ``(CARModel, note)`` where ``note`` is None when the first fit was
+    stable, else a sentence saying what was done.
+    """
+    orders = range(1, _MAX_ORDER + 1)
+    first = fit_car(band, neighbourhood, model=model, orders=orders, channel_axis=-1)
+    radius = spectral_radius(first)
+    if radius < 1.0:
+        return first, None
+    label = first.order if first.order is not None else f"{first.eta} offsets"
+    for order in _fallback_orders(first):
+        trial = fit_car(band, order, model=model, channel_axis=-1)
+        if spectral_radius(trial) < 1.0:
+            return trial, (
+                f"the fitted model (order {label}) was unstable (spectral radius "
+                f"{radius:.4g}); used order {order} instead"
+            )
+    lowest = fit_car(band, 1, model=model, channel_axis=-1)
+    shrunk, scale = _shrunk(lowest)
+    return shrunk, (
+        f"the fitted model (order {label}) was unstable (spectral radius {radius:.4g}) "
+        f"and so was every lower order; used order 1 with gamma scaled by {scale:.4g} "
+        f"(spectral radius {_SHRINK_RADIUS})"
+    )
+
+
+def _torus(field, shape, mean):
+    """Cut a periodic (h, w) field out of a larger (h + bh, w + bw) one.
+
+    The first ``b`` columns cross-fade from the extra columns beyond ``w``
+    (which continue column ``w - 1`` naturally) to the field's own columns,
+    with weights ``cos`` and ``sin`` so that two independent stationary fields
+    mix without losing variance; then the same for the rows. Column 0 then
+    equals the old column ``w``, the true neighbour of column ``w - 1``.
+    """
+    h, w = shape
+    f = field - mean
+    for axis, n in ((1, w), (0, h)):
+        b = f.shape[axis] - n
+        if b > 0:
+            t = 0.5 * np.pi * np.arange(b) / b
+            shape_w = [1, 1, 1]
+            shape_w[axis] = b
+            own = np.sin(t).reshape(shape_w)
+            extra = np.cos(t).reshape(shape_w)
+            head = np.take(f, np.arange(b), axis=axis)
+            tail = np.take(f, np.arange(n, n + b), axis=axis)
+            body = np.take(f, np.arange(b, n), axis=axis)
+            f = np.concatenate([own * head + extra * tail, body], axis=axis)
+    return f + mean
+
+
+def _probabilities(n):
+    """Probabilities of ``n`` stored quantiles: equally spaced, 0 and 1 included
+    (the minimum and the maximum)."""
+    return np.linspace(0.0, 1.0, n)
+
+
+def _quantiles(values, n):
+    """(n, d) quantiles of each channel of (h, w, d) ``values``, float32-exact."""
+    return _f32(np.quantile(values.reshape(-1, values.shape[2]), _probabilities(n), axis=0))
+
+
+def _match(values, quantiles, bins=4096):
+    """Map each channel of (h, w, d) ``values`` monotonically onto the
+    quantile function given by (q, d) ``quantiles`` (equally spaced
+    probabilities 0..1, linear in between): histogram matching.
+
+    Each value's probability is read off its channel's empirical CDF, taken
+    from a ``bins``-bin histogram (linear within a bin) rather than a full
+    sort: O(n) arithmetic, within 1/bins of the exact rank.
+    """
+    h, w, d = values.shape
+    flat = values.reshape(-1, d)
+    out = np.empty_like(flat)
+    q = quantiles.shape[0]
+    for c in range(d):
+        v = flat[:, c]
+        lo, hi = float(v.min()), float(v.max())
+        if hi <= lo:
+            out[:, c] = quantiles[q // 2, c]
+            continue
+        counts, _ = np.histogram(v, bins=bins, range=(lo, hi))
+        cdf = np.concatenate([[0.0], np.cumsum(counts) / v.size])
+        pos = (v - lo) * (bins / (hi - lo))
+        k = np.minimum(pos.astype(np.int64), bins - 1)
+        p = cdf[k] + (pos - k) * (cdf[k + 1] - cdf[k])
+        # quantiles sit at equally spaced probabilities: index arithmetic again
+        pos = p * (q - 1)
+        k = np.minimum(pos.astype(np.int64), q - 2)
+        out[:, c] = quantiles[k, c] + (pos - k) * (quantiles[k + 1, c] - quantiles[k, c])
+    return out.reshape(h, w, d)
+
+
+def _blend_width(n):
+    """Cross-fade band for a periodic level of side ``n``: a quarter of it,
+    at least 2 pixels."""
+    return max(2, n // 4)
+
+
+def _f32(values):
+    """float64 array holding exactly float32-representable values."""
+    return np.asarray(values, dtype=np.float64).astype(np.float32).astype(np.float64)
+
+
+@dataclass(eq=False)
+class TextureModel:
+    """A multiresolution CAR texture model: the compressed texture (SPEC 7).
+
+    Build one with :meth:`fit` or :meth:`load`; generate textures of any size
+    with :meth:`synthesize`.
+
+    Attributes
+    ----------
+    models : tuple of CARModel
+        One model per pyramid band, finest first; the last models the low-pass
+        residual. Models read by :meth:`load` carry only what synthesis needs
+        (``vx`` is NaN; do not use them with :func:`car_napari.predict`).
+    band_ranges : (levels, 2, d) ndarray
+        Per band, the minimum and maximum of the analysed band; synthesised
+        bands are clipped to it (keeps rare outliers of the Gaussian model
+        from adding up across levels).
+    mean : (d,) ndarray
+        Mean of the input, restored after the collapse.
+    std : (d,) ndarray
+        Standard deviation of the input, restored after the collapse: the
+        bands are generated independently, which drops the (positive)
+        covariance between neighbouring bands of a real texture and would
+        leave the result with about 20 % less contrast.
+    value_range : (2, d) ndarray
+        Per-channel minimum and maximum of the input; the output is clipped
+        to it (the histogram-range restore).
+    grey : bool
+        True when the input was a 2-D grey image (synthesis then returns 2-D).
+    model : {'3d', '2d'}
+        The CAR variant of every band (see :func:`car_napari.fit_car`).
+    fallbacks : tuple of str
+        One entry per band whose first fitted model was unstable, saying what
+        was used instead (a lower order, chosen by the decision-rule score
+        when the support was 'auto'; as a last resort order 1 with a scaled
+        ``gamma``). Empty when every first fit was stable.
+    band_quantiles : (levels, 32, d) ndarray or None
+        Per band and channel, the quantiles of the analysed band at the
+        probabilities 0, 1/31, ..., 1. Every synthesised band is mapped onto
+        them by rank (histogram matching): the CAR models are Gaussian, the
+        bands of real textures are not (heavy-tailed, skewed), and the local
+        sign patterns of a texture (LBP) depend on those marginals. None for
+        models read from version-1 files (no matching).
+    quantiles : (64, d) ndarray or None
+        Per channel, the quantiles of the input at 0, 1/63, ..., 1; the
+        collapsed output is mapped onto them (the histogram restore, after
+        the mean and contrast restore). None for version-1 files (then only
+        the mean, contrast and range are restored).
+    """
+
+    models: tuple
+    band_ranges: np.ndarray
+    mean: np.ndarray
+    std: np.ndarray
+    value_range: np.ndarray
+    grey: bool
+    model: str = "3d"
+    fallbacks: tuple = field(default=())
+    band_quantiles: np.ndarray = field(default=None)
+    quantiles: np.ndarray = field(default=None)
+
+    # ------------------------------------------------------------------ fit
+    @classmethod
+    def fit(cls, image, *, levels=3, model="3d", neighbourhood="auto", channel_axis=-1):
+        """Fit a multiresolution CAR model to a texture.
+
+        Parameters
+        ----------
+        image : (H, W) or (H, W, C) array
+            The texture; any dtype (integer images are scaled to [0, 1]).
+            Every side must be at least ``16 * 2**(levels - 1)`` pixels
+            (64 for 3 levels), so that the coarsest band can be modelled.
+        levels : int, optional
+            Number of pyramid bands: ``levels - 1`` band-pass (Laplacian)
+            bands plus the low-pass residual. 1 means no pyramid.
+        model : {'3d', '2d'}, optional
+            '3d': one 3DCAR per band with full colour matrices. '2d': per band,
+            a spectral PCA and one 2DCAR per factor.
+        neighbourhood : 'auto', int or (eta, 2) array, optional
+            'auto' chooses each band's support among orders 1 to 5 by the
+            decision rule (14.6), independently per band. An int or offsets
+            use the same support in every band.
+        channel_axis : int or None, optional
+            Axis of the channels; None for a grey image.
+
+        Returns
+        -------
+        TextureModel
+
+        Raises
+        ------
+        ValueError
+            If the texture is too small for the pyramid, constant, or not finite.
+
+        Notes
+        -----
+        A band whose fitted model is unstable (spectral radius >= 1, its field
+        would explode) falls back to a lower order; see ``fallbacks``.
+        """
+        if isinstance(levels, (bool, np.bool_)) or not isinstance(levels, (int, np.integer)):
+            raise TypeError(f"levels must be an int >= 1; got {levels!r}.")
+        levels = int(levels)
+        if not 1 <= levels <= 8:
+            raise ValueError(f"levels must be between 1 and 8; got {levels}.")
+        if model not in ("3d", "2d"):
+            raise ValueError(f"model must be '3d' or '2d'; got {model!r}.")
+        if isinstance(neighbourhood, str) and neighbourhood != "auto":
+            raise ValueError(
+                f"neighbourhood must be 'auto', an order or offsets; got {neighbourhood!r}."
+            )
+        data = as_channel_last_float(image, channel_axis=channel_axis)
+        grey = np.ndim(image) == 2
+        h, w = data.shape[:2]
+        minimum = _MIN_TOP * 2 ** (levels - 1)
+        if min(h, w) < minimum:
+            raise ValueError(
+                f"the texture is {h}x{w} but {levels} pyramid levels need at least "
+                f"{minimum}x{minimum} pixels (the coarsest band must be {_MIN_TOP}x{_MIN_TOP} "
+                "or larger). Use a larger texture or fewer levels."
+            )
+        summary = summarize(data)
+        check_not_constant(data, summary=summary)
+        bands = laplacian_pyramid(data, levels)
+        models, fallbacks = [], []
+        for k, band in enumerate(bands):
+            fitted, note = _fit_level(band, neighbourhood, model)
+            models.append(fitted)
+            if note is not None:
+                fallbacks.append(f"band {k}: {note}")
+        band_ranges = np.stack(
+            [np.stack([b.min(axis=(0, 1)), b.max(axis=(0, 1))]) for b in bands]
+        )
+        band_quantiles = np.stack([_quantiles(b, _BAND_QUANTILES) for b in bands])
+        # The file stores float32: round now, so that a saved and loaded model
+        # synthesises exactly what this one does.
+        for m in models:
+            m.gamma, m.sigma, m.mean = _f32(m.gamma), _f32(m.sigma), _f32(m.mean)
+        return cls(
+            models=tuple(models), band_ranges=_f32(band_ranges), mean=_f32(summary.mean),
+            std=_f32(np.sqrt(np.asarray(summary.var, float))),
+            value_range=_f32(np.stack([summary.min, summary.max])), grey=grey,
+            model=model, fallbacks=tuple(fallbacks), band_quantiles=band_quantiles,
+            quantiles=_quantiles(data, _OUT_QUANTILES),
+        )
+
+    # ----------------------------------------------------------- properties
+    @property
+    def levels(self):
+        """Number of pyramid bands."""
+        return len(self.models)
+
+    @property
+    def n_channels(self):
+        return int(self.mean.shape[0])
+
+    @property
+    def orders(self):
+        """Neighbourhood order of every band (None for a custom support)."""
+        return tuple(m.order for m in self.models)
+
+    def _parameter_arrays(self):
+        """The arrays that define the model, by file key (see :meth:`save`)."""
+        arrays = {"mean": self.mean, "std": self.std, "value_range": self.value_range}
+        for k, m in enumerate(self.models):
+            arrays[f"band{k}_gamma"] = m.gamma
+            arrays[f"band{k}_sigma"] = m.sigma
+            arrays[f"band{k}_mean"] = m.mean
+            arrays[f"band{k}_offsets"] = m.offsets
+            arrays[f"band{k}_range"] = self.band_ranges[k]
+            if self.band_quantiles is not None:
+                arrays[f"band{k}_quantiles"] = self.band_quantiles[k]
+        if self.quantiles is not None:
+            arrays["quantiles"] = self.quantiles
+        return arrays
+
+    @property
+    def nbytes(self):
+        """Bytes of the stored parameters, counting every number (including
+        the integer offsets) as a float32: the compressed size."""
+        return 4 * sum(int(np.size(a)) for a in self._parameter_arrays().values())
+
+    def compression_ratio(self, input_shape):
+        """Raw float32 bytes of an image of ``input_shape`` over :attr:`nbytes`.
+
+        Parameters
+        ----------
+        input_shape : tuple of int
+            (H, W) (then ``H * W * n_channels`` values) or (H, W, C). The model
+            synthesises any size, so the ratio grows with the size.
+
+        Returns
+        -------
+        float
+        """
+        shape = tuple(int(v) for v in input_shape)
+        if len(shape) not in (2, 3) or min(shape) < 1:
+            raise ValueError(f"input_shape must be (H, W) or (H, W, C); got {input_shape!r}.")
+        values = math.prod(shape) * (self.n_channels if len(shape) == 2 else 1)
+        return 4.0 * values / self.nbytes
+
+    # ------------------------------------------------------------ synthesis
+    def synthesize(self, shape, *, seed=None, tileable=False):
+        """Generate a texture of any size from the model.
+
+        Every band is generated from its CAR model at its pyramid size (SPEC
+        1.7), mapped by rank onto the band's stored quantiles (histogram
+        matching) and clipped to its analysed range; the pyramid is collapsed
+        (expand and add, as in the analysis); the input's per-channel mean
+        and standard deviation are restored, the result is mapped onto the
+        input's stored quantiles and clipped to its value range (the
+        histogram restore). The matching is monotone per pixel value, so
+        it keeps a tileable texture periodic.
+
+        Parameters
+        ----------
+        shape : tuple of 2 ints
+            (height, width) of the output; any size of at least 1 x 1.
+        seed : int, numpy Generator or None, optional
+            The same seed gives the same texture.
+        tileable : bool, optional
+            Make the texture periodic: tiles placed side by side (or the
+            texture wrapped on a torus) show no seam. Each band is generated
+            larger and its opposite edges cross-faded over a quarter of its
+            size; the pyramid is collapsed with periodic expansion.
+
+        Returns
+        -------
+        texture : (H, W) or (H, W, C) ndarray of float64
+            2-D when the model was fitted to a grey image, channel-last
+            otherwise.
+        """
+        h, w = output_shape(shape)
+        rng = np.random.default_rng(seed)
+        # one independent stream per band, fixed by the seed
+        streams = [np.random.default_rng(s) for s in rng.integers(0, 2**63, size=self.levels)]
+        bands = []
+        for k, (model, (hk, wk)) in enumerate(zip(self.models, _level_shapes((h, w), self.levels))):
+            if tileable:
+                bh, bw = _blend_width(hk), _blend_width(wk)
+                big = synthesize(model, (hk + bh, wk + bw), seed=streams[k])
+                band = _torus(big.reshape(hk + bh, wk + bw, -1), (hk, wk), model.mean)
+            else:
+                band = synthesize(model, (hk, wk), seed=streams[k]).reshape(hk, wk, -1)
+            if self.band_quantiles is not None:
+                band = _match(band, self.band_quantiles[k])
+            bands.append(np.clip(band, self.band_ranges[k, 0], self.band_ranges[k, 1]))
+        out = collapse_pyramid(bands, wrap=bool(tileable))
+        # the bands' sample means drift, and independent bands lose the
+        # cross-band covariance: restore the input's mean and contrast
+        centred = out - out.mean(axis=(0, 1))
+        spread = centred.std(axis=(0, 1))
+        gain = np.where(spread > 0, self.std / np.where(spread > 0, spread, 1.0), 1.0)
+        out = self.mean + centred * gain
+        if self.quantiles is not None:
+            out = _match(out, self.quantiles)
+        out = np.clip(out, self.value_range[0], self.value_range[1])
+        return out[..., 0] if self.grey else out
+
+    # ---------------------------------------------------------- persistence
+    def save(self, path):
+        """Write the model to an ``.npz`` file.
+
+        Format (version 2): a compressed NumPy ``.npz`` archive (no pickles) holding
+
+        - ``header``: a JSON string ``{"format": "car-napari texture model",
+          "version": 2, "levels": L, "n_channels": d, "grey": bool,
+          "model": "3d"|"2d", "direction": [...], "order": [...], "beta": [...],
+          "n_pixels": [...], "fallbacks": [...], "pyramid": {...}}``;
+        - ``mean`` (d,), ``std`` (d,), ``value_range`` (2, d) and, per band ``k``,
+          ``band{k}_gamma`` (d, d*eta), ``band{k}_sigma`` (d, d),
+          ``band{k}_mean`` (d,), ``band{k}_offsets`` (eta, 2) int64,
+          ``band{k}_range`` (2, d), ``band{k}_quantiles`` (32, d);
+          ``quantiles`` (64, d) (the quantiles at equally spaced
+          probabilities from 0 to 1, see :attr:`band_quantiles`).
+
+        Version 1 is the same without the quantiles; :meth:`load` still
+        reads it (such a model synthesises without histogram matching).
+
+        Numbers are stored as float32 (offsets as int16); :meth:`fit` rounds
+        the parameters to float32 already, so a loaded model synthesises
+        exactly what the original does. :attr:`nbytes` counts 4 bytes a
+        number (2 an offset coordinate would do; we count 4).
+
+        Parameters
+        ----------
+        path : str or path-like
+            Destination; NumPy adds ``.npz`` when the name has no suffix.
+        """
+        header = {
+            "format": FORMAT_NAME,
+            "version": FORMAT_VERSION,
+            "levels": self.levels,
+            "n_channels": self.n_channels,
+            "grey": bool(self.grey),
+            "model": self.model,
+            "direction": [m.direction for m in self.models],
+            "order": [m.order for m in self.models],
+            "beta": [float(m.beta) for m in self.models],
+            "n_pixels": [int(m.n_pixels) for m in self.models],
+            "fallbacks": list(self.fallbacks),
+            "pyramid": {
+                "blur_sigma": _BLUR_SIGMA,
+                "expand": "Keys cubic convolution, pixel extents aligned",
+            },
+        }
+        arrays = {key: (a.astype(np.int16) if key.endswith("_offsets") else
+                        np.asarray(a, np.float64).astype(np.float32))
+                  for key, a in self._parameter_arrays().items()}
+        np.savez_compressed(path, header=np.array(json.dumps(header)), **arrays)
+
+    @classmethod
+    def load(cls, path):
+        """Read a model written by :meth:`save`.
+
+        Parameters
+        ----------
+        path : str or path-like
+
+        Returns
+        -------
+        TextureModel
+
+        Raises
+        ------
+        ValueError
+            If the file is not a readable texture model, or was written by a
+            newer version of the format than this code reads.
+        FileNotFoundError
+            If ``path`` does not exist.
+        """
+        try:
+            with np.load(path, allow_pickle=False) as archive:
+                arrays = {key: archive[key] for key in archive.files}
+        except FileNotFoundError:
+            raise
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError) as exc:
+            raise ValueError(
+                f"{path} is not a readable car-napari texture model (.npz): {exc}. "
+                "Re-save the model with TextureModel.save."
+            ) from exc
+        try:
+            header = json.loads(str(arrays.pop("header")))
+        except (KeyError, ValueError, TypeError) as exc:
+            raise ValueError(
+                f"{path} has no valid texture-model header ({exc}); it was not written "
+                "by TextureModel.save or is corrupt."
+            ) from exc
+        if not isinstance(header, dict) or header.get("format") != FORMAT_NAME:
+            raise ValueError(
+                f"{path} is not a car-napari texture model (format "
+                f"{header.get('format') if isinstance(header, dict) else header!r})."
+            )
+        version = header.get("version")
+        if not isinstance(version, int):
+            raise ValueError(f"{path} has an invalid format version {version!r}.")
+        if version > FORMAT_VERSION:
+            raise ValueError(
+                f"{path} uses texture-model format version {version}, newer than this "
+                f"car-napari reads (up to {FORMAT_VERSION}); upgrade car-napari to load it."
+            )
+        try:
+            return cls._from_arrays(header, arrays, version)
+        except (KeyError, ValueError, TypeError, IndexError) as exc:
+            raise ValueError(
+                f"{path} is a damaged texture model: {type(exc).__name__}: {exc}."
+            ) from exc
+
+    @classmethod
+    def _from_arrays(cls, header, arrays, version=FORMAT_VERSION):
+        levels, d = int(header["levels"]), int(header["n_channels"])
+        mean = np.asarray(arrays["mean"], float).reshape(d)
+        std = np.asarray(arrays["std"], float).reshape(d)
+        value_range = np.asarray(arrays["value_range"], float).reshape(2, d)
+        models, ranges, band_quantiles, quantiles = [], [], [], None
+        if version >= 2:
+            quantiles = np.asarray(arrays["quantiles"], float).reshape(-1, d)
+        for k in range(levels):
+            gamma = np.asarray(arrays[f"band{k}_gamma"], float)
+            offsets, _ = as_offsets(np.asarray(arrays[f"band{k}_offsets"]))
+            eta = len(offsets)
+            gamma = gamma.reshape(d, d * eta)
+            sigma = np.asarray(arrays[f"band{k}_sigma"], float).reshape(d, d)
+            beta = float(header["beta"][k])
+            if not (np.all(np.isfinite(gamma)) and np.all(np.isfinite(sigma))):
+                raise ValueError(f"band {k} has non-finite parameters")
+            models.append(CARModel(
+                gamma=gamma, sigma=sigma,
+                mean=np.asarray(arrays[f"band{k}_mean"], float).reshape(d),
+                offsets=offsets, lam=sigma * beta,
+                vx=np.full((d * eta, d * eta), np.nan),  # not stored: synthesis does not need it
+                beta=beta, n_pixels=int(header["n_pixels"][k]),
+                order=header["order"][k], direction=str(header["direction"][k]),
+            ))
+            ranges.append(np.asarray(arrays[f"band{k}_range"], float).reshape(2, d))
+            if version >= 2:
+                band_quantiles.append(
+                    np.asarray(arrays[f"band{k}_quantiles"], float).reshape(-1, d)
+                )
+        return cls(
+            models=tuple(models), band_ranges=np.stack(ranges), mean=mean, std=std,
+            value_range=value_range, grey=bool(header["grey"]),
+            model=str(header.get("model", "3d")),
+            fallbacks=tuple(header.get("fallbacks", ())),
+            band_quantiles=np.stack(band_quantiles) if version >= 2 else None,
+            quantiles=quantiles,
+        )

@@ -1,0 +1,209 @@
+"""Command line: fit prints JSON, synthesize writes an image, errors are clear."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+from skimage import data as skdata
+from skimage import io
+
+from car_napari.cli import main
+
+
+def test_fit_prints_json(tmp_path, capsys):
+    path = tmp_path / "gravel.png"
+    io.imsave(path, skdata.gravel()[:96, :96])
+    assert main(["fit", str(path)]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["order"] in range(1, 6)
+    assert set(out["scores"]) == {"1", "2", "3", "4", "5"}
+    assert np.array(out["gamma"]).shape == (1, len(out["offsets"]))
+    assert np.array(out["sigma"]).shape == (1, 1)
+
+
+def test_synthesize_writes_image(tmp_path):
+    src, dst = tmp_path / "astro.png", tmp_path / "out.png"
+    io.imsave(src, skdata.astronaut()[300:400, 0:100])
+    assert main(["synthesize", str(src), "-o", str(dst), "--size", "50", "60",
+                 "--seed", "1"]) == 0
+    out = io.imread(dst)
+    assert out.shape == (50, 60, 3) and out.dtype == np.uint8
+
+
+def test_errors(tmp_path, capsys):
+    assert main(["fit", str(tmp_path / "missing.png")]) == 2
+    assert "no such file" in capsys.readouterr().err
+    flat = tmp_path / "flat.png"
+    io.imsave(flat, np.full((32, 32), 9, np.uint8), check_contrast=False)
+    assert main(["fit", str(flat)]) == 2
+    assert "constant" in capsys.readouterr().err
+
+
+def test_entry_point_help():
+    out = subprocess.run([sys.executable, "-m", "car_napari.cli", "--help"],
+                         capture_output=True, text=True, check=True).stdout
+    assert "fit" in out and "synthesize" in out
+
+
+def test_segment_folder_and_glob(tmp_path, capsys):
+    src = tmp_path / "in"
+    src.mkdir()
+    a, b = skdata.brick()[:96, :48], skdata.grass()[:96, :48]
+    io.imsave(src / "one.png", np.concatenate([a, b], axis=1))
+    io.imsave(src / "two.png", np.concatenate([b, a], axis=1))
+    out = tmp_path / "out"
+    assert main(["segment", str(src), "-o", str(out), "--segments", "2", "--levels", "2"]) == 0
+    labels = io.imread(out / "one_segments.png")
+    assert labels.shape == (96, 96) and set(np.unique(labels)) <= {0, 1, 2}
+    assert (out / "two_segments.png").exists()
+    assert main(["segment", str(src / "*.png"), "-o", str(out), "--levels", "2"]) == 0
+    assert main(["segment", str(tmp_path / "none*.png"), "-o", str(out)]) == 2
+    assert "no input images" in capsys.readouterr().err
+
+
+def test_bad_order_is_a_usage_error(tmp_path, capsys):
+    import pytest
+
+    path = tmp_path / "gravel.png"
+    io.imsave(path, skdata.gravel()[:48, :48])
+    with pytest.raises(SystemExit) as exit_info:
+        main(["fit", str(path), "--order", "abc"])
+    assert exit_info.value.code == 2
+    assert "'auto' or a positive integer" in capsys.readouterr().err
+
+
+def test_mammo_writes_labels_and_one_table(tmp_path, capsys):
+    import csv
+
+    import pytest
+
+    from car_napari.mammography import TABLE_COLUMNS
+    from car_napari.io.sample_data import mammogram
+
+    (image, _, _), = mammogram()
+    small = image.reshape(256, 4, 256, 4).mean(axis=(1, 3)).astype(np.uint8)
+    src = tmp_path / "in"
+    src.mkdir()
+    io.imsave(src / "mdb001.png", small)
+    io.imsave(src / "black.png", np.zeros((64, 64), np.uint8), check_contrast=False)
+    inputs = [str(src / "*.png")]
+    pytest.importorskip("pydicom")
+    from dicom_files import write_dicom
+
+    write_dicom(src / "mdb001.dcm", small.astype(np.uint16) * 16, bits=12)
+    inputs.append(str(src / "mdb001.dcm"))
+    out = tmp_path / "out"
+    assert main(["mammo", *inputs, "-o", str(out), "--max-regions", "0",
+                 "--tolerance", "0.3"]) == 0
+    err = capsys.readouterr().err
+    assert "black.png: skipped" in err and "constant" in err
+    labels = io.imread(out / "mdb001_rois.png")
+    assert labels.shape == small.shape and labels.max() >= 1
+    with open(out / "rois.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert set(rows[0]) == {"image", *TABLE_COLUMNS}
+    png = [r for r in rows if r["image"] == "mdb001.png"]
+    assert len(png) == labels.max()
+    assert {r["image"] for r in rows} == {"mdb001.png", "mdb001.dcm"}
+    assert main(["mammo", str(src / "black.png"), "-o", str(out)]) == 2
+
+
+def test_restore_single_and_stack(tmp_path, capsys):
+    import tifffile
+
+    rng = np.random.default_rng(0)
+    clean = skdata.camera()[:64, :64] / 255.0
+    noisy = np.clip(clean + rng.normal(0, 0.05, clean.shape), 0, 1)
+    src = tmp_path / "in"
+    src.mkdir()
+    io.imsave(src / "noisy.png", np.round(noisy * 255).astype(np.uint8))
+    out = tmp_path / "out"
+    assert main(["restore", str(src / "noisy.png"), "-o", str(out), "--probability"]) == 0
+    restored = io.imread(out / "noisy_restored.png")
+    assert restored.shape == (64, 64) and restored.dtype == np.uint8
+    probability = tifffile.imread(out / "noisy_probability.tif")
+    assert probability.shape == (64, 64) and 0 <= probability.min() <= probability.max() <= 1
+    stack = np.stack([clean + rng.normal(0, 0.05, clean.shape) for _ in range(3)], axis=-1)
+    tifffile.imwrite(src / "burst.tif", stack.astype(np.float32))
+    assert main(["restore", str(src / "burst.tif"), "-o", str(out), "--stack-axis", "2",
+                 "--kappa", "0.1"]) == 0
+    restored = tifffile.imread(out / "burst_restored.tif")
+    assert restored.shape == (64, 64) and restored.dtype == np.float32
+    assert "reference version" in capsys.readouterr().out
+    assert main(["restore", str(src / "noisy.png"), "-o", str(out), "--stack-axis", "0"]) == 2
+    assert "stack" in capsys.readouterr().err
+
+
+def test_restore_bad_kappa_is_a_usage_error(tmp_path, capsys):
+    import pytest
+
+    with pytest.raises(SystemExit):
+        main(["restore", "x.png", "-o", str(tmp_path), "--kappa", "1.5"])
+    assert "kappa must be in [0, 1)" in capsys.readouterr().err
+
+
+def test_inpaint_and_descratch(tmp_path, capsys):
+    frame = skdata.astronaut()[:96, :96].copy()
+    frame[:, 40:43] = 255
+    mask = np.zeros((48, 48), np.uint8)  # drawn at half resolution
+    mask[:, 20:22] = 255
+    io.imsave(tmp_path / "frame.png", frame)
+    io.imsave(tmp_path / "mask.png", mask, check_contrast=False)
+    out = tmp_path / "out.png"
+    assert main(["inpaint", str(tmp_path / "frame.png"), "-m", str(tmp_path / "mask.png"),
+                 "-o", str(out)]) == 0
+    restored = io.imread(out)
+    assert restored.shape == frame.shape and np.all(restored[:, 41] != 255)
+    np.testing.assert_array_equal(restored[:, :38], frame[:, :38])
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    base = skdata.camera()[:80, :80]
+    for t in range(4):
+        f = base.copy()
+        f[:, 30 + 5 * t : 32 + 5 * t] = 250
+        io.imsave(frames / f"{t + 1:04d}.png", f)
+    assert main(["descratch", str(frames), "-o", str(tmp_path / "clean"), "--masks"]) == 0
+    cleaned = io.imread(tmp_path / "clean" / "0003.png")
+    assert np.abs(cleaned[:, 40:42].astype(int) - base[:, 40:42]).mean() < 25
+    assert (tmp_path / "clean" / "0004_mask.png").exists()
+    assert main(["descratch", str(tmp_path / "nothing"), "-o", str(tmp_path / "x")]) == 2
+    assert "not a folder" in capsys.readouterr().err
+
+
+def test_fit_texture_then_synthesize_from_the_model(tmp_path, capsys):
+    src = tmp_path / "gravel.png"
+    io.imsave(src, skdata.gravel()[:128, :128])
+    model = tmp_path / "gravel.npz"
+    assert main(["fit-texture", str(src), "-o", str(model)]) == 0
+    assert "compression" in capsys.readouterr().err
+    assert model.stat().st_size < 10_000
+    out = tmp_path / "big.png"
+    assert main(["synthesize", str(model), "-o", str(out), "--size", "200", "300",
+                 "--seed", "2", "--tileable"]) == 0
+    big = io.imread(out)
+    assert big.shape == (200, 300) and big.dtype == np.uint8
+    assert main(["synthesize", str(model), "-o", str(tmp_path / "x.gif2")]) == 2
+    assert "use .png" in capsys.readouterr().err
+    (tmp_path / "broken.npz").write_bytes(b"not a model")
+    assert main(["synthesize", str(tmp_path / "broken.npz"), "-o", str(out)]) == 2
+    assert "not a readable" in capsys.readouterr().err
+
+
+def test_retrieve_ranks_a_folder(tmp_path, capsys):
+    from car_napari.io.sample_data import colour_texture
+
+    vistex = colour_texture()[0][0]
+    gallery = tmp_path / "gallery"
+    gallery.mkdir()
+    io.imsave(gallery / "same.png", vistex[128:])
+    io.imsave(gallery / "cells.png", skdata.immunohistochemistry()[:128, :256])
+    io.imsave(gallery / "coffee.png", skdata.coffee()[:128, :256])
+    io.imsave(gallery / "grey.png", skdata.camera()[:128, :256])
+    io.imsave(tmp_path / "query.png", vistex[:128])
+    assert main(["retrieve", str(tmp_path / "query.png"), str(gallery), "--top", "2"]) == 0
+    captured = capsys.readouterr()
+    lines = captured.out.strip().splitlines()
+    assert len(lines) == 2 and lines[0].endswith("same.png")
+    assert "grey.png" in captured.err
+    assert main(["retrieve", str(tmp_path / "query.png"), str(tmp_path / "nope")]) == 2

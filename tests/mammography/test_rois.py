@@ -1,0 +1,213 @@
+"""Mammograms: breast area, regions of interest (SPEC 3.1), DICOM reading."""
+
+import sys
+
+import numpy as np
+import pytest
+from skimage import io
+
+from car_napari import mammography as mm
+from car_napari.mammography import detect_breast, detect_mammogram_rois
+from car_napari.io.sample_data import resource_path
+from dicom_files import write_dicom as _write_dicom
+
+# mdb001's ground-truth mass (mini-MIAS): centre (col 535, row 599), radius 197
+MASS_ROW, MASS_COL, MASS_RADIUS = 599, 535, 197
+
+
+@pytest.fixture(scope="module")
+def sample():
+    return io.imread(str(resource_path("mammogram_mdb001.png")))
+
+
+@pytest.fixture(scope="module")
+def rois(sample):
+    """ROIs of the sample downsampled by 2 (512x512): one run for the tests."""
+    half = sample.reshape(512, 2, 512, 2).mean(axis=(1, 3)).astype(np.uint8)
+    *progress, (labels, table) = mm.iter_detect_mammogram_rois(half)
+    return half, labels, table, progress
+
+
+# --- breast area ---------------------------------------------------------------
+
+
+def test_breast_of_the_sample(sample):
+    mask, details = detect_breast(sample, return_details=True)
+    assert mask.shape == sample.shape and mask.dtype == bool
+    assert details["side"] == "right"  # mdb001: chest wall on the right
+    # the mass and the bulk of the tissue are inside, background corners are not
+    assert mask[MASS_ROW, MASS_COL]
+    assert not mask[:40, :40].any() and not mask[-40:, :40].any()
+    assert sample[mask].mean() > 3 * sample[~mask].mean()
+    # the pectoral muscle (bright triangle at the top right) is removed
+    pect = details["pectoral"]
+    assert pect.sum() > 0.02 * mask.sum() and not (pect & mask).any()
+    assert not mask[10, 700] and pect[10, 700]
+    assert mask[700, 700]
+    # nearly all clearly bright pixels other than the muscle are breast
+    bright = (sample > 0.3 * sample.max()) & ~pect
+    assert (bright & mask).sum() > 0.95 * bright.sum()
+
+
+def test_every_mass_centre_is_inside(shared_data):
+    import csv
+
+    folder = shared_data / "mammograms" / "mini-mias"
+    with open(folder / "ground_truth.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    masses = [r for r in rows if r["class"] in ("CIRC", "SPIC", "MISC") and r["col"]]
+    inside = 0
+    for r in masses:
+        mask = detect_breast(io.imread(folder / f"{r['refnum']}.png"))
+        inside += bool(mask[int(r["row"]), int(r["col"])])
+    assert inside == len(masses)
+
+
+def test_breast_is_fast(sample):
+    import time
+
+    detect_breast(sample)
+    t = time.perf_counter()
+    detect_breast(sample)
+    assert time.perf_counter() - t < 1.0
+
+
+@pytest.mark.parametrize("image", [np.zeros((64, 64), np.uint8), np.full((64, 64), 200, np.uint8)])
+def test_constant_mammogram_is_a_clear_error(image):
+    with pytest.raises(ValueError, match="constant"):
+        detect_breast(image)
+    with pytest.raises(ValueError, match="constant"):
+        detect_mammogram_rois(image)
+
+
+# --- regions of interest ---------------------------------------------------------
+
+
+def test_rois_shape_and_table(rois):
+    half, labels, table, _ = rois
+    assert labels.shape == half.shape and labels.dtype == np.int32
+    n = int(labels.max())
+    assert 1 <= n <= mm.DEFAULT_MAX_REGIONS
+    assert set(table) == set(mm.TABLE_COLUMNS)
+    assert all(len(v) == n for v in table.values())
+    np.testing.assert_array_equal(table["label"], np.arange(1, n + 1))
+    assert np.all(np.diff(table["score"]) <= 0)  # best first
+    breast = detect_breast(half)
+    assert not labels[~breast].any()
+    for i in range(n):
+        region = labels == table["label"][i]
+        assert region.sum() == table["area"][i]
+        np.testing.assert_allclose(half[region].mean() / 255.0, table["mean_grey"][i], rtol=1e-9)
+        assert abs(table["mean_grey"][i] - mm.REFERENCE_GREY) <= mm.REFERENCE_TOLERANCE
+        rows, cols = np.nonzero(region)
+        assert (rows.min(), cols.min()) == (table["bbox_min_row"][i], table["bbox_min_col"][i])
+        assert (rows.max() + 1, cols.max() + 1) == (table["bbox_max_row"][i],
+                                                    table["bbox_max_col"][i])
+        np.testing.assert_allclose([rows.mean(), cols.mean()],
+                                   [table["centroid_row"][i], table["centroid_col"][i]])
+
+
+def test_mass_of_mdb001_is_detected(rois):
+    _, labels, table, _ = rois
+    row, col, radius = MASS_ROW / 2, MASS_COL / 2, MASS_RADIUS / 2
+    near = np.hypot(table["centroid_row"] - row, table["centroid_col"] - col) <= radius
+    assert near.any() or labels[int(row), int(col)] > 0
+
+
+def test_filter_regions_on_a_synthetic_segmentation():
+    image = np.full((200, 200), 0.3)
+    segments = np.ones((200, 200), np.int32)
+    image[50:90, 50:90], segments[50:90, 50:90] = 0.66, 2  # a bright "mass"
+    image[120:160, 120:160], segments[120:160, 120:160] = 0.95, 3  # too bright
+    labels, table = mm.filter_regions(image, segments, reference=0.66, tolerance=0.1,
+                                      max_regions=None)
+    # the one-pixel opening of the candidates takes the block's 4 corners
+    assert labels.max() == 1 and table["area"].tolist() == [1596]
+    assert table["centroid_row"][0] == pytest.approx(69.5)
+    assert table["contrast"][0] == pytest.approx(0.36, abs=0.005)
+    # pooled labellings: the same block found twice is kept once
+    labels2, table2 = mm.filter_regions(image, [segments, segments], reference=0.66,
+                                        tolerance=0.1, max_regions=None)
+    assert labels2.max() == 1 and table2["area"].tolist() == [1596]
+    with pytest.raises(ValueError, match="tolerance"):
+        mm.filter_regions(image, segments, tolerance=0)
+
+
+def test_iter_yields_progress_then_result(rois):
+    progress = rois[3]
+    assert all(isinstance(p, float) for p in progress) and len(progress) > 3
+    assert progress == sorted(progress) and progress[-1] == 1.0
+
+
+# --- DICOM ----------------------------------------------------------------------
+
+
+
+
+RAMP = np.tile(np.linspace(0, 4095, 64).round().astype(np.uint16), (8, 1))
+
+
+@pytest.mark.parametrize("photometric", ["MONOCHROME2", "MONOCHROME1"])
+def test_dicom_rescale_and_window(tmp_path, photometric):
+    pytest.importorskip("pydicom")
+    from car_napari.io.dicom import read_dicom
+
+    # value = 2 s - 100; window [3000, 5000] in rescaled units
+    path = _write_dicom(tmp_path / "w.dcm", RAMP, photometric, RescaleSlope=2,
+                        RescaleIntercept=-100, WindowCenter=4000, WindowWidth=2000)
+    image, meta = read_dicom(path)
+    expect = np.clip((2.0 * RAMP - 100 - 3999.5) / 1999 + 0.5, 0, 1)
+    if photometric == "MONOCHROME1":
+        expect = 1 - expect
+    np.testing.assert_allclose(image, expect, atol=1e-6)
+    assert image.dtype == np.float32
+    assert meta["applied"][:2] == ["modality rescale", "VOI window"]
+
+
+@pytest.mark.parametrize("photometric", ["MONOCHROME2", "MONOCHROME1"])
+def test_dicom_plain_and_rescale_only(tmp_path, photometric):
+    pytest.importorskip("pydicom")
+    from car_napari.io.dicom import read_dicom
+
+    flip = (lambda x: 1 - x) if photometric == "MONOCHROME1" else (lambda x: x)
+    image, meta = read_dicom(_write_dicom(tmp_path / "p.dcm", RAMP, photometric))
+    np.testing.assert_allclose(image, flip(RAMP / 4095.0), atol=1e-6)
+    image, meta = read_dicom(_write_dicom(tmp_path / "r.dcm", RAMP, photometric,
+                                          RescaleSlope=0.5, RescaleIntercept=10))
+    np.testing.assert_allclose(image, flip(RAMP / 4095.0), atol=1e-6)
+    assert "modality rescale" in meta["applied"]
+
+
+def test_dicom_voi_lut(tmp_path):
+    pytest.importorskip("pydicom")
+    from pydicom.dataset import Dataset
+
+    from car_napari.io.dicom import read_dicom
+
+    item = Dataset()
+    item.add_new((0x0028, 0x3002), "US", [4096, 0, 16])  # LUT Descriptor: 16-bit output
+    lut = np.minimum(np.arange(4096) * 32, 65535)  # a steeper display curve, clipped
+    item.add_new((0x0028, 0x3006), "US", lut.tolist())  # LUT Data
+    path = _write_dicom(tmp_path / "l.dcm", RAMP, VOILUTSequence=[item])
+    image, meta = read_dicom(path)
+    assert "VOI LUT" in meta["applied"]
+    np.testing.assert_allclose(image, lut[RAMP] / 65535.0, atol=1e-6)
+
+
+def test_dicom_reader_layer_data(tmp_path):
+    pytest.importorskip("pydicom")
+    from car_napari.io.dicom import dicom_reader, get_reader
+
+    path = _write_dicom(tmp_path / "n.dcm", RAMP, PixelSpacing=[0.2, 0.1])
+    assert get_reader(str(tmp_path / "x.png")) is None
+    assert get_reader(path) is dicom_reader
+    (data, kwargs, kind), = dicom_reader(path)
+    assert kind == "image" and data.shape == RAMP.shape and kwargs["scale"] == (0.2, 0.1)
+
+
+def test_dicom_without_pydicom_is_a_clear_error(monkeypatch, tmp_path):
+    from car_napari.io.dicom import read_dicom
+
+    monkeypatch.setitem(sys.modules, "pydicom", None)
+    with pytest.raises(ImportError, match="pip install pydicom"):
+        read_dicom(tmp_path / "missing.dcm")

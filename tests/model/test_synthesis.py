@@ -1,0 +1,114 @@
+"""Synthesis from the model equation and the stability test (SPEC 1.7)."""
+
+import numpy as np
+import pytest
+from skimage import data as skdata
+
+from car_napari import CARModel, fit_car, spectral_radius, synthesize
+from car_fields import car_field, random_stable_model
+
+
+@pytest.mark.parametrize("name, order", [("gravel", 3), ("grass", 2)])
+def test_refit_of_synthesis_matches_first_fit(name, order):
+    texture = getattr(skdata, name)()
+    first = fit_car(texture, order)
+    sample = synthesize(first, (512, 512), seed=0)
+    second = fit_car(sample, order)
+    assert np.abs(second.gamma - first.gamma).max() < 0.05
+    np.testing.assert_allclose(second.sigma, first.sigma, rtol=0.05)
+    np.testing.assert_allclose(second.mean, first.mean, atol=0.05)
+
+
+def test_refit_colour_texture():
+    texture = skdata.astronaut()[300:450, 30:180]  # grass-like background
+    first = fit_car(texture, 2)
+    second = fit_car(synthesize(first, (512, 512), seed=3), 2)
+    assert np.abs(second.gamma - first.gamma).max() < 0.05
+
+
+def test_shape_seed_and_channels():
+    model = fit_car(skdata.astronaut()[:64, :64], 1)
+    a = synthesize(model, (30, 70), seed=5)
+    b = synthesize(model, (30, 70), seed=5)
+    c = synthesize(model, (30, 70), seed=6)
+    assert a.shape == (30, 70, 3)
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(a, c)
+    grey = synthesize(fit_car(skdata.camera()[:64, :64], 1), (17, 9), seed=0)
+    assert grey.shape == (17, 9)
+
+
+@pytest.mark.parametrize("direction", ["up", "right", "left"])
+def test_synthesis_in_other_directions_has_the_model_statistics(direction):
+    A, offsets, sigma = random_stable_model(2, 1, seed=4)
+    field = car_field(A, offsets, sigma, (200, 200), seed=2)[..., 0]
+    # the image whose scan in 'direction' reads the raster field: fitting there recovers A
+    model = fit_car(_unscan(field, direction), 2, direction=direction)
+    np.testing.assert_allclose(model.gamma[0], [a[0, 0] for a in A], atol=0.03)
+    out = synthesize(model, (150, 120), seed=1)
+    assert out.shape == (150, 120)
+    refit = fit_car(out, 2, direction=direction)
+    np.testing.assert_allclose(refit.gamma, model.gamma, atol=0.06)
+
+
+def _unscan(field, direction):
+    """The image whose scan in ``direction`` reads ``field`` in raster order."""
+    return {"up": field[::-1], "right": field.T, "left": field.T[:, ::-1]}[direction]
+
+
+def test_unstable_model_raises_clear_error():
+    model = fit_car(np.random.default_rng(0).random((20, 20)), 1)
+    model.gamma = np.array([[0.6, 0.55]])  # Y = 0.6 left + 0.55 up: grows row after row
+    assert spectral_radius(model) > 1
+    with pytest.raises(ValueError, match="unstable"):
+        synthesize(model, (32, 32), seed=0)
+
+
+def test_stability_criterion_agrees_with_a_real_explosion():
+    # The brick texture's order-2 least-squares model is (just) unstable; order 5 is not.
+    brick = skdata.brick()
+    unstable, stable = fit_car(brick, 2), fit_car(brick, 5)
+    assert spectral_radius(unstable) > 1 > spectral_radius(stable)
+    with pytest.raises(ValueError, match="unstable"):
+        synthesize(unstable, (64, 64))
+    out = synthesize(stable, (600, 300), seed=0)
+    top, bottom = out[:300].std(), out[300:].std()
+    assert 0.8 < bottom / top < 1.25
+
+
+def test_bad_shapes_and_model():
+    model = fit_car(skdata.camera()[:32, :32], 1)
+    with pytest.raises(ValueError, match="shape"):
+        synthesize(model, (0, 10))
+    with pytest.raises(ValueError, match="shape"):
+        synthesize(model, 10)
+    with pytest.raises(TypeError, match="CARModel"):
+        synthesize(np.eye(2), (10, 10))
+    assert isinstance(model, CARModel)
+
+
+def test_unstable_fit_really_explodes():
+    """Not circular: generate with the raw kernel, bypassing the check."""
+    from car_napari.model.synthesis import synthesize_field
+
+    for order, explodes in ((2, True), (5, False)):
+        model = fit_car(skdata.brick(), order)
+        noise = np.random.default_rng(0).standard_normal((1200, 400, 1))
+        taps = model.context.taps
+        synthesize_field(model.gamma, np.sqrt(model.sigma), noise,
+                         taps[:, 0].copy(), taps[:, 1].copy(), taps[:, 2].copy(), 1e300)
+        growth = noise[900:1200, 100:300].std() / noise[300:600, 100:300].std()
+        assert (growth > 100) == explodes, (order, growth)
+        assert (spectral_radius(model) > 1) == explodes
+
+
+def test_narrow_in_row_resonance_is_found():
+    # In-row AR(2) with roots 0.9999 exp(+-i pi/256) plus a tiny vertical tap:
+    # the resonance falls between the frequency grid points.
+    r, th = 0.9999, np.pi / 256
+    model = fit_car(np.random.default_rng(0).random((20, 20)), 3)
+    model.gamma = np.zeros((1, 6))
+    model.gamma[0, 0] = 2 * r * np.cos(th)  # (0, 1)
+    model.gamma[0, 4] = -r * r  # (0, 2)
+    model.gamma[0, 1] = 1e-5  # (1, 0)
+    assert spectral_radius(model) > 1

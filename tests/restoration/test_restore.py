@@ -1,0 +1,338 @@
+"""Restoration (SPEC 4, 5): each piece against an independent computation."""
+
+import numpy as np
+import pytest
+from scipy import ndimage
+from skimage import data as skdata
+from skimage import img_as_float
+from skimage.metrics import peak_signal_noise_ratio as psnr
+
+from car_napari._progress import drain
+from car_napari.model.neighbourhood import causal_neighbourhood
+from car_napari.restoration import (
+    estimate_noise,
+    estimate_psf,
+    iter_restore,
+    iter_restore_multichannel,
+    psf_width,
+    restore,
+    restore_multichannel,
+    sharpness,
+)
+
+
+def _dense_one_step(image, offsets, strength=1e-6):
+    """One-step prediction and relative density by plain NumPy: for every
+    pixel, the regression of Y on [neighbours, 1] over all earlier pixels
+    (raster order, prior V_0 as in the core), the Student-t of SPEC 1.6."""
+    y = image - image.mean()
+    H, W = y.shape
+    m = len(offsets)
+    p = m + 1
+    V = np.diag(np.r_[np.full(m, strength * y.var()), strength, strength * y.var()])
+    count = 0
+    pred = np.full((H, W), np.nan)
+    rel = np.full((H, W), np.nan)
+    for i in range(H):
+        for j in range(W):
+            nb = [(i - di, j - dj) for di, dj in offsets]
+            if any(not (0 <= a < H and 0 <= b < W) for a, b in nb):
+                continue
+            x = np.r_[[y[a, b] for a, b in nb], 1.0]
+            Vxx, Vxy, Vyy = V[:p, :p], V[:p, p], V[p, p]
+            gamma = np.linalg.solve(Vxx, Vxy)
+            lam = Vyy - Vxy @ gamma
+            q = 1.0 + x @ np.linalg.solve(Vxx, x)
+            e = y[i, j] - gamma @ x
+            nu = (p - 1 + count) - p + 2
+            pred[i, j] = gamma @ x + image.mean()
+            rel[i, j] = (1.0 + e * e / (q * lam)) ** (-(nu + 1) / 2)
+            z = np.r_[x, y[i, j]]
+            V = V + np.outer(z, z)
+            count += 1
+    return pred, rel
+
+
+def test_conditional_mean_and_probability_match_dense_numpy():
+    rng = np.random.default_rng(3)
+    image = ndimage.uniform_filter(rng.random((14, 15)), 3) + 0.05 * rng.random((14, 15))
+    result = drain(iter_restore(image, channel_axis=None, estimator="recursive", neighbourhood=2,
+                                forgetting=1.0, directions=("down",), keep_edges=False))
+    pred, rel = _dense_one_step(image, causal_neighbourhood(2))
+    have = np.isfinite(pred)
+    np.testing.assert_allclose(result.prediction[..., 0][have], pred[have], rtol=1e-6)
+    np.testing.assert_allclose(result.probability[have], rel[have], rtol=1e-6, atol=1e-12)
+    # pixels without a whole neighbourhood keep their value, probability 1
+    np.testing.assert_array_equal(result.prediction[..., 0][~have], image[~have])
+    assert np.all(result.probability[~have] == 1.0)
+
+
+def _dense_windowed(image, offsets, corner, window, strength=1e-6):
+    """The windowed estimator by plain NumPy: for every pixel, the least
+    squares of its block's 3 x 3-block window (V_0 as in the core), the
+    Student-t of SPEC 1.6 with nu = count + 1."""
+    mean = image.reshape(-1, image.shape[2]).mean(axis=0)
+    y = image - mean
+    H, W, C = y.shape
+    si = -1 if corner.startswith("up") else 1
+    sj = -1 if corner.endswith("left") else 1
+    taps = [(si * di, sj * dj) for di, dj in offsets]
+    union = {(a * di, b * dj) for di, dj in offsets for a in (-1, 1) for b in (-1, 1)}
+    border = max(max(abs(a), abs(b)) for a, b in union)
+    block = -(-window // 3)
+    var = float(np.mean(image.reshape(-1, C).var(axis=0)))
+
+    def regressors(i, j):
+        return np.r_[[y[i + a, j + b, c] for a, b in taps for c in range(C)], 1.0]
+
+    pred = np.full((H, W, C), np.nan)
+    rel = np.full((H, W), np.nan)
+    for i in range(H):
+        for j in range(W):
+            if not all(0 <= i + a < H and 0 <= j + b < W for a, b in taps):
+                continue
+            bi, bj = i // block, j // block
+            rows = [(a, b) for a in range(max(border, (bi - 1) * block),
+                                          min(H - border, (bi + 2) * block))
+                    for b in range(max(border, (bj - 1) * block),
+                                   min(W - border, (bj + 2) * block))]
+            X = np.array([regressors(a, b) for a, b in rows])
+            Y = np.array([y[a, b] for a, b in rows])
+            p = X.shape[1]
+            prior = np.full(p, strength * var)
+            prior[-1] = strength
+            Vxx = X.T @ X + np.diag(prior)
+            gamma = np.linalg.solve(Vxx, X.T @ Y)
+            lam = Y.T @ Y + strength * var * np.eye(C) - (X.T @ Y).T @ gamma
+            z = regressors(i, j)
+            e = y[i, j] - z @ gamma
+            q = 1.0 + z @ np.linalg.solve(Vxx, z)
+            pred[i, j] = z @ gamma + mean
+            rel[i, j] = (1.0 + e @ np.linalg.solve(lam, e) / q) ** (-(len(rows) + 1 + C) / 2)
+    return pred, rel
+
+
+@pytest.mark.parametrize("corner", ["up-left", "down-right"])
+def test_windowed_prediction_matches_dense_least_squares(corner):
+    rng = np.random.default_rng(5)
+    image = ndimage.uniform_filter(rng.random((17, 19, 3)), (3, 3, 1))
+    image += 0.05 * rng.random(image.shape)
+    result = restore(image, directions=(corner,), window=9, keep_edges=False,
+                     return_result=True)
+    pred, rel = _dense_windowed(image, causal_neighbourhood(1), corner, 9)
+    have = np.isfinite(rel)
+    # a lone direction votes where it has a predicted neighbour in 3 x 3
+    np.testing.assert_allclose(result.prediction[have], pred[have], rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(result.probability[have], rel[have], rtol=1e-7, atol=1e-12)
+    np.testing.assert_array_equal(result.prediction[~have], image[~have])
+    assert np.all(result.probability[~have] == 1.0)
+
+
+def test_windowed_and_recursive_estimators_agree_on_quality():
+    """Two estimators of one model: on a blurred noisy photo both restore
+    to within half a dB of each other, and both well above the input."""
+    rng = np.random.default_rng(0)
+    clean = img_as_float(skdata.astronaut())[:160, :160]
+    noisy = _degraded(clean, rng)
+    windowed = psnr(clean, restore(noisy), data_range=1)
+    recursive = psnr(clean, restore(noisy, estimator="recursive", neighbourhood=2),
+                     data_range=1)
+    assert windowed > psnr(clean, noisy, data_range=1) + 3.0
+    assert abs(windowed - recursive) < 0.5
+
+
+def _degraded(image, rng, blur=1.0, noise=0.05):
+    sigma = (blur, blur, 0) if image.ndim == 3 else blur
+    return ndimage.gaussian_filter(image, sigma) + rng.normal(0, noise, image.shape)
+
+
+def test_restore_denoises_colour_and_grey_and_keeps_layout():
+    rng = np.random.default_rng(0)
+    clean = img_as_float(skdata.astronaut())[:128, :128]
+    noisy = _degraded(clean, rng)
+    given = noisy.copy()
+    out = restore(noisy)
+    np.testing.assert_array_equal(noisy, given)  # read, never written (it is not copied)
+    assert out.shape == clean.shape and out.dtype == np.float64
+    assert psnr(clean, out, data_range=1) > psnr(clean, noisy, data_range=1) + 2.0
+    # channel_axis=0 gives the same numbers in that layout
+    first = restore(np.moveaxis(noisy, -1, 0), channel_axis=0)
+    np.testing.assert_allclose(np.moveaxis(first, 0, -1), out, atol=1e-12)
+    grey = restore(noisy[..., 1], channel_axis=None)
+    assert grey.shape == (128, 128)
+    assert psnr(clean[..., 1], grey, data_range=1) > psnr(clean[..., 1], noisy[..., 1],
+                                                          data_range=1) + 2.0
+
+
+def _rise_distance(profile, lo=0.2, hi=0.8):
+    """Pixels between the 10 % and 90 % crossings of a rising edge profile."""
+    t = (profile - lo) / (hi - lo)
+    x = np.arange(len(t), dtype=float)
+
+    def crossing(level):
+        k = int(np.argmax(t >= level))
+        return x[k - 1] + (level - t[k - 1]) / (t[k] - t[k - 1])
+
+    return crossing(0.9) - crossing(0.1)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_edge_rule_keeps_a_step_sharp_and_denoises_flat_parts(seed):
+    rng = np.random.default_rng(seed)
+    step = np.where(np.arange(64) < 32, 0.2, 0.8)[None, :].repeat(64, axis=0)
+    noisy = step + rng.normal(0, 0.05, step.shape)
+    out = restore(noisy, channel_axis=None)
+    rows = slice(4, 60)
+    # as sharp as the input (to 0.01 px: the row-averaged profiles are noisy)
+    assert _rise_distance(out[rows].mean(axis=0)) <= _rise_distance(
+        noisy[rows].mean(axis=0)) + 0.01
+    flat = (slice(4, 60), slice(4, 24))
+    assert out[flat].std() < 0.7 * noisy[flat].std()
+    # without the rule the conditional mean blurs the step
+    plain = restore(noisy, channel_axis=None, keep_edges=False)
+    assert _rise_distance(plain[rows].mean(axis=0)) > _rise_distance(out[rows].mean(axis=0))
+
+
+def test_noise_median_is_exactly_numpy_median():
+    """The O(n) histogram median of the absolute Laplacian responses equals
+    np.median on random, heavy-tailed, sparse and constant images, odd and
+    even counts (the heavy tail exercises the overflow-bin fallback)."""
+    from car_napari.restoration._windowed import median_abs_laplacian
+
+    kernel = np.array([[1.0, -2.0, 1.0], [-2.0, 4.0, -2.0], [1.0, -2.0, 1.0]])
+    rng = np.random.default_rng(4)
+    for shape in [(3, 3), (6, 7), (101, 100), (64, 300)]:
+        for image in (rng.random(shape), rng.standard_cauchy(shape),
+                      (rng.random(shape) > 0.999) * 1.0, np.full(shape, 0.3)):
+            want = np.median(np.abs(ndimage.convolve(image, kernel))[1:-1, 1:-1])
+            assert abs(median_abs_laplacian(image) - want) <= 1e-12 * max(1.0, abs(want))
+
+
+def test_noise_estimate():
+    rng = np.random.default_rng(1)
+    clean = img_as_float(skdata.camera())[:256, :256]
+    for sigma in (0.02, 0.05, 0.1):
+        est = estimate_noise(_degraded(clean, rng, noise=sigma), channel_axis=None)
+        assert est.shape == (1,) and abs(est[0] - sigma) < 0.15 * sigma
+
+
+def _stack(clean, rng, blurs):
+    return np.stack([_degraded(clean, rng, blur=b) for b in blurs])
+
+
+def test_multichannel_beats_its_inputs_and_picks_the_sharpest():
+    rng = np.random.default_rng(0)
+    clean = img_as_float(skdata.camera())[100:228, 100:228]
+    blurs = [1.5, 0.5, 2.0, 1.0, 1.75, 0.75]
+    stack = _stack(clean, rng, blurs)
+    assert int(np.argmax(sharpness(stack))) == 1
+    restored, probability = restore_multichannel(stack)
+    assert restored.shape == clean.shape and probability.shape == clean.shape
+    assert probability.min() >= 0 and probability.max() <= 1
+    ours = psnr(clean, restored, data_range=1)
+    assert ours > psnr(clean, stack.mean(axis=0), data_range=1)
+    assert ours > psnr(clean, stack[1], data_range=1) + 3
+    # versions on another axis, and an explicit reference
+    moved, _ = restore_multichannel(np.moveaxis(stack, 0, 2), axis=2, reference=1)
+    np.testing.assert_allclose(moved, restored, atol=1e-12)
+
+
+def test_kappa_rethresholds_without_recomputing():
+    rng = np.random.default_rng(0)
+    clean = img_as_float(skdata.astronaut())[:96, :96]
+    stack = _stack(clean, rng, [0.5, 1.0, 1.5])
+    result = drain(iter_restore_multichannel(stack, channel_axis=-1))
+    assert result.reference == 0
+    changed = [result.changed(k).sum() for k in (0.0, 0.05, 0.3, 0.6, 0.9)]
+    assert changed == sorted(changed, reverse=True) and changed[0] > changed[-1]
+    high = result.restored(0.9)
+    keep = result.probability <= 0.9
+    np.testing.assert_array_equal(high[keep], result.observed[keep])
+    restored, _ = restore_multichannel(stack, kappa=0.3, channel_axis=-1)
+    np.testing.assert_allclose(restored, result.restored(0.3), atol=1e-12)
+
+
+def test_live_states_fill_in():
+    rng = np.random.default_rng(0)
+    noisy = _degraded(img_as_float(skdata.camera())[:64, :64], rng)
+    states = []
+    gen = iter_restore(noisy, channel_axis=None)
+    while True:
+        try:
+            states.append(next(gen))
+        except StopIteration:
+            break
+    running = [s for s in states if s.restored is not None]
+    assert len(running) >= 2
+    fractions = [s.fraction for s in states]
+    assert fractions == sorted(fractions) and fractions[-1] <= 1
+
+
+def test_psf_recovers_a_gaussian_width():
+    rng = np.random.default_rng(0)
+    sharp = img_as_float(skdata.astronaut())[:256, :256]
+    for sigma in (1.0, 1.5):
+        blurred = ndimage.gaussian_filter(sharp, (sigma, sigma, 0))
+        observed = blurred + rng.normal(0, 0.01, sharp.shape)
+        psf = estimate_psf(observed, sharp, size=9)
+        assert psf.shape == (9, 9)
+        assert abs(psf_width(psf) - sigma) < 0.2 * sigma
+        assert abs(psf.sum() - 1) < 0.1
+    local = estimate_psf(observed, sharp, size=9, window=128)
+    assert local.shape == (2, 2, 9, 9)
+    widths = [psf_width(local[i, j]) for i in range(2) for j in range(2)]
+    assert all(abs(w - 1.5) < 0.3 for w in widths)
+
+
+def test_bad_input():
+    rng = np.random.default_rng(0)
+    image = rng.random((32, 32))
+    with pytest.raises(ValueError, match="differ in shape"):
+        restore_multichannel([image, image[:30]])
+    with pytest.raises(ValueError, match="at least 2"):
+        restore_multichannel(image[None])
+    bad = image.copy()
+    bad[3, 4] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        restore(bad, channel_axis=None)
+    with pytest.raises(ValueError, match="NaN"):
+        restore_multichannel(np.stack([image, bad]))
+    for kappa in (-0.1, 1.0, 3):
+        with pytest.raises(ValueError, match="kappa must be in"):
+            restore_multichannel(np.stack([image, image]), kappa=kappa)
+    with pytest.raises(ValueError, match="constant"):
+        restore(np.ones((16, 16)), channel_axis=None)
+    with pytest.raises(ValueError, match="too small|smaller"):
+        restore(image[:1, :2], channel_axis=None)
+    with pytest.raises(ValueError, match="reference"):
+        restore_multichannel(np.stack([image, image]), reference=5)
+    with pytest.raises(ValueError, match="odd"):
+        estimate_psf(image, image, size=4)
+    with pytest.raises(ValueError, match="one shape"):
+        estimate_psf(image, image[:16])
+    with pytest.raises(ValueError, match="estimator must be"):
+        restore(image, channel_axis=None, estimator="kalman")
+    with pytest.raises(ValueError, match="window must be"):
+        restore(image, channel_axis=None, window=3)
+    with pytest.raises(ValueError, match="up-left"):  # the windowed estimator's names
+        restore(image, channel_axis=None, directions=("down",))
+    with pytest.raises(ValueError, match="'down'"):
+        restore(image, channel_axis=None, estimator="recursive", directions=("up-left",))
+
+
+def test_return_result_matches_the_plain_call():
+    rng = np.random.default_rng(0)
+    noisy = _degraded(img_as_float(skdata.camera())[:64, :64], rng)
+    result = restore(noisy, channel_axis=None, return_result=True)
+    # the plain call blends in the edge kernel (one rounding apart)
+    np.testing.assert_allclose(result.restored()[..., 0], restore(noisy, channel_axis=None),
+                               rtol=0, atol=1e-12)
+    for kappa in (0.0, 0.3):
+        np.testing.assert_allclose(result.restored(kappa)[..., 0],
+                                   restore(noisy, channel_axis=None, kappa=kappa),
+                                   rtol=0, atol=1e-12)
+    stack = np.stack([noisy, _degraded(img_as_float(skdata.camera())[:64, :64], rng)])
+    result = restore_multichannel(stack, return_result=True)
+    restored, probability = restore_multichannel(stack)
+    np.testing.assert_array_equal(result.restored()[..., 0], restored)
+    np.testing.assert_array_equal(result.probability, probability)

@@ -1,0 +1,142 @@
+"""Illumination-invariant texture retrieval (SPEC section 2): features and ranking."""
+
+import numpy as np
+import pytest
+from skimage import data as skdata
+
+from car_napari.texture.retrieval import minimum_size, rank, texture_features
+
+
+def _patch():
+    return skdata.astronaut()[256:384, 0:128] / 255.0
+
+
+def _illuminate(image, rng, noise=0.0):
+    """Y -> B Y with B positive (entries in [0.2, 1]), scaled so the result
+    stays in [0, 1], plus Gaussian noise."""
+    B = rng.uniform(0.2, 1.0, (3, 3))
+    B /= B.sum(axis=1).max()
+    out = image @ B.T
+    if noise:
+        out = out + rng.normal(0.0, noise, out.shape)
+    return out
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_invariant_under_random_positive_B(seed):
+    rng = np.random.default_rng(seed)
+    img = _patch()
+    f = texture_features(img)
+    g = texture_features(_illuminate(img, rng))
+    assert f.shape == (3 * (4 + 1),)
+    np.testing.assert_allclose(g, f, rtol=1e-6, atol=1e-6 * np.abs(f).max())
+
+
+def test_invariant_grey_gain_and_other_options():
+    img = skdata.camera()[100:228, 100:228] / 255.0
+    f = texture_features(img, channel_axis=None, levels=2, neighbourhood=3)
+    g = texture_features(0.3 * img, channel_axis=None, levels=2, neighbourhood=3)
+    assert f.shape == (2 * (6 + 1),)
+    np.testing.assert_allclose(g, f, rtol=1e-6, atol=1e-6 * np.abs(f).max())
+
+
+def test_channel_axis_first():
+    img = _patch()
+    np.testing.assert_allclose(
+        texture_features(np.moveaxis(img, -1, 0), channel_axis=0), texture_features(img)
+    )
+
+
+def _textures(shared_root):
+    """Colour textures of 192 x 192 (a 2 x 2 grid of 96 x 96 tiles each): four
+    VisTex images when present, otherwise scikit-image's grey brick, grass
+    and gravel made colour by putting shifted copies in the other channels
+    (scikit-image has no homogeneous colour texture: its colour photographs'
+    patches are not stationary enough at this size)."""
+    vistex = shared_root / "textures" / "vistex"
+    names = ["VS1.png", "VS10.png", "VS100.png", "VS104.png"]
+    if vistex.is_dir() and all((vistex / n).is_file() for n in names):
+        from skimage import io
+
+        return [io.imread(vistex / n)[..., :3][128:320, 128:320] / 255.0 for n in names]
+    out = []
+    for name in ("brick", "grass", "gravel"):
+        g = getattr(skdata, name)() / 255.0
+        rgb = np.stack([g, np.roll(g, 3, axis=0), np.roll(g, 3, axis=1)], axis=-1)
+        out.append(rgb[100:292, 100:292])
+    return out
+
+
+def test_ranking_finds_same_texture_first():
+    from car_fields import SHARED_DATA
+
+    rng = np.random.default_rng(0)
+    tiles, labels = [], []
+    for k, tex in enumerate(_textures(SHARED_DATA)):
+        for i in (0, 96):
+            for j in (0, 96):
+                tiles.append(_illuminate(tex[i:i + 96, j:j + 96], rng, noise=0.03))
+                labels.append(k)
+    labels = np.array(labels)
+    feats = [texture_features(t) for t in tiles]
+    hits = 0
+    for q in range(len(tiles)):
+        others = [f for i, f in enumerate(feats) if i != q]
+        idx, dist = rank(feats[q], others)
+        assert np.all(np.diff(dist) >= 0)
+        hits += labels[np.delete(np.arange(len(tiles)), q)][idx[0]] == labels[q]
+    # every query's nearest neighbour is another tile of its own texture
+    assert hits == len(tiles)
+
+
+def test_rank_accepts_images_and_vectors_alike():
+    rng = np.random.default_rng(1)
+    img = _patch()
+    gallery = [img[:64, :64], img[64:, 64:], skdata.coffee()[:64, :64] / 255.0]
+    idx_img, d_img = rank(_illuminate(img[:64, 64:], rng), gallery)
+    idx_vec, d_vec = rank(texture_features(_illuminate(img[:64, 64:], np.random.default_rng(1))),
+                          np.array([texture_features(g) for g in gallery]))
+    np.testing.assert_array_equal(idx_img, idx_vec)
+    np.testing.assert_allclose(d_img, d_vec, rtol=1e-6)
+    assert set(idx_img.tolist()) == {0, 1, 2}
+
+
+def test_single_entry_gallery():
+    img = _patch()
+    idx, dist = rank(img, [img[::-1]])
+    assert idx.tolist() == [0] and np.isfinite(dist[0])
+
+
+@pytest.mark.parametrize(
+    "call, match",
+    [
+        (lambda img: rank(img, []), "gallery is empty"),
+        (lambda img: rank(img, [img[..., 0]]), "grey"),
+        (lambda img: rank(img[..., 0], [img]), "grey"),
+        (lambda img: rank(img, [np.ones(7)]), "length 7"),
+        (lambda img: rank(np.ones(15), [np.ones(15), np.ones(12)]), r"gallery\[1\].*length 12"),
+        (lambda img: texture_features(img[:20, :20]), "at least 24 pixels"),
+        (lambda img: rank(img, [img, img[:16, :16]]), r"gallery\[1\].*at least 24"),
+        (lambda img: texture_features(img, levels=0), "levels"),
+        (lambda img: texture_features(np.repeat(img[..., :1], 3, axis=2)), "dependent"),
+        (lambda img: texture_features(np.zeros((64, 64))), "constant"),
+        (lambda img: rank(img, np.ones(3)), "gallery array"),
+    ],
+)
+def test_bad_input_is_a_clear_error(call, match):
+    with pytest.raises(ValueError, match=match):
+        call(_patch())
+
+
+def test_bad_types():
+    with pytest.raises(TypeError, match="gallery"):
+        rank(_patch(), None)
+    with pytest.raises(TypeError, match="dtype"):
+        rank(_patch(), [np.array(["a", "b"])])
+
+
+def test_minimum_size_grows_with_levels_and_order():
+    assert minimum_size() == 24
+    assert minimum_size(levels=4, neighbourhood=3) > minimum_size()
+    n = minimum_size(levels=2, neighbourhood=1)
+    texture_features(np.random.default_rng(0).random((n, n, 3)), levels=2, neighbourhood=1)
