@@ -1,28 +1,42 @@
 """Single-image and multichannel restoration with the local CAR model and
-its prediction-probability maps (chapter 14.5)."""
+its prediction-probability maps (sections 14.5 and 14.6,
+docs/restoration.md).
 
-from ._restore import (
+* :func:`restore` / :func:`iter_restore`: one degraded image, by the
+  conditional mean of local CAR models in four directions and the edge rule.
+* :func:`restore_multichannel` / :func:`iter_restore_multichannel`: several
+  registered degraded versions of one scene, by the 2.5D CAR model.
+* :func:`estimate_psf`, :func:`psf_width`: the point-spread function relating
+  a restored image to the observed one.
+* :func:`estimate_noise`: the noise level the edge rule compares with.
+
+The ``iter_`` forms yield :class:`~car_napari.Progress` records with previews
+of the image filling in, and return what the plain forms return; a
+:class:`RestorationResult` re-thresholds at any ``kappa`` without
+recomputation.
+"""
+
+from ._multichannel import (
     DEFAULT_KAPPA,
-    estimate_noise,
-    estimate_psf,
-    iter_restore,
+    MultichannelRestoration,
     iter_restore_multichannel,
-    psf_width,
-    RestorationResult,
-    RestorationState,
-    restore,
+    multichannel_context,
     restore_multichannel,
     sharpness,
 )
+from ._noise import estimate_noise
+from ._psf import estimate_psf, psf_width
+from ._single import RestorationResult, iter_restore, restore
 
 __all__ = [
     "DEFAULT_KAPPA",
+    "MultichannelRestoration",
     "RestorationResult",
-    "RestorationState",
     "estimate_noise",
     "estimate_psf",
     "iter_restore",
     "iter_restore_multichannel",
+    "multichannel_context",
     "psf_width",
     "restore",
     "restore_multichannel",

@@ -1,10 +1,12 @@
-"""The windowed CAR estimate behind single-image restoration (SPEC 4).
+"""The windowed CAR estimate behind single-image restoration (section 14.5,
+docs/restoration.md).
 
 Restoration needs, at every pixel and for each of four neighbourhoods, the
-one-step conditional mean ``gamma_hat Z_r`` and the predictive density (SPEC
-1.6) of a CAR model that is valid *around* the pixel. The adaptive estimator of SPEC
-1.4 gets ``gamma_hat`` by a recursive update with forgetting: about ``p^2``
-operations per pixel and direction, serial along the scan, too slow for the
+one-step conditional mean ``gamma_hat Z_r`` and the predictive density
+((14.23)-(14.25), docs/model.md) of a CAR model that is valid *around* the
+pixel. The adaptive estimator ((14.26)-(14.32), section 14.2.1,
+docs/model.md) gets ``gamma_hat`` by a recursive update with forgetting:
+about ``p^2`` operations per pixel and direction, serial along the scan, too slow for the
 chapter's speed claim (five times faster than a 5x5 median). Here the local
 model is instead the least-squares estimate over a window of pixels, as the
 chapter itself estimates local PSFs (14.46)-(14.47):
@@ -108,7 +110,7 @@ def window_models(moments, ix, iy, prior_x, prior_y, want_density, gamma, x_inv,
     ``prior_x`` (p,) and ``prior_y`` (d,) the diagonal prior ``V_0``.
     Writes ``gamma`` (n_dir, nbi, nbj, d, p), the inverses of the lower
     Cholesky factors of ``V_x`` (p, p) and of ``lambda`` (d, d), and
-    ``exponent = (nu + d) / 2`` with ``nu = count + 1`` (SPEC 1.6; the
+    ``exponent = (nu + d) / 2`` with ``nu = count + 1`` ((14.23)-(14.25); the
     recursion started from ``beta(0) = p - 1`` has this ``nu``), for block
     rows ``b0 <= bi < b1``. Without ``want_density`` only ``gamma`` is
     written (``x_inv`` and ``lam_inv`` may be empty).

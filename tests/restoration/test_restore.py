@@ -1,4 +1,7 @@
-"""Restoration (SPEC 4, 5): each piece against an independent computation."""
+"""Restoration (sections 14.5 and 14.6, docs/restoration.md): each piece
+against an independent computation."""
+
+import threading
 
 import numpy as np
 import pytest
@@ -7,9 +10,11 @@ from skimage import data as skdata
 from skimage import img_as_float
 from skimage.metrics import peak_signal_noise_ratio as psnr
 
-from car_napari._progress import drain
+from car_napari._progress import Progress, drain
 from car_napari.model.neighbourhood import causal_neighbourhood
 from car_napari.restoration import (
+    MultichannelRestoration,
+    RestorationResult,
     estimate_noise,
     estimate_psf,
     iter_restore,
@@ -24,7 +29,8 @@ from car_napari.restoration import (
 def _dense_one_step(image, offsets, strength=1e-6):
     """One-step prediction and relative density by plain NumPy: for every
     pixel, the regression of Y on [neighbours, 1] over all earlier pixels
-    (raster order, prior V_0 as in the core), the Student-t of SPEC 1.6."""
+    (raster order, prior V_0 as in the core), the Student-t predictive
+    density (14.23)-(14.25)."""
     y = image - image.mean()
     H, W = y.shape
     m = len(offsets)
@@ -57,7 +63,8 @@ def test_conditional_mean_and_probability_match_dense_numpy():
     rng = np.random.default_rng(3)
     image = ndimage.uniform_filter(rng.random((14, 15)), 3) + 0.05 * rng.random((14, 15))
     result = drain(iter_restore(image, channel_axis=None, estimator="recursive", neighbourhood=2,
-                                forgetting=1.0, directions=("down",), keep_edges=False))
+                                forgetting=1.0, directions=("down",), keep_edges=False,
+                                return_result=True))
     pred, rel = _dense_one_step(image, causal_neighbourhood(2))
     have = np.isfinite(pred)
     np.testing.assert_allclose(result.prediction[..., 0][have], pred[have], rtol=1e-6)
@@ -70,7 +77,7 @@ def test_conditional_mean_and_probability_match_dense_numpy():
 def _dense_windowed(image, offsets, corner, window, strength=1e-6):
     """The windowed estimator by plain NumPy: for every pixel, the least
     squares of its block's 3 x 3-block window (V_0 as in the core), the
-    Student-t of SPEC 1.6 with nu = count + 1."""
+    Student-t (14.23)-(14.25) with nu = count + 1."""
     mean = image.reshape(-1, image.shape[2]).mean(axis=0)
     y = image - mean
     H, W, C = y.shape
@@ -241,7 +248,7 @@ def test_kappa_rethresholds_without_recomputing():
     rng = np.random.default_rng(0)
     clean = img_as_float(skdata.astronaut())[:96, :96]
     stack = _stack(clean, rng, [0.5, 1.0, 1.5])
-    result = drain(iter_restore_multichannel(stack, channel_axis=-1))
+    result = drain(iter_restore_multichannel(stack, return_result=True))
     assert result.reference == 0
     changed = [result.changed(k).sum() for k in (0.0, 0.05, 0.3, 0.6, 0.9)]
     assert changed == sorted(changed, reverse=True) and changed[0] > changed[-1]
@@ -252,20 +259,126 @@ def test_kappa_rethresholds_without_recomputing():
     np.testing.assert_allclose(restored, result.restored(0.3), atol=1e-12)
 
 
-def test_live_states_fill_in():
+def _records_and_result(job):
+    records = []
+    result = drain(job, on_progress=records.append)
+    return records, result
+
+
+@pytest.mark.parametrize("channel_axis", [-1, 0])
+def test_iter_restore_yields_progress_with_previews_and_returns_what_restore_does(
+        channel_axis):
     rng = np.random.default_rng(0)
-    noisy = _degraded(img_as_float(skdata.camera())[:64, :64], rng)
-    states = []
-    gen = iter_restore(noisy, channel_axis=None)
-    while True:
-        try:
-            states.append(next(gen))
-        except StopIteration:
-            break
-    running = [s for s in states if s.restored is not None]
-    assert len(running) >= 2
-    fractions = [s.fraction for s in states]
+    noisy = _degraded(img_as_float(skdata.astronaut())[:96, :80], rng)
+    noisy = np.moveaxis(noisy, -1, channel_axis)
+    records, restored = _records_and_result(iter_restore(noisy, channel_axis=channel_axis))
+    assert all(isinstance(r, Progress) for r in records)
+    np.testing.assert_array_equal(restored, restore(noisy, channel_axis=channel_axis))
+    fractions = [r.fraction for r in records]
+    assert fractions == sorted(fractions) and 0 <= fractions[0] and fractions[-1] <= 1
+    rows = [r for r in records if r.stage == "rows"]
+    assert rows[-1].message == "rows 96/96"
+    previews = [r for r in records if r.preview is not None]
+    assert len(previews) >= 2
+    for record in previews:  # the image so far, in the input's layout
+        assert record.preview.shape == noisy.shape
+    # without the edge rule the restored rows of a preview are final, and the
+    # rows not yet restored show the observation
+    records, plain = _records_and_result(iter_restore(noisy, channel_axis=channel_axis,
+                                                      keep_edges=False))
+    first = next(r for r in records if r.preview is not None)
+    done = int(first.message.split()[1].split("/")[0])
+    preview, final = (np.moveaxis(a, channel_axis, -1) for a in (first.preview, plain))
+    observed = np.moveaxis(noisy, channel_axis, -1)
+    assert 0 < done < len(final)
+    np.testing.assert_array_equal(preview[:done], final[:done])
+    # (later strips may be running while the preview is copied; the
+    # observation is shown as (x - mean) + mean, one rounding from x)
+    assert np.all((np.abs(preview - observed) < 1e-12) | (preview == final))
+    assert not np.array_equal(final[done:], observed[done:])
+
+
+def test_iter_restore_with_return_result_equals_restore_and_recursive_previews():
+    rng = np.random.default_rng(1)
+    noisy = _degraded(img_as_float(skdata.camera())[:48, :56], rng)
+    for options in ({}, {"estimator": "recursive", "kappa": 0.2}):
+        records, result = _records_and_result(iter_restore(noisy, return_result=True,
+                                                           **options))
+        want = restore(noisy, return_result=True, **options)
+        assert isinstance(result, RestorationResult)
+        for name in ("observed", "prediction", "probability", "weight", "noise"):
+            np.testing.assert_array_equal(getattr(result, name), getattr(want, name))
+        assert result.kappa == want.kappa
+        previews = [r.preview for r in records if r.preview is not None]
+        assert previews and all(p.shape == noisy.shape for p in previews)
+    # the recursive previews are in image units (the mean added back)
+    assert abs(previews[-1].mean() - noisy.mean()) < 0.05
+
+
+def test_closing_iter_restore_early_stops_the_work():
+    rng = np.random.default_rng(2)
+    noisy = rng.random((256, 64))
+    threads = threading.active_count()
+    job = iter_restore(noisy)
+    first = next(job)
+    assert first.stage == "start" and first.fraction == 0.0
+    while next(job).stage != "rows":
+        pass
+    job.close()  # no error, the pool shut down, the generator finished
+    assert threading.active_count() == threads
+    with pytest.raises(StopIteration):
+        next(job)
+    job = iter_restore_multichannel(np.stack([noisy, noisy[::-1]]))
+    next(job)
+    next(job)
+    job.close()
+    assert threading.active_count() == threads
+
+
+def test_iter_restore_multichannel_previews_and_returns_what_restore_multichannel_does():
+    rng = np.random.default_rng(0)
+    clean = img_as_float(skdata.astronaut())[:48, :48]
+    stack = _stack(clean, rng, [0.5, 1.0])
+    records, out = _records_and_result(iter_restore_multichannel(stack))
+    want = restore_multichannel(stack)
+    assert isinstance(out, MultichannelRestoration) and out._fields == ("restored",
+                                                                        "probability")
+    np.testing.assert_array_equal(out.restored, want.restored)
+    np.testing.assert_array_equal(out.probability, want.probability)
+    fractions = [r.fraction for r in records]
     assert fractions == sorted(fractions) and fractions[-1] <= 1
+    assert {r.stage for r in records} == {"start", "reference", "directions"}
+    previews = [r for r in records if r.preview is not None]
+    assert len(previews) == 3 * 4  # a running image after every channel and direction
+    assert all(r.preview.shape == clean.shape for r in previews)
+    assert previews[0].message == "channel 1/3, direction 1/4"
+    # the channels not yet restored show the observation (version 0 is sharpest)
+    np.testing.assert_array_equal(previews[0].preview[..., 1:], stack[0][..., 1:])
+    result = drain(iter_restore_multichannel(stack, return_result=True))
+    np.testing.assert_array_equal(result.restored(), want.restored)
+
+
+def test_multichannel_channel_axis_default_and_layout():
+    """(n, H, W) is grey and (n, H, W, C) colour with the default channel
+    axis; the restored version comes back in the layout of one version."""
+    rng = np.random.default_rng(3)
+    clean = img_as_float(skdata.astronaut())[:40, :44]
+    stack = _stack(clean, rng, [0.5, 1.0])  # (2, H, W, 3)
+    colour = restore_multichannel(stack, reference=0)
+    assert colour.restored.shape == clean.shape
+    grey = restore_multichannel(stack[..., 0], reference=0)
+    assert grey.restored.shape == clean.shape[:2]
+    # colour first in each version: (n, C, H, W) -> (C, H, W)
+    first = restore_multichannel(np.moveaxis(stack, -1, 1), channel_axis=1, reference=0)
+    np.testing.assert_array_equal(np.moveaxis(first.restored, 0, -1), colour.restored)
+    np.testing.assert_array_equal(first.probability, colour.probability)
+    # versions last, colour before them: (H, W, C, n) -> (H, W, C)
+    last = restore_multichannel(np.moveaxis(stack, 0, -1), axis=-1, channel_axis=2,
+                                reference=0)
+    np.testing.assert_array_equal(last.restored, colour.restored)
+    # a list of versions
+    listed = restore_multichannel(list(stack), reference=0)
+    np.testing.assert_array_equal(listed.restored, colour.restored)
 
 
 def test_psf_recovers_a_gaussian_width():
@@ -306,6 +419,21 @@ def test_bad_input():
         restore(image[:1, :2], channel_axis=None)
     with pytest.raises(ValueError, match="reference"):
         restore_multichannel(np.stack([image, image]), reference=5)
+    # the versions axis, checked against the stack's dimensions up front
+    for axis in (3, -4):
+        with pytest.raises(ValueError, match=f"axis={axis} is out of range for the 3-D"):
+            restore_multichannel(np.stack([image, image]), axis=axis)
+    with pytest.raises(ValueError, match="axis=4 is out of range for the 3-D"):
+        sharpness([image, image], axis=4)
+    with pytest.raises(TypeError, match="axis must be an integer"):
+        restore_multichannel(np.stack([image, image]), axis=0.5)
+    colour = np.stack([np.dstack([image, image.T])] * 2)
+    with pytest.raises(ValueError, match="channel_axis and axis must differ"):
+        restore_multichannel(colour, axis=-1)
+    with pytest.raises(ValueError, match="channel_axis=None"):
+        restore_multichannel(colour, channel_axis=None)
+    with pytest.raises(ValueError, match="channel_axis=5 is out of range"):
+        restore_multichannel(colour, channel_axis=5)
     with pytest.raises(ValueError, match="odd"):
         estimate_psf(image, image, size=4)
     with pytest.raises(ValueError, match="one shape"):
@@ -336,3 +464,4 @@ def test_return_result_matches_the_plain_call():
     restored, probability = restore_multichannel(stack)
     np.testing.assert_array_equal(result.restored()[..., 0], restored)
     np.testing.assert_array_equal(result.probability, probability)
+    assert restore_multichannel(stack).restored is not None  # a named result

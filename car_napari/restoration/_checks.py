@@ -1,0 +1,50 @@
+"""Option checks shared by the restoration entry points: fail before any
+work, and say what to pass instead."""
+
+from __future__ import annotations
+
+from ..model.directions import DIRECTIONS
+from ..model.estimation import select_support
+from ..model.neighbourhood import as_offsets
+
+
+def check_kappa(kappa):
+    """``kappa`` as a float in [0, 1), or a TypeError/ValueError that says so."""
+    try:
+        value = float(kappa)
+    except (TypeError, ValueError):
+        raise TypeError(f"kappa must be a number in [0, 1); got {kappa!r}.") from None
+    if not 0.0 <= value < 1.0:
+        raise ValueError(
+            f"kappa must be in [0, 1) (a prediction probability: 0 replaces every pixel, "
+            f"values near 1 almost none); got {kappa}."
+        )
+    return value
+
+
+def check_options(forgetting, directions, names=DIRECTIONS):
+    """``(forgetting, directions)`` validated: a float in (0, 1] and a
+    non-empty tuple of ``names`` ('all' is every name)."""
+    if not 0.0 < float(forgetting) <= 1.0:
+        raise ValueError(f"forgetting must be in (0, 1]; got {forgetting}.")
+    if isinstance(directions, str):
+        directions = names if directions == "all" else (directions,)
+    directions = tuple(directions)
+    bad = [d for d in directions if d not in names]
+    if bad or not directions:
+        raise ValueError(f"directions must be 'all' or a non-empty subset of {names}; "
+                         f"got {directions}.")
+    return float(forgetting), directions
+
+
+def resolve_offsets(neighbourhood, data):
+    """The (eta, 2) causal offsets of ``neighbourhood`` (an order, offsets,
+    or 'auto': the order chosen by the decision rule (14.6) on the
+    channel-last ``data``)."""
+    if isinstance(neighbourhood, str):
+        if neighbourhood != "auto":
+            raise ValueError(f"neighbourhood must be an order, offsets or 'auto'; got "
+                             f"{neighbourhood!r}.")
+        neighbourhood, _ = select_support(data, channel_axis=-1)
+    offsets, _ = as_offsets(neighbourhood)
+    return offsets
