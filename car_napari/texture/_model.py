@@ -1,11 +1,12 @@
-"""Multiresolution CAR texture synthesis and compression (SPEC 7).
+"""Multiresolution CAR texture synthesis and compression (section 14.8, docs/texture.md).
 
 A texture is analysed by a Gaussian-Laplacian pyramid; every sub-band gets
-its own CAR model with its own optimal support (SPEC 1.5). The few numbers of
-those models are the compressed texture: synthesis generates every sub-band
-from its model (SPEC 1.7) at any size, matches every generated band's
-histogram to a few stored quantiles of the analysed band, collapses the
-pyramid and restores the histogram of the input (from its stored quantiles).
+its own CAR model with its own optimal support (the decision rule (14.6),
+docs/model.md). The few numbers of those models are the compressed texture:
+synthesis generates every sub-band from its model (synthesis, docs/model.md)
+at any size, matches every generated band's histogram to a few stored
+quantiles of the analysed band, collapses the pyramid and restores the
+histogram of the input (from its stored quantiles).
 
 The pyramid (Burt and Adelson, with operators chosen so that analysis and
 synthesis match at any image size):
@@ -32,13 +33,15 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import ndimage as ndi
 
+from .._progress import Progress, drain
 from .._validation import as_channel_last_float, check_not_constant, output_shape, summarize
 from ..model.estimation import CARModel, fit_car
 from ..model.neighbourhood import as_offsets
 from ..model.synthesis import spectral_radius, synthesize
 
 __all__ = [
-    "TextureModel", "laplacian_pyramid", "collapse_pyramid", "FORMAT_NAME", "FORMAT_VERSION",
+    "TextureModel", "iter_fit_texture", "laplacian_pyramid", "collapse_pyramid", "FORMAT_NAME",
+    "FORMAT_VERSION",
 ]
 
 FORMAT_NAME = "car-napari texture model"
@@ -113,47 +116,128 @@ def _level_shapes(shape, levels):
     return shapes
 
 
-def laplacian_pyramid(image, levels):
-    """Bands of the Gaussian-Laplacian pyramid, finest first.
-
-    Parameters
-    ----------
-    image : (H, W, d) ndarray of float
-    levels : int
-        Number of bands: ``levels - 1`` band-pass bands and the low-pass
-        residual (see the module docstring for the operators).
-
-    Returns
-    -------
-    bands : list of ndarray
-        Band ``k`` has shape ``(ceil(H / 2**k), ceil(W / 2**k), d)``.
-    """
+def _pyramid(image, levels):
+    """Bands of the pyramid of a channel-last (H, W, d) float image."""
     gauss = [image]
     for _ in range(levels - 1):
         gauss.append(_reduce(gauss[-1]))
-    bands = [g - _expand(g_next, g.shape[:2]) for g, g_next in zip(gauss[:-1], gauss[1:])]
+    bands = [g - _expand(g_next, g.shape[:2])
+             for g, g_next in zip(gauss[:-1], gauss[1:], strict=True)]
     bands.append(gauss[-1])
     return bands
 
 
-def collapse_pyramid(bands, *, wrap=False):
-    """Inverse of :func:`laplacian_pyramid`: ``G_k = band_k + expand(G_{k+1})``.
-
-    Parameters
-    ----------
-    bands : list of (h_k, w_k, d) ndarray
-        Finest first, each about twice the size of the next.
-    wrap : bool, optional
-        Expand periodically (for bands that are each one period of a torus).
-
-    Returns
-    -------
-    image : (h_0, w_0, d) ndarray
-    """
+def _collapse(bands, wrap):
+    """Inverse of :func:`_pyramid` on channel-last bands."""
     out = bands[-1]
     for band in bands[-2::-1]:
         out = band + _expand(out, band.shape[:2], wrap=wrap)
     return out
+
+
+def _check_pyramid_levels(levels):
+    if isinstance(levels, (bool, np.bool_)) or not isinstance(levels, (int, np.integer)) \
+            or levels < 1:
+        raise ValueError(f"levels must be a positive int; got {levels!r}.")
+    return int(levels)
+
+
+def laplacian_pyramid(image, *, levels=3, channel_axis=-1):
+    """Decompose an image into its Gaussian-Laplacian pyramid, finest band first.
+
+    Band ``k < levels - 1`` is ``G_k - expand(G_{k+1})`` (band-pass), the
+    last band is the low-pass residual ``G_{levels-1}``; see the module
+    docstring for the operators. :func:`collapse_pyramid` inverts it exactly.
+
+    Parameters
+    ----------
+    image : (H, W) or (H, W, C) array
+        Grey or multichannel image; integer images are scaled to [0, 1].
+    levels : int, optional
+        Number of bands: ``levels - 1`` band-pass bands and the low-pass
+        residual.
+    channel_axis : int or None, optional
+        Axis of the channels of a 3-D image (default the last); a 2-D image
+        is always grey.
+
+    Returns
+    -------
+    bands : list of ndarray
+        ``levels`` float64 bands in the input's layout; band ``k`` is
+        ``ceil(H / 2**k) x ceil(W / 2**k)``.
+
+    Raises
+    ------
+    ValueError
+        If ``levels`` is not a positive int, or the image is not 2-D or 3-D,
+        or not finite.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from car_napari.texture import laplacian_pyramid
+    >>> bands = laplacian_pyramid(np.ones((9, 12)), levels=3)
+    >>> [band.shape for band in bands]
+    [(9, 12), (5, 6), (3, 3)]
+    """
+    levels = _check_pyramid_levels(levels)
+    data = as_channel_last_float(image, channel_axis=channel_axis)
+    bands = _pyramid(data, levels)
+    if np.ndim(image) == 2:
+        return [band[..., 0] for band in bands]
+    return [np.moveaxis(band, -1, channel_axis) for band in bands]
+
+
+def collapse_pyramid(bands, *, wrap=False, channel_axis=-1):
+    """Inverse of :func:`laplacian_pyramid`: ``G_k = band_k + expand(G_{k+1})``.
+
+    Parameters
+    ----------
+    bands : sequence of (h_k, w_k) or (h_k, w_k, C) arrays
+        Finest first, each about twice the size of the next, all 2-D (grey)
+        or all 3-D with the same channels.
+    wrap : bool, optional
+        Expand periodically (for bands that are each one period of a torus).
+    channel_axis : int or None, optional
+        Axis of the channels of 3-D bands (default the last); 2-D bands are
+        grey.
+
+    Returns
+    -------
+    image : (h_0, w_0) or (h_0, w_0, C) ndarray of float64
+        The collapsed image, in the bands' layout.
+
+    Raises
+    ------
+    ValueError
+        If there are no bands, or grey and multichannel bands are mixed, or
+        3-D bands come with ``channel_axis=None``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from car_napari.texture import collapse_pyramid, laplacian_pyramid
+    >>> image = np.random.default_rng(0).random((20, 30, 3))
+    >>> bands = laplacian_pyramid(image, levels=3)
+    >>> np.allclose(collapse_pyramid(bands), image)
+    True
+    """
+    arrays = [np.asarray(band, dtype=np.float64) for band in bands]
+    if not arrays:
+        raise ValueError("bands is empty: pass the bands of laplacian_pyramid, finest first.")
+    ndims = {a.ndim for a in arrays}
+    if ndims == {2}:
+        return _collapse([a[..., np.newaxis] for a in arrays], bool(wrap))[..., 0]
+    if ndims != {3}:
+        raise ValueError(
+            f"bands must be all 2-D (grey) or all 3-D (multichannel); got dimensions "
+            f"{sorted(ndims)}."
+        )
+    if channel_axis is None:
+        raise ValueError("the bands are 3-D but channel_axis=None; pass the channel axis "
+                         "(e.g. channel_axis=-1) or 2-D grey bands.")
+    out = _collapse([np.moveaxis(a, channel_axis, -1) for a in arrays], bool(wrap))
+    return np.moveaxis(out, -1, channel_axis)
 
 
 def _max_order_below(offsets):
@@ -304,14 +388,44 @@ def _f32(values):
     return np.asarray(values, dtype=np.float64).astype(np.float32).astype(np.float64)
 
 
+def _check_options(levels, model, neighbourhood):
+    """Validate the options of :func:`iter_fit_texture`; return ``levels`` as an int."""
+    if isinstance(levels, (bool, np.bool_)) or not isinstance(levels, (int, np.integer)):
+        raise TypeError(f"levels must be an int >= 1; got {levels!r}.")
+    levels = int(levels)
+    if not 1 <= levels <= 8:
+        raise ValueError(f"levels must be between 1 and 8; got {levels}.")
+    if model not in ("3d", "2d"):
+        raise ValueError(f"model must be '3d' or '2d'; got {model!r}.")
+    if isinstance(neighbourhood, str) and neighbourhood != "auto":
+        raise ValueError(
+            f"neighbourhood must be 'auto', an order or offsets; got {neighbourhood!r}."
+        )
+    return levels
+
+
+def _check_texture_size(shape, levels, *, name="the texture"):
+    """The coarsest band must be at least ``_MIN_TOP`` pixels a side."""
+    h, w = shape
+    minimum = _MIN_TOP * 2 ** (levels - 1)
+    if min(h, w) < minimum:
+        raise ValueError(
+            f"{name} is {h}x{w} but {levels} pyramid levels need at least "
+            f"{minimum}x{minimum} pixels (the coarsest band must be {_MIN_TOP}x{_MIN_TOP} "
+            "or larger). Use a larger texture or fewer levels."
+        )
+
+
 @dataclass(eq=False)
 class TextureModel:
-    """A multiresolution CAR texture model: the compressed texture (SPEC 7).
+    """A multiresolution CAR texture model: the compressed texture.
 
-    Build one with :meth:`fit` or :meth:`load`; generate textures of any size
-    with :meth:`synthesize`.
+    The texture model of section 14.8 (docs/texture.md). Build one with
+    :meth:`fit` (or :func:`iter_fit_texture`) or :meth:`load`; generate
+    textures of any size with :meth:`synthesize`. The fields below are
+    also the constructor's parameters.
 
-    Attributes
+    Parameters
     ----------
     models : tuple of CARModel
         One model per pyramid band, finest first; the last models the low-pass
@@ -352,6 +466,16 @@ class TextureModel:
         collapsed output is mapped onto them (the histogram restore, after
         the mean and contrast restore). None for version-1 files (then only
         the mean, contrast and range are restored).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from car_napari.texture import TextureModel
+    >>> model = TextureModel.fit(np.random.default_rng(0).random((64, 64)), levels=2)
+    >>> model.synthesize((40, 50), seed=0).shape
+    (40, 50)
+    >>> model.nbytes
+    776
     """
 
     models: tuple
@@ -370,6 +494,8 @@ class TextureModel:
     def fit(cls, image, *, levels=3, model="3d", neighbourhood="auto", channel_axis=-1):
         """Fit a multiresolution CAR model to a texture.
 
+        The same as running :func:`iter_fit_texture` to its end.
+
         Parameters
         ----------
         image : (H, W) or (H, W, C) array
@@ -387,81 +513,85 @@ class TextureModel:
             decision rule (14.6), independently per band. An int or offsets
             use the same support in every band.
         channel_axis : int or None, optional
-            Axis of the channels; None for a grey image.
+            Axis of the channels of a 3-D image (default the last). A 2-D
+            image is always grey; None requires one.
 
         Returns
         -------
         TextureModel
+            The fitted model.
 
         Raises
         ------
         ValueError
-            If the texture is too small for the pyramid, constant, or not finite.
+            If the texture is too small for the pyramid, constant, or not
+            finite, or ``levels``, ``model`` or ``neighbourhood`` is invalid.
+        TypeError
+            If ``levels`` is not an int, or the image is not numeric.
+
+        See Also
+        --------
+        iter_fit_texture : The same fit as a job that reports its progress.
 
         Notes
         -----
         A band whose fitted model is unstable (spectral radius >= 1, its field
         would explode) falls back to a lower order; see ``fallbacks``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from car_napari.texture import TextureModel
+        >>> texture = np.random.default_rng(0).random((64, 64))
+        >>> model = TextureModel.fit(texture, levels=2)
+        >>> model.levels, model.n_channels, model.grey
+        (2, 1, True)
         """
-        if isinstance(levels, (bool, np.bool_)) or not isinstance(levels, (int, np.integer)):
-            raise TypeError(f"levels must be an int >= 1; got {levels!r}.")
-        levels = int(levels)
-        if not 1 <= levels <= 8:
-            raise ValueError(f"levels must be between 1 and 8; got {levels}.")
-        if model not in ("3d", "2d"):
-            raise ValueError(f"model must be '3d' or '2d'; got {model!r}.")
-        if isinstance(neighbourhood, str) and neighbourhood != "auto":
-            raise ValueError(
-                f"neighbourhood must be 'auto', an order or offsets; got {neighbourhood!r}."
-            )
-        data = as_channel_last_float(image, channel_axis=channel_axis)
-        grey = np.ndim(image) == 2
-        h, w = data.shape[:2]
-        minimum = _MIN_TOP * 2 ** (levels - 1)
-        if min(h, w) < minimum:
-            raise ValueError(
-                f"the texture is {h}x{w} but {levels} pyramid levels need at least "
-                f"{minimum}x{minimum} pixels (the coarsest band must be {_MIN_TOP}x{_MIN_TOP} "
-                "or larger). Use a larger texture or fewer levels."
-            )
-        summary = summarize(data)
-        check_not_constant(data, summary=summary)
-        bands = laplacian_pyramid(data, levels)
-        models, fallbacks = [], []
-        for k, band in enumerate(bands):
-            fitted, note = _fit_level(band, neighbourhood, model)
-            models.append(fitted)
-            if note is not None:
-                fallbacks.append(f"band {k}: {note}")
-        band_ranges = np.stack(
-            [np.stack([b.min(axis=(0, 1)), b.max(axis=(0, 1))]) for b in bands]
-        )
-        band_quantiles = np.stack([_quantiles(b, _BAND_QUANTILES) for b in bands])
-        # The file stores float32: round now, so that a saved and loaded model
-        # synthesises exactly what this one does.
-        for m in models:
-            m.gamma, m.sigma, m.mean = _f32(m.gamma), _f32(m.sigma), _f32(m.mean)
-        return cls(
-            models=tuple(models), band_ranges=_f32(band_ranges), mean=_f32(summary.mean),
-            std=_f32(np.sqrt(np.asarray(summary.var, float))),
-            value_range=_f32(np.stack([summary.min, summary.max])), grey=grey,
-            model=model, fallbacks=tuple(fallbacks), band_quantiles=band_quantiles,
-            quantiles=_quantiles(data, _OUT_QUANTILES),
-        )
+        return drain(iter_fit_texture(image, levels=levels, model=model,
+                                      neighbourhood=neighbourhood, channel_axis=channel_axis))
 
     # ----------------------------------------------------------- properties
     @property
     def levels(self):
-        """Number of pyramid bands."""
+        """Number of pyramid bands (int).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from car_napari.texture import TextureModel
+        >>> model = TextureModel.fit(np.random.default_rng(0).random((64, 64)), levels=2)
+        >>> model.levels
+        2
+        """
         return len(self.models)
 
     @property
     def n_channels(self):
+        """Number of channels of the fitted texture (int; 1 for grey).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from car_napari.texture import TextureModel
+        >>> model = TextureModel.fit(np.random.default_rng(0).random((64, 64)), levels=2)
+        >>> model.n_channels
+        1
+        """
         return int(self.mean.shape[0])
 
     @property
     def orders(self):
-        """Neighbourhood order of every band (None for a custom support)."""
+        """Neighbourhood order of every band (tuple; None for a custom support).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from car_napari.texture import TextureModel
+        >>> model = TextureModel.fit(np.random.default_rng(0).random((64, 64)), levels=2,
+        ...                           neighbourhood=1)
+        >>> model.orders
+        (1, 1)
+        """
         return tuple(m.order for m in self.models)
 
     def _parameter_arrays(self):
@@ -481,8 +611,18 @@ class TextureModel:
 
     @property
     def nbytes(self):
-        """Bytes of the stored parameters, counting every number (including
-        the integer offsets) as a float32: the compressed size."""
+        """Bytes of the stored parameters (int): the compressed size.
+
+        Every number (including the integer offsets) counts as a float32.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from car_napari.texture import TextureModel
+        >>> model = TextureModel.fit(np.random.default_rng(0).random((64, 64)), levels=2)
+        >>> model.nbytes
+        776
+        """
         return 4 * sum(int(np.size(a)) for a in self._parameter_arrays().values())
 
     def compression_ratio(self, input_shape):
@@ -497,6 +637,20 @@ class TextureModel:
         Returns
         -------
         float
+            ``4 * number of values / nbytes``.
+
+        Raises
+        ------
+        ValueError
+            If ``input_shape`` is not (H, W) or (H, W, C) with positive sides.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from car_napari.texture import TextureModel
+        >>> model = TextureModel.fit(np.random.default_rng(0).random((64, 64)), levels=2)
+        >>> round(model.compression_ratio((512, 512)), 1)
+        1351.3
         """
         shape = tuple(int(v) for v in input_shape)
         if len(shape) not in (2, 3) or min(shape) < 1:
@@ -508,9 +662,9 @@ class TextureModel:
     def synthesize(self, shape, *, seed=None, tileable=False):
         """Generate a texture of any size from the model.
 
-        Every band is generated from its CAR model at its pyramid size (SPEC
-        1.7), mapped by rank onto the band's stored quantiles (histogram
-        matching) and clipped to its analysed range; the pyramid is collapsed
+        Every band is generated from its CAR model at its pyramid size
+        (synthesis, docs/model.md), mapped by rank onto the band's stored
+        quantiles (histogram matching) and clipped to its analysed range; the pyramid is collapsed
         (expand and add, as in the analysis); the input's per-channel mean
         and standard deviation are restored, the result is mapped onto the
         input's stored quantiles and clipped to its value range (the
@@ -534,13 +688,30 @@ class TextureModel:
         texture : (H, W) or (H, W, C) ndarray of float64
             2-D when the model was fitted to a grey image, channel-last
             otherwise.
+
+        Raises
+        ------
+        ValueError
+            If ``shape`` is not two positive sizes.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from car_napari.texture import TextureModel
+        >>> model = TextureModel.fit(np.random.default_rng(0).random((64, 64)), levels=2)
+        >>> texture = model.synthesize((30, 40), seed=1, tileable=True)
+        >>> texture.shape
+        (30, 40)
+        >>> np.array_equal(texture, model.synthesize((30, 40), seed=1, tileable=True))
+        True
         """
         h, w = output_shape(shape)
         rng = np.random.default_rng(seed)
         # one independent stream per band, fixed by the seed
         streams = [np.random.default_rng(s) for s in rng.integers(0, 2**63, size=self.levels)]
         bands = []
-        for k, (model, (hk, wk)) in enumerate(zip(self.models, _level_shapes((h, w), self.levels))):
+        shapes = _level_shapes((h, w), self.levels)
+        for k, (model, (hk, wk)) in enumerate(zip(self.models, shapes, strict=True)):
             if tileable:
                 bh, bw = _blend_width(hk), _blend_width(wk)
                 big = synthesize(model, (hk + bh, wk + bw), seed=streams[k])
@@ -550,7 +721,7 @@ class TextureModel:
             if self.band_quantiles is not None:
                 band = _match(band, self.band_quantiles[k])
             bands.append(np.clip(band, self.band_ranges[k, 0], self.band_ranges[k, 1]))
-        out = collapse_pyramid(bands, wrap=bool(tileable))
+        out = _collapse(bands, bool(tileable))
         # the bands' sample means drift, and independent bands lose the
         # cross-band covariance: restore the input's mean and contrast
         centred = out - out.mean(axis=(0, 1))
@@ -574,7 +745,7 @@ class TextureModel:
           "n_pixels": [...], "fallbacks": [...], "pyramid": {...}}``;
         - ``mean`` (d,), ``std`` (d,), ``value_range`` (2, d) and, per band ``k``,
           ``band{k}_gamma`` (d, d*eta), ``band{k}_sigma`` (d, d),
-          ``band{k}_mean`` (d,), ``band{k}_offsets`` (eta, 2) int64,
+          ``band{k}_mean`` (d,), ``band{k}_offsets`` (eta, 2) int16,
           ``band{k}_range`` (2, d), ``band{k}_quantiles`` (32, d);
           ``quantiles`` (64, d) (the quantiles at equally spaced
           probabilities from 0 to 1, see :attr:`band_quantiles`).
@@ -591,6 +762,28 @@ class TextureModel:
         ----------
         path : str or path-like
             Destination; NumPy adds ``.npz`` when the name has no suffix.
+
+        Raises
+        ------
+        OSError
+            If the file cannot be written.
+
+        See Also
+        --------
+        load : Read the file back.
+
+        Examples
+        --------
+        >>> import os, tempfile
+        >>> import numpy as np
+        >>> from car_napari.texture import TextureModel
+        >>> model = TextureModel.fit(np.random.default_rng(0).random((64, 64)), levels=2)
+        >>> with tempfile.TemporaryDirectory() as folder:
+        ...     path = os.path.join(folder, "noise.npz")
+        ...     model.save(path)
+        ...     loaded = TextureModel.load(path)
+        >>> loaded.levels, loaded.nbytes == model.nbytes
+        (2, True)
         """
         header = {
             "format": FORMAT_NAME,
@@ -621,10 +814,13 @@ class TextureModel:
         Parameters
         ----------
         path : str or path-like
+            An ``.npz`` file of format version 1 or 2.
 
         Returns
         -------
         TextureModel
+            The model; it synthesises exactly what the saved one did. Its band
+            models carry only what synthesis needs (``vx`` is NaN).
 
         Raises
         ------
@@ -633,6 +829,22 @@ class TextureModel:
             newer version of the format than this code reads.
         FileNotFoundError
             If ``path`` does not exist.
+
+        See Also
+        --------
+        save : The file format.
+
+        Examples
+        --------
+        >>> import os, tempfile
+        >>> import numpy as np
+        >>> from car_napari.texture import TextureModel
+        >>> model = TextureModel.fit(np.random.default_rng(0).random((64, 64)), levels=2)
+        >>> with tempfile.TemporaryDirectory() as folder:
+        ...     model.save(os.path.join(folder, "noise.npz"))
+        ...     loaded = TextureModel.load(os.path.join(folder, "noise.npz"))
+        >>> np.array_equal(loaded.synthesize((20, 20), seed=0), model.synthesize((20, 20), seed=0))
+        True
         """
         try:
             with np.load(path, allow_pickle=False) as archive:
@@ -710,3 +922,88 @@ class TextureModel:
             band_quantiles=np.stack(band_quantiles) if version >= 2 else None,
             quantiles=quantiles,
         )
+
+
+def iter_fit_texture(image, *, levels=3, model="3d", neighbourhood="auto", channel_axis=-1):
+    """Fit a multiresolution CAR texture model, as a job reporting progress.
+
+    The generator form of :meth:`TextureModel.fit` (same arguments, same
+    result): it yields a :class:`~car_napari.Progress` record before every
+    pyramid band is fitted (message ``"level 2/3"``) and a last one when
+    all are, and returns the :class:`TextureModel`. Closing the generator
+    stops the fit before the next band.
+
+    Parameters
+    ----------
+    image : (H, W) or (H, W, C) array
+        The texture; see :meth:`TextureModel.fit`.
+    levels : int, optional
+        Number of pyramid bands.
+    model : {'3d', '2d'}, optional
+        The CAR variant of every band.
+    neighbourhood : 'auto', int or (eta, 2) array, optional
+        The support of every band; 'auto' chooses it per band.
+    channel_axis : int or None, optional
+        Axis of the channels of a 3-D image; a 2-D image is always grey.
+
+    Returns
+    -------
+    TextureModel
+        The fitted model (the generator's return value).
+
+    Yields
+    ------
+    Progress
+        Stage ``"fitting"``; ``fraction`` is the share of the pyramid's
+        pixels already fitted (the fit's cost is proportional to them).
+
+    Raises
+    ------
+    ValueError
+        As :meth:`TextureModel.fit`, before the first record.
+    TypeError
+        As :meth:`TextureModel.fit`, before the first record.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from car_napari.texture import iter_fit_texture
+    >>> texture = np.random.default_rng(0).random((64, 64))
+    >>> for record in iter_fit_texture(texture, levels=2):
+    ...     print(record.message, round(record.fraction, 2))
+    level 1/2 0.0
+    level 2/2 0.8
+    2 levels fitted 1.0
+    """
+    levels = _check_options(levels, model, neighbourhood)
+    data = as_channel_last_float(image, channel_axis=channel_axis)
+    grey = np.ndim(image) == 2
+    _check_texture_size(data.shape[:2], levels)
+    summary = summarize(data)
+    check_not_constant(data, summary=summary)
+    bands = _pyramid(data, levels)
+    pixels = np.array([b.shape[0] * b.shape[1] for b in bands], float)
+    done = np.concatenate([[0.0], np.cumsum(pixels)]) / pixels.sum()
+    models, fallbacks = [], []
+    for k, band in enumerate(bands):
+        yield Progress("fitting", float(done[k]), f"level {k + 1}/{levels}")
+        fitted, note = _fit_level(band, neighbourhood, model)
+        models.append(fitted)
+        if note is not None:
+            fallbacks.append(f"band {k}: {note}")
+    yield Progress("fitting", 1.0, f"{levels} level{'s' if levels > 1 else ''} fitted")
+    band_ranges = np.stack(
+        [np.stack([b.min(axis=(0, 1)), b.max(axis=(0, 1))]) for b in bands]
+    )
+    band_quantiles = np.stack([_quantiles(b, _BAND_QUANTILES) for b in bands])
+    # The file stores float32: round now, so that a saved and loaded model
+    # synthesises exactly what this one does.
+    for m in models:
+        m.gamma, m.sigma, m.mean = _f32(m.gamma), _f32(m.sigma), _f32(m.mean)
+    return TextureModel(
+        models=tuple(models), band_ranges=_f32(band_ranges), mean=_f32(summary.mean),
+        std=_f32(np.sqrt(np.asarray(summary.var, float))),
+        value_range=_f32(np.stack([summary.min, summary.max])), grey=grey,
+        model=model, fallbacks=tuple(fallbacks), band_quantiles=band_quantiles,
+        quantiles=_quantiles(data, _OUT_QUANTILES),
+    )

@@ -1,5 +1,6 @@
 """Bidirectional texture functions: a stack of images of one material under
-many illuminations (or views) compressed into a few subspace models (SPEC 7).
+many illuminations (or views) compressed into a few subspace models
+(section 14.8, docs/texture.md).
 
 The stack's images are clustered by K-means on their colour cumulative
 histograms; each cluster (subspace) gets one :class:`TextureModel`, fitted to
@@ -13,27 +14,76 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validation import as_channel_last_float
-from ._model import TextureModel
+from .._progress import Progress, drain, stage
+from ._model import _check_options, _check_texture_size, iter_fit_texture
+from ._stack import as_stack
 
-__all__ = ["BTFModel", "cumulative_histograms"]
+__all__ = ["BTFModel", "cumulative_histograms", "iter_fit_btf"]
 
 HISTOGRAM_BINS = 32
+_HISTOGRAM_SHARE = 0.1  # of the progress range: the histograms, before the fits
 
 
-def cumulative_histograms(stack, *, bins=HISTOGRAM_BINS):
-    """(n, bins * C) colour cumulative histograms of a (n, H, W, C) stack in
-    [0, 1] units: the clustering features of SPEC 7 (robust to the texture's
-    layout, sensitive to its illumination)."""
-    n, _, _, C = stack.shape
+def _cumulative_histogram(image, bins):
+    """(bins * d,) cumulative histograms of the channels of one (H, W, d) image."""
     edges = np.linspace(0.0, 1.0, bins + 1)[1:-1]
-    features = np.empty((n, bins * C))
-    for i in range(n):
-        for c in range(C):
-            values = np.sort(stack[i, ..., c].ravel())
-            below = np.searchsorted(values, edges, side="right") / values.size
-            features[i, c * bins : (c + 1) * bins] = np.r_[below, 1.0]
-    return features
+    d = image.shape[2]
+    out = np.empty(bins * d)
+    for c in range(d):
+        values = np.sort(image[..., c].ravel())
+        below = np.searchsorted(values, edges, side="right") / values.size
+        out[c * bins : (c + 1) * bins] = np.r_[below, 1.0]
+    return out
+
+
+def _check_bins(bins):
+    if isinstance(bins, (bool, np.bool_)) or not isinstance(bins, (int, np.integer)) \
+            or bins < 1:
+        raise ValueError(f"bins must be a positive int; got {bins!r}.")
+    return int(bins)
+
+
+def cumulative_histograms(stack, *, bins=HISTOGRAM_BINS, channel_axis=-1):
+    """Colour cumulative histograms of every image of a stack.
+
+    The clustering features of the BTF subspaces (section 14.8,
+    docs/texture.md): robust to the texture's layout, sensitive to its
+    illumination.
+
+    Parameters
+    ----------
+    stack : (n, H, W) or (n, H, W, C) array
+        Images along axis 0, values in [0, 1] (integer images are scaled to
+        [0, 1]). A 3-D stack is grey.
+    bins : int, optional
+        Equal bins over [0, 1] per channel.
+    channel_axis : int or None, optional
+        Axis of the channels of a 4-D stack (default the last; not 0).
+
+    Returns
+    -------
+    features : (n, bins * C) ndarray of float64
+        Per image, for every channel in turn, the fraction of its pixels at
+        or below the upper edge of each bin (the last value is 1).
+
+    Raises
+    ------
+    ValueError
+        If the stack is not 3-D or 4-D, is empty or not finite, or ``bins``
+        is not a positive int.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from car_napari.texture import cumulative_histograms
+    >>> stack = np.stack([np.full((4, 4), 0.1), np.full((4, 4), 0.9)])
+    >>> cumulative_histograms(stack, bins=4)
+    array([[1., 1., 1., 1.],
+           [0., 0., 0., 1.]])
+    """
+    bins = _check_bins(bins)
+    images, _ = as_stack(stack, channel_axis)
+    return np.stack([_cumulative_histogram(image, bins) for image in images])
 
 
 def _kmeans(features, k, seed):
@@ -45,19 +95,132 @@ def _kmeans(features, k, seed):
     return labels
 
 
+def iter_fit_btf(stack, *, n_subspaces=4, levels=3, neighbourhood="auto", channel_axis=-1,
+                 seed=0):
+    """Fit a BTF subspace model, as a job reporting progress.
+
+    The generator form of :meth:`BTFModel.fit` (same arguments, same
+    result): it yields :class:`~car_napari.Progress` records while the
+    histograms are computed (one per image) and while every subspace model
+    is fitted (``"subspace 2/4"``, then that fit's ``"level 1/3"`` records),
+    and returns the :class:`BTFModel`. Closing the generator stops the fit
+    at the next record.
+
+    Parameters
+    ----------
+    stack : (n, H, W) or (n, H, W, C) array
+        Images along axis 0; see :meth:`BTFModel.fit`.
+    n_subspaces : int, optional
+        Number of K-means clusters.
+    levels : int, optional
+        Pyramid levels of every subspace model.
+    neighbourhood : 'auto', int or (eta, 2) array, optional
+        Support of every subspace model.
+    channel_axis : int or None, optional
+        Axis of the channels of a 4-D stack (default the last).
+    seed : int, optional
+        K-means initialisation.
+
+    Returns
+    -------
+    BTFModel
+        The fitted model (the generator's return value).
+
+    Yields
+    ------
+    Progress
+        Stage ``"histograms"`` (the first tenth of the range), then
+        ``"subspaces"`` (an equal share per subspace).
+
+    Raises
+    ------
+    ValueError
+        As :meth:`BTFModel.fit`, before the first record.
+    TypeError
+        As :meth:`BTFModel.fit`, before the first record.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from car_napari.texture import iter_fit_btf
+    >>> texture = np.random.default_rng(0).random((32, 32))
+    >>> stack = np.stack([texture * gain for gain in (0.2, 0.25, 0.8, 0.9)])
+    >>> records = list(iter_fit_btf(stack, n_subspaces=2, levels=1))
+    >>> [r.message for r in records if r.stage == "subspaces"]
+    ['subspace 1/2', 'level 1/1', '1 level fitted', 'subspace 2/2', 'level 1/1', '1 level fitted']
+    >>> records[-1].fraction
+    1.0
+    """
+    levels = _check_options(levels, "3d", neighbourhood)
+    images, grey = as_stack(stack, channel_axis)
+    n = images.shape[0]
+    if isinstance(n_subspaces, (bool, np.bool_)) or int(n_subspaces) != n_subspaces \
+            or not 1 <= n_subspaces <= n:
+        raise ValueError(f"n_subspaces must be an int from 1 to the number of images "
+                         f"({n}); got {n_subspaces!r}.")
+    _check_texture_size(images.shape[1:3], levels, name="each image of the stack")
+    features = []
+    for i, image in enumerate(images):
+        yield Progress("histograms", _HISTOGRAM_SHARE * i / n, f"histogram {i + 1}/{n}")
+        features.append(_cumulative_histogram(image, HISTOGRAM_BINS))
+    features = np.stack(features)
+    assignment = _kmeans(features, int(n_subspaces), seed) if n_subspaces > 1 \
+        else np.zeros(n, int)
+    models, representatives = [], []
+    n_found = int(assignment.max()) + 1
+    share = (1.0 - _HISTOGRAM_SHARE) / n_found
+    for k in range(n_found):
+        members = np.flatnonzero(assignment == k)
+        centre = features[members].mean(axis=0)
+        medoid = members[np.argmin(np.abs(features[members] - centre).sum(axis=1))]
+        representatives.append(int(medoid))
+        start = _HISTOGRAM_SHARE + k * share
+        yield Progress("subspaces", start, f"subspace {k + 1}/{n_found}")
+        job = iter_fit_texture(images[medoid], levels=levels, neighbourhood=neighbourhood,
+                               channel_axis=-1)
+        models.append((yield from stage(job, start, start + share, name="subspaces")))
+    return BTFModel(tuple(models), assignment, np.array(representatives),
+                    images.mean(axis=(1, 2)), images.std(axis=(1, 2)),
+                    np.stack([images.min(axis=(1, 2)), images.max(axis=(1, 2))], axis=1),
+                    grey)
+
+
 @dataclass(eq=False)
 class BTFModel:
     """Subspace models of a stack of images of one material.
 
-    Attributes
+    The BTF model of section 14.8 (docs/texture.md): the images are
+    clustered into subspaces, each with one :class:`TextureModel`. Build
+    one with :meth:`fit` (or :func:`iter_fit_btf`). The fields below are
+    also the constructor's parameters.
+
+    Parameters
     ----------
-    models : tuple of TextureModel, one per subspace.
-    assignment : (n,) int array, the subspace of each image of the stack.
-    representatives : (k,) int array, the image each subspace model was fitted to.
-    image_mean, image_std : (n, C) arrays, each image's mean and standard
-        deviation; image_range : (n, 2, C) its minimum and maximum. Synthesis
-        restores them, so one subspace model serves several illuminations.
-    grey : bool, True when the images have no colour axis.
+    models : tuple of TextureModel
+        One per subspace.
+    assignment : (n,) ndarray of int
+        The subspace of each image of the stack.
+    representatives : (k,) ndarray of int
+        The image each subspace model was fitted to (its medoid).
+    image_mean : (n, C) ndarray
+        Each image's mean; synthesis restores it.
+    image_std : (n, C) ndarray
+        Each image's standard deviation; synthesis restores it.
+    image_range : (n, 2, C) ndarray
+        Each image's minimum and maximum; synthesis clips to them, so one
+        subspace model serves several illuminations.
+    grey : bool
+        True when the images have no colour axis.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from car_napari.texture import BTFModel
+    >>> texture = np.random.default_rng(0).random((32, 32))
+    >>> stack = np.stack([texture * gain for gain in (0.2, 0.25, 0.8, 0.9)])
+    >>> btf = BTFModel.fit(stack, n_subspaces=2, levels=1)
+    >>> btf.n_images, len(btf.models), btf.synthesize((20, 24), seed=0).shape
+    (4, 2, (4, 20, 24))
     """
 
     models: tuple
@@ -71,70 +234,149 @@ class BTFModel:
     @classmethod
     def fit(cls, stack, *, n_subspaces=4, levels=3, neighbourhood="auto", channel_axis=-1,
             seed=0):
-        """Cluster a (n, H, W[, C]) stack into subspaces and fit one texture
-        model per subspace.
+        """Cluster a stack into subspaces and fit one texture model per subspace.
+
+        The same as running :func:`iter_fit_btf` to its end.
 
         Parameters
         ----------
-        stack : (n, H, W) or (n, H, W, C) array, images along axis 0.
+        stack : (n, H, W) or (n, H, W, C) array
+            Images along axis 0 (a 3-D stack is grey); any dtype (integer
+            images are scaled to [0, 1]). Every side must be at least
+            ``16 * 2**(levels - 1)`` pixels.
         n_subspaces : int, optional
-            Number of K-means clusters (at most ``n``; empty clusters are dropped).
-        levels, neighbourhood : see :meth:`TextureModel.fit`.
+            Number of K-means clusters (at most ``n``; empty clusters are
+            dropped).
+        levels : int, optional
+            Pyramid levels of every subspace model (see :meth:`TextureModel.fit`).
+        neighbourhood : 'auto', int or (eta, 2) array, optional
+            Support of every subspace model (see :meth:`TextureModel.fit`).
         channel_axis : int or None, optional
-            Colour axis of each image (-1: the last axis of the stack); None for grey.
+            Axis of the channels of a 4-D stack (default the last; not 0, which
+            holds the images). None requires a 3-D grey stack.
         seed : int, optional
             K-means initialisation.
+
+        Returns
+        -------
+        BTFModel
+            The fitted model.
+
+        Raises
+        ------
+        ValueError
+            If the stack is not (n, H, W) or (n, H, W, C), is empty, constant or
+            not finite, its images are too small for ``levels``, or
+            ``n_subspaces`` is not from 1 to ``n``.
+        TypeError
+            If ``levels`` is not an int, or the stack is not numeric.
+
+        See Also
+        --------
+        iter_fit_btf : The same fit as a job that reports its progress.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from car_napari.texture import BTFModel
+        >>> texture = np.random.default_rng(0).random((32, 32))
+        >>> stack = np.stack([texture * gain for gain in (0.2, 0.25, 0.8, 0.9)])
+        >>> BTFModel.fit(stack, n_subspaces=2, levels=1).assignment.tolist()
+        [0, 0, 1, 1]
         """
-        arr = np.asarray(stack)
-        grey = channel_axis is None
-        if arr.ndim != (3 if grey else 4):
-            raise ValueError(
-                f"stack must be (n, H, W{'' if grey else ', C'}) with the images along axis 0; "
-                f"got shape {arr.shape}." + ("" if grey else " For grey images pass "
-                                             "channel_axis=None."))
-        n = arr.shape[0]
-        if n < 1:
-            raise ValueError("the stack is empty.")
-        if int(n_subspaces) != n_subspaces or not 1 <= n_subspaces <= n:
-            raise ValueError(f"n_subspaces must be an int from 1 to the number of images "
-                             f"({n}); got {n_subspaces!r}.")
-        images = np.stack([as_channel_last_float(a, channel_axis=None if grey else -1,
-                                                 name=f"image {i}")
-                           for i, a in enumerate(arr)])
-        features = cumulative_histograms(images)
-        assignment = _kmeans(features, int(n_subspaces), seed) if n_subspaces > 1 \
-            else np.zeros(n, int)
-        models, representatives = [], []
-        for k in range(assignment.max() + 1):
-            members = np.flatnonzero(assignment == k)
-            centre = features[members].mean(axis=0)
-            medoid = members[np.argmin(np.abs(features[members] - centre).sum(axis=1))]
-            representatives.append(int(medoid))
-            models.append(TextureModel.fit(images[medoid], levels=levels,
-                                           neighbourhood=neighbourhood, channel_axis=-1))
-        return cls(tuple(models), assignment, np.array(representatives),
-                   images.mean(axis=(1, 2)), images.std(axis=(1, 2)),
-                   np.stack([images.min(axis=(1, 2)), images.max(axis=(1, 2))], axis=1),
-                   grey)
+        return drain(iter_fit_btf(stack, n_subspaces=n_subspaces, levels=levels,
+                                  neighbourhood=neighbourhood, channel_axis=channel_axis,
+                                  seed=seed))
 
     @property
     def n_images(self):
+        """Number of images of the fitted stack (int).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from car_napari.texture import BTFModel
+        >>> stack = np.random.default_rng(0).random((3, 32, 32))
+        >>> BTFModel.fit(stack, n_subspaces=1, levels=1).n_images
+        3
+        """
         return int(self.assignment.size)
 
     @property
     def nbytes(self):
-        """Stored bytes: the subspace models, the assignment (1 byte an image)
-        and the per-image mean, std and range (float32)."""
+        """Stored bytes (int): the compressed size.
+
+        The subspace models, the assignment (1 byte an image) and the
+        per-image mean, std and range (float32).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from car_napari.texture import BTFModel
+        >>> stack = np.random.default_rng(0).random((3, 32, 32))
+        >>> btf = BTFModel.fit(stack, n_subspaces=1, levels=1)
+        >>> btf.nbytes == btf.models[0].nbytes + 3 + 4 * 3 * 4
+        True
+        """
         per_image = self.image_mean.size + self.image_std.size + self.image_range.size
         return sum(m.nbytes for m in self.models) + self.n_images + 4 * per_image
 
     def compression_ratio(self, stack_shape):
-        """Raw float32 bytes of the stack over :attr:`nbytes`."""
+        """Raw float32 bytes of a stack of ``stack_shape`` over :attr:`nbytes`.
+
+        Parameters
+        ----------
+        stack_shape : tuple of int
+            (n, H, W) or (n, H, W, C); the model synthesises any size.
+
+        Returns
+        -------
+        float
+            ``4 * prod(stack_shape) / nbytes``.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from car_napari.texture import BTFModel
+        >>> stack = np.random.default_rng(0).random((3, 32, 32))
+        >>> btf = BTFModel.fit(stack, n_subspaces=1, levels=1)
+        >>> btf.compression_ratio(stack.shape) == 4 * stack.size / btf.nbytes
+        True
+        """
         return 4.0 * float(np.prod(stack_shape)) / self.nbytes
 
     def synthesize(self, shape, *, seed=None):
-        """(n, H, W[, C]) synthesised stack: image ``i`` from its subspace's
-        model, with image ``i``'s own mean, contrast and value range."""
+        """Synthesise every image of the stack at any size.
+
+        Image ``i`` comes from its subspace's model, with image ``i``'s own
+        mean, contrast and value range.
+
+        Parameters
+        ----------
+        shape : tuple of 2 ints
+            (height, width) of every image.
+        seed : int, numpy Generator or None, optional
+            The same seed gives the same stack.
+
+        Returns
+        -------
+        stack : (n, H, W) or (n, H, W, C) ndarray of float64
+            Grey when the fitted stack was, channel-last otherwise.
+
+        Raises
+        ------
+        ValueError
+            If ``shape`` is not two positive sizes.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from car_napari.texture import BTFModel
+        >>> stack = np.random.default_rng(0).random((2, 32, 32, 3))
+        >>> btf = BTFModel.fit(stack, n_subspaces=1, levels=1)
+        >>> btf.synthesize((16, 20), seed=0).shape
+        (2, 16, 20, 3)
+        """
         rng = np.random.default_rng(seed)
         out = []
         for i in range(self.n_images):

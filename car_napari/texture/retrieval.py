@@ -1,4 +1,4 @@
-"""Illumination-invariant texture retrieval (SPEC section 2, 14.3).
+"""Illumination-invariant texture retrieval (section 14.3, docs/model.md).
 
 A texture is described by a few of the illumination invariants of the 3DCAR
 model (:func:`car_napari.illumination_invariants`) on every band of a
@@ -18,7 +18,7 @@ precision):
 
 - the traces of ``A_m`` and ``alpha_3`` per band (what :func:`texture_features`
   returns): 0.94 / 0.87; all ``eta + 2 * eta * d + 3`` invariants per band
-  of SPEC section 2: 0.74 / 0.61 with the same distance. The eigenvalues of the
+  of section 14.3: 0.74 / 0.61 with the same distance. The eigenvalues of the
   individual ``A_m`` are ordered by modulus, so noise swaps them and their
   imaginary parts are mostly zero; ``alpha_1`` and ``alpha_2`` are nearly the
   same constant for every texture. Those features add noise, not
@@ -34,13 +34,16 @@ precision):
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
+from .._progress import Progress, drain
 from .._validation import as_channel_last_float
 from ..model.invariants import illumination_invariants
 from ..model.neighbourhood import Context, as_offsets
 
-__all__ = ["texture_features", "rank", "minimum_size"]
+__all__ = ["Ranking", "iter_rank", "minimum_size", "rank", "texture_features"]
 
 
 def _check_levels(levels):
@@ -61,13 +64,25 @@ def minimum_size(*, levels=3, neighbourhood=2):
     levels : int, optional
         Levels of the Gaussian-Laplacian pyramid.
     neighbourhood : int or (eta, 2) array, optional
-        Order of the causal neighbourhood (SPEC 1.1) or explicit offsets.
+        Order of the causal neighbourhood (causal neighbourhoods,
+        docs/model.md) or explicit offsets.
 
     Returns
     -------
     int
         ``2**(levels - 1) * (reach + 4)`` with ``reach`` the neighbourhood's
         larger extent (rows or columns); 24 for the defaults.
+
+    Raises
+    ------
+    ValueError
+        If ``levels`` is not a positive int or ``neighbourhood`` is invalid.
+
+    Examples
+    --------
+    >>> from car_napari.texture import minimum_size
+    >>> minimum_size(), minimum_size(levels=2, neighbourhood=1)
+    (24, 10)
     """
     levels = _check_levels(levels)
     offsets, _ = as_offsets(neighbourhood)
@@ -102,7 +117,7 @@ def _features(data, *, levels, offsets, name):
 
 
 def texture_features(image, *, levels=3, neighbourhood=2, channel_axis=-1):
-    """Illumination-invariant texture feature vector (SPEC section 2).
+    """Illumination-invariant texture feature vector (section 14.3, docs/model.md).
 
     The image is decomposed by the Gaussian-Laplacian pyramid of
     :func:`car_napari.illumination_invariants` (``levels`` band-pass levels,
@@ -111,9 +126,9 @@ def texture_features(image, *, levels=3, neighbourhood=2, channel_axis=-1):
     is fitted to the mean-subtracted band, and these invariants are kept:
 
     1. ``trace(A_m)`` for ``m = 1..eta`` in the neighbourhood's order
-       (feature 1 of SPEC section 2; ``eta`` values);
+       (feature 1 of section 14.3; ``eta`` values);
     2. ``alpha_3 = sqrt(sum_r (Y_r - mu)^T lambda^{-1} (Y_r - mu))`` (feature
-       5 of SPEC section 2), with ``lambda`` the residual scatter of the fit
+       5 of section 14.3), with ``lambda`` the residual scatter of the fit
        (a sum over pixels, like the numerator, so the value does not grow
        with the image size).
 
@@ -131,23 +146,40 @@ def texture_features(image, *, levels=3, neighbourhood=2, channel_axis=-1):
         Grey or colour texture; integer images are scaled to [0, 1]. Each side
         needs at least :func:`minimum_size` pixels (24 for the defaults). The
         channels must be linearly independent (a grey image stored as RGB is
-        refused: pass it as 2-D with ``channel_axis=None``).
+        refused: pass it as 2-D).
     levels : int, optional
         Levels of the pyramid.
     neighbourhood : int or (eta, 2) array, optional
-        Order of the causal neighbourhood (SPEC 1.1) or explicit offsets.
+        Order of the causal neighbourhood (causal neighbourhoods,
+        docs/model.md) or explicit offsets.
     channel_axis : int or None, optional
-        Axis of the channels; None for a 2-D grey image.
+        Axis of the channels of a 3-D image (default the last); a 2-D image
+        is always grey, and None requires one.
 
     Returns
     -------
     features : (levels * (eta + 1),) ndarray of float64
+        The traces and ``alpha_3`` of every level, finest level first.
 
     Raises
     ------
     ValueError
         Bad ``levels`` or ``neighbourhood``, an image too small, constant, with
         dependent channels, or with NaN.
+    TypeError
+        A non-numeric image.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from car_napari.texture import texture_features
+    >>> image = np.random.default_rng(0).random((32, 32, 3))
+    >>> features = texture_features(image, levels=1)
+    >>> features.shape
+    (5,)
+    >>> B = np.array([[0.5, 0.2, 0.1], [0.1, 0.6, 0.2], [0.2, 0.1, 0.4]])
+    >>> np.allclose(texture_features(image @ B.T, levels=1), features)
+    True
     """
     levels = _check_levels(levels)
     offsets, _ = as_offsets(neighbourhood)
@@ -181,11 +213,172 @@ def _describe(item, name, *, levels, offsets, channel_axis):
     return None, data, data.shape[2]
 
 
+class Ranking(NamedTuple):
+    """A gallery ranked by distance to a query: what :func:`rank` returns.
+
+    Unpacks like a pair: ``indices, distances = rank(query, gallery)``.
+
+    Parameters
+    ----------
+    indices : (n,) ndarray of int
+        Gallery indices, nearest first (ties keep the gallery order).
+    distances : (n,) ndarray of float64
+        The distances in that order (``distances[0]`` is the smallest).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from car_napari.texture import Ranking
+    >>> indices, distances = Ranking(np.array([1, 0]), np.array([0.5, 2.0]))
+    >>> indices.tolist(), distances.tolist()
+    ([1, 0], [0.5, 2.0])
+    """
+
+    indices: np.ndarray
+    distances: np.ndarray
+
+
+def _gallery_entries(gallery):
+    """The gallery as a list of entries (a stacked array split along axis 0)."""
+    if gallery is None:
+        raise TypeError("gallery is None: pass a sequence of images or feature vectors.")
+    if isinstance(gallery, np.ndarray):
+        if gallery.ndim in (2, 3, 4):
+            entries = list(gallery)  # rows: feature vectors or images
+        else:
+            raise ValueError(
+                f"gallery array must be 2-D (n, features) or a 3-D/4-D stack of images; "
+                f"got shape {gallery.shape}."
+            )
+    else:
+        try:
+            entries = list(gallery)
+        except TypeError:
+            raise TypeError(
+                f"gallery must be a sequence of images or feature vectors; got "
+                f"{type(gallery).__name__}."
+            ) from None
+    if len(entries) == 0:
+        raise ValueError("gallery is empty: pass at least one image or feature vector.")
+    return entries
+
+
+def _check_comparable(names, described, *, levels, offsets):
+    """Grey and colour must not be mixed; feature vectors must have the right length."""
+    channels = {n: c for n, (_, _, c) in zip(names, described, strict=True) if c is not None}
+    if len(set(channels.values())) > 1:
+        first = names[0] if names[0] in channels else next(iter(channels))
+        other = next(n for n, c in channels.items() if c != channels[first])
+        kind = {1: "grey"}
+        raise ValueError(
+            f"{first} is {kind.get(channels[first], f'{channels[first]}-channel')} but {other} "
+            f"is {kind.get(channels[other], f'{channels[other]}-channel')}: grey and colour "
+            "textures (or different channel counts) cannot be compared. Convert them all "
+            "to one kind first."
+        )
+    expected = levels * (len(offsets) + 1)
+    for n, (vec, _, _) in zip(names, described, strict=True):
+        if vec is not None and vec.size != expected:
+            raise ValueError(
+                f"{n} is a feature vector of length {vec.size}, but levels={levels} with "
+                f"this neighbourhood ({len(offsets)} offsets) gives {expected} features: "
+                "compute every vector with texture_features and the same levels and "
+                "neighbourhood."
+            )
+
+
+def iter_rank(query, gallery, *, levels=3, neighbourhood=2, channel_axis=-1):
+    """Rank a gallery by distance to a query, as a job reporting progress.
+
+    The generator form of :func:`rank` (same arguments, same result): every
+    entry is checked first, then it yields a :class:`~car_napari.Progress`
+    record before the features of the query (``"query"``) and of every
+    gallery entry (``"gallery 3/12"``) are computed and a last one when the
+    gallery is ranked, and returns the :class:`Ranking`. Closing the
+    generator stops the work before the next entry.
+
+    Parameters
+    ----------
+    query : (H, W) or (H, W, C) array, or 1-D array
+        An image, or its precomputed :func:`texture_features` vector.
+    gallery : sequence of images or of 1-D feature vectors
+        See :func:`rank`.
+    levels : int, optional
+        Levels of the pyramid (images only).
+    neighbourhood : int or (eta, 2) array, optional
+        Order of the causal neighbourhood or explicit offsets (images only).
+    channel_axis : int or None, optional
+        Axis of the channels of 3-D images; 2-D images are grey.
+
+    Returns
+    -------
+    Ranking
+        ``(indices, distances)``, nearest first (the generator's return value).
+
+    Yields
+    ------
+    Progress
+        Stage ``"features"``, then ``"ranking"``; ``fraction`` is the share
+        of the images' pixels already described (feature vectors cost
+        nothing; a gallery of vectors only advances by entries).
+
+    Raises
+    ------
+    ValueError
+        As :func:`rank`, before the first record.
+    TypeError
+        As :func:`rank`, before the first record.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from car_napari.texture import iter_rank
+    >>> rng = np.random.default_rng(0)
+    >>> gallery = [rng.random((24, 24)) for _ in range(2)]
+    >>> for record in iter_rank(gallery[1], gallery, levels=1, neighbourhood=1):
+    ...     print(record.stage, record.message, round(record.fraction, 2))
+    features query 0.0
+    features gallery 1/2 0.33
+    features gallery 2/2 0.67
+    ranking 2 ranked 1.0
+    """
+    levels = _check_levels(levels)
+    offsets, _ = as_offsets(neighbourhood)
+    entries = _gallery_entries(gallery)
+    common = dict(levels=levels, offsets=offsets, channel_axis=channel_axis)
+    described = [_describe(query, "query", **common)]
+    described += [_describe(e, f"gallery[{i}]", **common) for i, e in enumerate(entries)]
+    names = ["query"] + [f"gallery[{i}]" for i in range(len(entries))]
+    _check_comparable(names, described, levels=levels, offsets=offsets)
+
+    # the features' cost is proportional to the pixels; vectors cost nothing
+    cost = np.array([0.0 if data is None else data.shape[0] * data.shape[1]
+                     for _, data, _ in described])
+    if cost.sum() == 0:
+        cost[:] = 1.0
+    done = np.concatenate([[0.0], np.cumsum(cost)]) / cost.sum()
+    n = len(entries)
+    feats = []
+    for i, (name, (vec, data, _)) in enumerate(zip(names, described, strict=True)):
+        yield Progress("features", float(done[i]), "query" if i == 0 else f"gallery {i}/{n}")
+        feats.append(vec if vec is not None
+                     else _features(data, levels=levels, offsets=offsets, name=name))
+    feats = np.array(feats)
+    q, G = feats[0], feats[1:]
+    spread = G.std(axis=0)
+    scale = np.where(spread > 1e-12 * np.maximum(np.abs(G).max(axis=0), 1e-300), spread, 1.0)
+    distances = (np.abs(G - q) / scale).sum(axis=1)
+    order = np.argsort(distances, kind="stable")
+    yield Progress("ranking", 1.0, f"{n} ranked")
+    return Ranking(order, distances[order])
+
+
 def rank(query, gallery, *, levels=3, neighbourhood=2, channel_axis=-1):
     """Rank a gallery of textures by their distance to a query texture.
 
-    The distance between feature vectors ``a`` (the query) and ``b`` (a
-    gallery entry), both from :func:`texture_features`, is the normalised L1
+    The same as running :func:`iter_rank` to its end. The distance between
+    feature vectors ``a`` (the query) and ``b`` (a gallery entry), both from
+    :func:`texture_features`, is the normalised L1
 
         ``sum_i |a_i - b_i| / s_i``,
 
@@ -208,16 +401,20 @@ def rank(query, gallery, *, levels=3, neighbourhood=2, channel_axis=-1):
         A stacked array is split along its first axis: 2-D ``(n, features)``
         is n feature vectors, 3-D ``(n, H, W)`` n grey images and 4-D
         ``(n, H, W, C)`` n colour images.
-    levels, neighbourhood, channel_axis
-        As for :func:`texture_features`; used for the images only. A 2-D
-        image is always grey (its ``channel_axis`` is ignored).
+    levels : int, optional
+        Levels of the pyramid, as for :func:`texture_features` (images only).
+    neighbourhood : int or (eta, 2) array, optional
+        As for :func:`texture_features` (images only).
+    channel_axis : int or None, optional
+        Axis of the channels of 3-D images, as for :func:`texture_features`.
+        A 2-D image is always grey (its ``channel_axis`` is ignored).
 
     Returns
     -------
-    indices : (n,) ndarray of int
-        Gallery indices, nearest first (ties keep the gallery order).
-    distances : (n,) ndarray of float64
-        The distances in that order (``distances[0]`` is the smallest).
+    Ranking
+        A named pair ``(indices, distances)``: the gallery indices, nearest
+        first (ties keep the gallery order), and the distances in that
+        order (``distances[0]`` is the smallest).
 
     Raises
     ------
@@ -229,69 +426,25 @@ def rank(query, gallery, *, levels=3, neighbourhood=2, channel_axis=-1):
     TypeError
         A non-numeric entry.
 
+    See Also
+    --------
+    iter_rank : The same ranking as a job that reports its progress.
+
     Notes
     -----
     A precomputed feature vector does not record whether it came from a grey
     or a colour image (both give ``levels * (eta + 1)`` values): keep grey and
     colour galleries apart yourself when passing vectors.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from car_napari.texture import rank
+    >>> rng = np.random.default_rng(0)
+    >>> gallery = [rng.random((24, 24)) for _ in range(3)]
+    >>> indices, distances = rank(gallery[2], gallery, levels=1)
+    >>> int(indices[0]), float(distances[0])
+    (2, 0.0)
     """
-    levels = _check_levels(levels)
-    offsets, _ = as_offsets(neighbourhood)
-    if gallery is None:
-        raise TypeError("gallery is None: pass a sequence of images or feature vectors.")
-    if isinstance(gallery, np.ndarray):
-        if gallery.ndim in (2, 3, 4):
-            entries = list(gallery)  # rows: feature vectors or images
-        else:
-            raise ValueError(
-                f"gallery array must be 2-D (n, features) or a 3-D/4-D stack of images; "
-                f"got shape {gallery.shape}."
-            )
-    else:
-        try:
-            entries = list(gallery)
-        except TypeError:
-            raise TypeError(
-                f"gallery must be a sequence of images or feature vectors; got "
-                f"{type(gallery).__name__}."
-            ) from None
-    if len(entries) == 0:
-        raise ValueError("gallery is empty: pass at least one image or feature vector.")
-
-    common = dict(levels=levels, offsets=offsets, channel_axis=channel_axis)
-    described = [_describe(query, "query", **common)]
-    described += [_describe(e, f"gallery[{i}]", **common) for i, e in enumerate(entries)]
-    names = ["query"] + [f"gallery[{i}]" for i in range(len(entries))]
-
-    # grey and colour (or different channel counts) must not be mixed
-    channels = {n: c for n, (_, _, c) in zip(names, described) if c is not None}
-    if len(set(channels.values())) > 1:
-        first = names[0] if names[0] in channels else next(iter(channels))
-        other = next(n for n, c in channels.items() if c != channels[first])
-        kind = {1: "grey"}
-        raise ValueError(
-            f"{first} is {kind.get(channels[first], f'{channels[first]}-channel')} but {other} "
-            f"is {kind.get(channels[other], f'{channels[other]}-channel')}: grey and colour "
-            "textures (or different channel counts) cannot be compared. Convert them all "
-            "to one kind first."
-        )
-    expected = levels * (len(offsets) + 1)
-    for n, (vec, _, _) in zip(names, described):
-        if vec is not None and vec.size != expected:
-            raise ValueError(
-                f"{n} is a feature vector of length {vec.size}, but levels={levels} with "
-                f"this neighbourhood ({len(offsets)} offsets) gives {expected} features: "
-                "compute every vector with texture_features and the same levels and "
-                "neighbourhood."
-            )
-
-    feats = np.array([
-        vec if vec is not None else _features(data, levels=levels, offsets=offsets, name=n)
-        for n, (vec, data, _) in zip(names, described)
-    ])
-    q, G = feats[0], feats[1:]
-    spread = G.std(axis=0)
-    scale = np.where(spread > 1e-12 * np.maximum(np.abs(G).max(axis=0), 1e-300), spread, 1.0)
-    distances = (np.abs(G - q) / scale).sum(axis=1)
-    order = np.argsort(distances, kind="stable")
-    return order, distances[order]
+    return drain(iter_rank(query, gallery, levels=levels, neighbourhood=neighbourhood,
+                           channel_axis=channel_axis))

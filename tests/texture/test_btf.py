@@ -1,4 +1,4 @@
-"""BTF subspace models (SPEC 7) on a stack built from a real texture under
+"""BTF subspace models (section 14.8, docs/texture.md) on a stack built from a real texture under
 simulated illuminations: shading of a height map (the texture's own smoothed
 grey) by a set of light directions, times its colour (albedo)."""
 
@@ -7,7 +7,9 @@ import pytest
 from scipy import ndimage
 from skimage import data as skdata
 
-from car_napari.texture.btf import BTFModel, cumulative_histograms
+from car_napari import Progress
+from car_napari._progress import drain
+from car_napari.texture.btf import BTFModel, cumulative_histograms, iter_fit_btf
 
 
 def _lit_stack(n_lights=8):
@@ -54,5 +56,45 @@ def test_bad_input():
     stack, _ = _lit_stack(2)
     with pytest.raises(ValueError, match="n_subspaces"):
         BTFModel.fit(stack, n_subspaces=3)
+    with pytest.raises(ValueError, match="each image of the stack is 128x3"):
+        BTFModel.fit(stack[0])  # one colour image is 128 grey images of 128x3
     with pytest.raises(ValueError, match="channel_axis=None"):
-        BTFModel.fit(stack[0])
+        BTFModel.fit(stack, channel_axis=None)
+    with pytest.raises(ValueError, match="channel_axis"):
+        BTFModel.fit(stack, channel_axis=0)
+    with pytest.raises(ValueError, match="empty"):
+        BTFModel.fit(stack[:0])
+
+
+def _same_btf(a, b):
+    np.testing.assert_array_equal(a.assignment, b.assignment)
+    np.testing.assert_array_equal(a.representatives, b.representatives)
+    assert a.grey == b.grey and a.nbytes == b.nbytes
+    np.testing.assert_array_equal(a.synthesize((40, 36), seed=2), b.synthesize((40, 36), seed=2))
+
+
+def test_iter_fit_btf_reports_progress_and_returns_the_fit():
+    stack, _ = _lit_stack(4)
+    stack = stack[:, :64, :64]
+    records = []
+    result = drain(iter_fit_btf(stack, n_subspaces=2, levels=2), records.append)
+    assert all(isinstance(r, Progress) for r in records)
+    assert [r.message for r in records if r.stage == "histograms"] == [
+        f"histogram {i}/4" for i in (1, 2, 3, 4)]
+    fits = [r.message for r in records if r.stage == "subspaces"]
+    assert fits[0] == "subspace 1/2" and "subspace 2/2" in fits and "level 2/2" in fits
+    fractions = [r.fraction for r in records]
+    assert fractions == sorted(fractions) and fractions[0] == 0 and fractions[-1] == 1
+    _same_btf(result, BTFModel.fit(stack, n_subspaces=2, levels=2))
+
+
+def test_grey_stack_and_channel_axis():
+    stack, _ = _lit_stack(2)
+    stack = stack[:, :64, :64]
+    grey = BTFModel.fit(stack[..., 0], n_subspaces=1, levels=2)  # (n, H, W) is grey
+    assert grey.grey and grey.synthesize((32, 40), seed=0).shape == (2, 32, 40)
+    _same_btf(grey, BTFModel.fit(stack[..., 0], n_subspaces=1, levels=2, channel_axis=None))
+    first = BTFModel.fit(np.moveaxis(stack, -1, 1), n_subspaces=1, levels=2, channel_axis=1)
+    _same_btf(first, BTFModel.fit(stack, n_subspaces=1, levels=2))
+    np.testing.assert_array_equal(cumulative_histograms(stack[..., 0]),
+                                  cumulative_histograms(stack[..., :1]))

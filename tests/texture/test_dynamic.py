@@ -4,8 +4,14 @@ and vs plain NumPy least squares on the same design."""
 import numpy as np
 import pytest
 
+from car_napari import Progress
+from car_napari._progress import drain
 from car_napari.model.synthesis import synthesize_field
-from car_napari.texture.dynamic import DynamicTextureModel, temporal_context
+from car_napari.texture.dynamic import (
+    DynamicTextureModel,
+    iter_fit_dynamic_texture,
+    temporal_context,
+)
 
 
 def _generated_clip(gamma, sigma, shape=(80, 90), frames=12, seed=0):
@@ -63,6 +69,35 @@ def test_bad_input():
     with pytest.raises(ValueError, match="at least 2 frames"):
         DynamicTextureModel.fit(np.zeros((1, 32, 32)), channel_axis=None)
     with pytest.raises(ValueError, match="channel_axis=None"):
-        DynamicTextureModel.fit(np.zeros((4, 32, 32)))
+        DynamicTextureModel.fit(np.zeros((4, 32, 32, 3)), channel_axis=None)
+    with pytest.raises(ValueError, match="constant"):
+        DynamicTextureModel.fit(np.zeros((4, 32, 32)))  # (T, H, W) is a grey clip
     with pytest.raises(ValueError, match="constant"):
         DynamicTextureModel.fit(np.ones((3, 32, 32)), channel_axis=None)
+
+
+def test_iter_fit_dynamic_texture_reports_every_frame_pair_and_returns_the_fit():
+    clip = _generated_clip(TRUE_GAMMA, 0.5, frames=5)
+    records = []
+    model = drain(iter_fit_dynamic_texture(clip, neighbourhood=1), records.append)
+    assert all(isinstance(r, Progress) for r in records)
+    assert [r.message for r in records] == [
+        "frame pair 1/4", "frame pair 2/4", "frame pair 3/4", "frame pair 4/4", "first frame",
+        "5 frames fitted"]
+    np.testing.assert_allclose([r.fraction for r in records], [0, 0.2, 0.4, 0.6, 0.8, 1])
+    # the default channel_axis=-1 reads the 3-D clip as grey, like channel_axis=None
+    again = DynamicTextureModel.fit(clip, neighbourhood=1, channel_axis=None)
+    assert model.grey and again.grey
+    np.testing.assert_array_equal(model.gamma, again.gamma)
+    np.testing.assert_array_equal(model.sigma, again.sigma)
+    np.testing.assert_array_equal(model.synthesize(3, (20, 24), seed=0),
+                                  again.synthesize(3, (20, 24), seed=0))
+
+
+def test_channel_first_colour_clip():
+    rng = np.random.default_rng(0)
+    clip = rng.random((3, 30, 34, 2))
+    last = DynamicTextureModel.fit(clip, neighbourhood=1)
+    first = DynamicTextureModel.fit(np.moveaxis(clip, -1, 1), neighbourhood=1, channel_axis=1)
+    np.testing.assert_array_equal(last.gamma, first.gamma)
+    assert last.synthesize(2, (10, 12), seed=0).shape == (2, 10, 12, 2)

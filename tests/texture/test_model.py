@@ -1,4 +1,4 @@
-"""Multiresolution texture synthesis and compression (SPEC 7)."""
+"""Multiresolution texture synthesis and compression (section 14.8, docs/texture.md)."""
 
 import json
 
@@ -6,8 +6,15 @@ import numpy as np
 import pytest
 from skimage import data as skdata
 
-from car_napari import fit_car, spectral_radius
-from car_napari.texture import FORMAT_VERSION, TextureModel, collapse_pyramid, laplacian_pyramid
+from car_napari import Progress, fit_car, spectral_radius
+from car_napari._progress import drain
+from car_napari.texture import (
+    FORMAT_VERSION,
+    TextureModel,
+    collapse_pyramid,
+    iter_fit_texture,
+    laplacian_pyramid,
+)
 
 
 @pytest.fixture(scope="module")
@@ -22,9 +29,60 @@ def colour_model():
 
 def test_pyramid_collapse_is_exact_at_odd_sizes():
     x = np.random.default_rng(0).random((67, 93, 2))
-    bands = laplacian_pyramid(x, 4)
+    bands = laplacian_pyramid(x, levels=4)
     assert [b.shape[:2] for b in bands] == [(67, 93), (34, 47), (17, 24), (9, 12)]
     np.testing.assert_allclose(collapse_pyramid(bands), x, atol=1e-12)
+
+
+def test_pyramid_of_grey_and_channel_first_images_keeps_the_layout():
+    x = np.random.default_rng(1).random((40, 51, 2))
+    channel_last = laplacian_pyramid(x, levels=3)
+    grey = laplacian_pyramid(x[..., 0], levels=3)
+    first = laplacian_pyramid(np.moveaxis(x, -1, 0), levels=3, channel_axis=0)
+    for c, g, f in zip(channel_last, grey, first, strict=True):
+        assert g.shape == c.shape[:2] and f.shape == (2,) + c.shape[:2]
+        np.testing.assert_array_equal(g, c[..., 0])  # channels are filtered independently
+        np.testing.assert_array_equal(f, np.moveaxis(c, -1, 0))
+    np.testing.assert_allclose(collapse_pyramid(grey), x[..., 0], atol=1e-12)
+    np.testing.assert_allclose(collapse_pyramid(first, channel_axis=0),
+                               np.moveaxis(x, -1, 0), atol=1e-12)
+    with pytest.raises(ValueError, match="levels"):
+        laplacian_pyramid(x, levels=0)
+    with pytest.raises(ValueError, match="2-D"):
+        collapse_pyramid([grey[0], channel_last[1]])
+
+
+def _same_texture_model(a, b):
+    assert a.orders == b.orders and a.fallbacks == b.fallbacks and a.grey == b.grey
+    for ma, mb in zip(a.models, b.models, strict=True):
+        np.testing.assert_array_equal(ma.gamma, mb.gamma)
+        np.testing.assert_array_equal(ma.sigma, mb.sigma)
+    np.testing.assert_array_equal(a.quantiles, b.quantiles)
+    np.testing.assert_array_equal(a.synthesize((40, 30), seed=3), b.synthesize((40, 30), seed=3))
+
+
+def test_iter_fit_texture_reports_every_level_and_returns_the_fit():
+    texture = skdata.gravel()[:128, :160]
+    job = iter_fit_texture(texture, levels=3, neighbourhood=2)
+    records = []
+    result = drain(job, records.append)
+    assert all(isinstance(r, Progress) and r.stage == "fitting" for r in records)
+    assert [r.message for r in records] == ["level 1/3", "level 2/3", "level 3/3",
+                                            "3 levels fitted"]
+    fractions = [r.fraction for r in records]
+    # proportional to the bands' pixels: 128x160, 64x80, 32x40
+    np.testing.assert_allclose(fractions, [0, 16 / 21, 20 / 21, 1])
+    _same_texture_model(result, TextureModel.fit(texture, levels=3, neighbourhood=2))
+
+
+def test_iter_fit_texture_validates_before_the_first_record_and_can_be_closed():
+    with pytest.raises(ValueError, match="64x64"):
+        next(iter_fit_texture(np.random.default_rng(0).random((60, 200))))
+    job = iter_fit_texture(skdata.gravel()[:64, :64], levels=2)
+    assert next(job).message == "level 1/2"
+    job.close()  # a cancel: no error, no further work
+    with pytest.raises(StopIteration):
+        next(job)
 
 
 @pytest.mark.parametrize("name, other", [("gravel", "brick"), ("brick", "gravel")])
@@ -33,13 +91,15 @@ def test_refit_of_synthesis_matches_the_fit(name, other):
     fits = {n: TextureModel.fit(getattr(skdata, n)(), neighbourhood=1) for n in (name, other)}
     sample = fits[name].synthesize((512, 512), seed=0)
     refit = TextureModel.fit(sample, neighbourhood=1, channel_axis=None)
-    diff = [np.abs(a.gamma - b.gamma).max() for a, b in zip(fits[name].models, refit.models)]
+    diff = [np.abs(a.gamma - b.gamma).max()
+            for a, b in zip(fits[name].models, refit.models, strict=True)]
     # The coarse bands come back closely; the finest band less so, because the
     # independently generated bands leak into it when the synthesis is re-analysed.
     assert max(diff[1:]) < 0.06, diff
     assert diff[0] < 0.2, diff
     # ... and still, the synthesis is far closer to its own texture than to another.
-    to_other = [np.abs(a.gamma - b.gamma).max() for a, b in zip(fits[other].models, refit.models)]
+    to_other = [np.abs(a.gamma - b.gamma).max()
+                for a, b in zip(fits[other].models, refit.models, strict=True)]
     assert sum(diff) < 0.5 * sum(to_other), (diff, to_other)
 
 
@@ -54,8 +114,8 @@ def test_output_restores_mean_contrast_and_range(gravel_model):
 
 
 def test_each_band_gets_its_own_decision_rule_support(gravel_model):
-    bands = laplacian_pyramid(skdata.gravel()[..., None] / 255.0, 3)
-    for band, model in zip(bands, gravel_model.models):
+    bands = laplacian_pyramid(skdata.gravel()[..., None] / 255.0, levels=3)
+    for band, model in zip(bands, gravel_model.models, strict=True):
         assert model.order == fit_car(band, "auto").order
         assert spectral_radius(model) < 1
 
@@ -123,8 +183,9 @@ def test_histograms_of_bands_and_output_are_restored(gravel_model):
     assert gravel_model.band_quantiles.shape == (3, 32, 1)
     assert gravel_model.quantiles.shape == (64, 1)
     # the stored quantiles are those of the analysed bands, ends at min and max
-    bands = laplacian_pyramid(texture[..., None], 3)
-    for band, q, r in zip(bands, gravel_model.band_quantiles, gravel_model.band_ranges):
+    bands = laplacian_pyramid(texture[..., None], levels=3)
+    stored = zip(bands, gravel_model.band_quantiles, gravel_model.band_ranges, strict=True)
+    for band, q, r in stored:
         np.testing.assert_allclose(q[[0, -1]], r, atol=1e-6)
         np.testing.assert_allclose(q[16, 0], np.quantile(band, 16 / 31), atol=1e-6)
 

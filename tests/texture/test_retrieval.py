@@ -1,10 +1,13 @@
-"""Illumination-invariant texture retrieval (SPEC section 2): features and ranking."""
+"""Illumination-invariant texture retrieval (section 14.3, docs/model.md): features and
+ranking."""
 
 import numpy as np
 import pytest
 from skimage import data as skdata
 
-from car_napari.texture.retrieval import minimum_size, rank, texture_features
+from car_napari import Progress
+from car_napari._progress import drain
+from car_napari.texture.retrieval import Ranking, iter_rank, minimum_size, rank, texture_features
 
 
 def _patch():
@@ -140,3 +143,38 @@ def test_minimum_size_grows_with_levels_and_order():
     assert minimum_size(levels=4, neighbourhood=3) > minimum_size()
     n = minimum_size(levels=2, neighbourhood=1)
     texture_features(np.random.default_rng(0).random((n, n, 3)), levels=2, neighbourhood=1)
+
+
+def test_iter_rank_reports_every_gallery_entry_and_returns_the_ranking():
+    img = _patch()
+    gallery = [img[:64, :64], texture_features(img[64:, 64:]), skdata.coffee()[:32, :32] / 255.0]
+    records = []
+    result = drain(iter_rank(img[:64, 64:], gallery), records.append)
+    assert all(isinstance(r, Progress) for r in records)
+    assert [r.message for r in records] == ["query", "gallery 1/3", "gallery 2/3",
+                                            "gallery 3/3", "3 ranked"]
+    assert [r.stage for r in records] == ["features"] * 4 + ["ranking"]
+    # by pixels: query 64x64, gallery[0] 64x64, gallery[1] a vector (free), gallery[2] 32x32
+    np.testing.assert_allclose([r.fraction for r in records], [0, 4 / 9, 8 / 9, 8 / 9, 1])
+    assert isinstance(result, Ranking)
+    expected = rank(img[:64, 64:], gallery)
+    assert isinstance(expected, Ranking)
+    np.testing.assert_array_equal(result.indices, expected.indices)
+    np.testing.assert_array_equal(result.distances, expected.distances)
+    indices, distances = expected  # still unpacks like a pair
+    assert indices is expected.indices and distances is expected.distances
+
+
+def test_iter_rank_of_vectors_advances_by_entries_and_validates_first():
+    vectors = np.random.default_rng(0).random((4, 15))
+    records = []
+    drain(iter_rank(vectors[0], vectors[1:]), records.append)
+    np.testing.assert_allclose([r.fraction for r in records], [0, 0.25, 0.5, 0.75, 1])
+    job = iter_rank(_patch(), [_patch(), np.ones(7)])
+    with pytest.raises(ValueError, match="length 7"):
+        next(job)  # every entry is checked before any features are computed
+
+
+def test_grey_image_needs_no_channel_axis():
+    img = skdata.camera()[100:228, 100:228] / 255.0
+    np.testing.assert_array_equal(texture_features(img), texture_features(img, channel_axis=None))
