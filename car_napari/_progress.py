@@ -57,9 +57,29 @@ class Progress:
 
 
 def drain(job, on_progress=None):
-    """Run the generator ``job`` to its end and return its return value.
+    """Run a job to its end and return its result.
 
-    ``on_progress(record)`` is called with every :class:`Progress` record.
+    Parameters
+    ----------
+    job : generator
+        An ``iter_<name>(...)`` generator yielding :class:`Progress` records.
+    on_progress : callable, optional
+        Called with every :class:`Progress` record (a progress bar, a log).
+
+    Returns
+    -------
+    result : object
+        The generator's return value: what ``<name>(...)`` returns.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import car_napari as car
+    >>> image = np.random.default_rng(0).random((64, 64))
+    >>> stages = []
+    >>> restored = car.drain(car.iter_restore(image), lambda p: stages.append(p.stage))
+    >>> restored.shape, stages[0]
+    ((64, 64), 'start')
     """
     while True:
         try:
@@ -70,11 +90,45 @@ def drain(job, on_progress=None):
             on_progress(record)
 
 
-def stage(job, start, stop, *, name=None):
-    """Re-yield ``job``'s records with fractions mapped into [start, stop]
-    (and the stage renamed to ``name`` when given); return its result.
+def stage(job, start, stop, *, name=None, prefix=""):
+    """Run a job as one stage of another: its fractions mapped into a range.
 
     Use as ``result = yield from stage(iter_other(...), 0.1, 0.9)``.
+
+    Parameters
+    ----------
+    job : generator
+        The inner ``iter_<name>(...)`` generator.
+    start, stop : float
+        The part of the outer job's [0, 1] range the inner job covers.
+    name : str, optional
+        A stage name for the inner records (default: keep theirs).
+    prefix : str, optional
+        Put before each inner message (for example ``"subspace 2/4: "``).
+
+    Yields
+    ------
+    record : Progress
+        The inner records, rescaled.
+
+    Returns
+    -------
+    result : object
+        The inner job's return value.
+
+    Examples
+    --------
+    >>> def inner():
+    ...     yield Progress("work", 0.5, "half")
+    ...     return 42
+    >>> def outer():
+    ...     value = yield from stage(inner(), 0.2, 0.6, prefix="inner: ")
+    ...     return value + 1
+    >>> records = []
+    >>> drain(outer(), records.append)
+    43
+    >>> records[0].fraction, records[0].message
+    (0.4, 'inner: half')
     """
     span = stop - start
     while True:
@@ -85,7 +139,7 @@ def stage(job, start, stop, *, name=None):
         yield Progress(
             record.stage if name is None else name,
             start + span * min(max(float(record.fraction), 0.0), 1.0),
-            record.message,
+            prefix + record.message,
             record.preview,
         )
 

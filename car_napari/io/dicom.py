@@ -12,8 +12,10 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["dicom_reader", "get_reader", "read_dicom"]
+#: Suffixes (lower case) of DICOM files.
+DICOM_SUFFIXES = frozenset({".dcm", ".dicom"})
 
+__all__ = ["DICOM_SUFFIXES", "dicom_reader", "get_reader", "read_dicom"]
 
 
 def _pydicom():
@@ -32,6 +34,7 @@ def read_dicom(path):
     Parameters
     ----------
     path : str or path-like
+        A DICOM file holding one greyscale (MONOCHROME1 or MONOCHROME2) frame.
 
     Returns
     -------
@@ -42,6 +45,27 @@ def read_dicom(path):
     metadata : dict
         Photometric interpretation, modality, view, laterality, pixel spacing
         (mm) and what was applied. No patient data.
+
+    Raises
+    ------
+    ValueError
+        If the file has no pixel data, is not greyscale, or holds more than
+        one frame.
+    ImportError
+        If ``pydicom`` is not installed.
+
+    See Also
+    --------
+    car_napari.io.images.read_image : Any image file, DICOM included.
+
+    Examples
+    --------
+    >>> from pydicom.data import get_testdata_file
+    >>> image, metadata = read_dicom(get_testdata_file("MR_small.dcm"))
+    >>> image.shape, image.dtype, metadata["applied"]
+    ((64, 64), dtype('float32'), ['VOI window'])
+    >>> bool(0.0 <= image.min() and image.max() <= 1.0)
+    True
     """
     pydicom = _pydicom()
     from pydicom.pixels import apply_modality_lut, apply_voi_lut
@@ -119,20 +143,62 @@ def _window(x, center, width, function="LINEAR"):
 
 
 def get_reader(path):
-    """napari reader hook: a reader function for .dcm files, else None."""
-    paths = [path] if isinstance(path, (str, bytes)) or not hasattr(path, "__iter__") else path
-    if not all(str(p).lower().endswith((".dcm", ".dicom")) for p in paths):
+    """The napari reader hook: a reader for DICOM paths, else None.
+
+    Parameters
+    ----------
+    path : str or list of str
+        What napari asks to open: one path or several.
+
+    Returns
+    -------
+    reader : callable or None
+        :func:`dicom_reader` when every path ends in ``.dcm`` or ``.dicom``
+        (any case), otherwise None (napari then asks another plugin).
+
+    Examples
+    --------
+    >>> get_reader("scan.dcm") is dicom_reader
+    True
+    >>> get_reader(["scan.dcm", "photo.png"]) is None
+    True
+    """
+    paths = _as_paths(path)
+    if not all(str(p).lower().endswith(tuple(DICOM_SUFFIXES)) for p in paths):
         return None
     return dicom_reader
 
 
 def dicom_reader(path):
-    """napari reader: LayerData tuples ``(image, kwargs, 'image')`` for one
-    or more DICOM paths (grey, display transforms applied, pixel spacing as
-    the layer scale)."""
-    paths = [path] if isinstance(path, (str, bytes)) or not hasattr(path, "__iter__") else path
+    """The napari reader: one image layer per DICOM path.
+
+    Parameters
+    ----------
+    path : str or list of str
+        One or more DICOM files.
+
+    Returns
+    -------
+    layers : list of tuple
+        napari ``LayerData`` tuples ``(image, kwargs, "image")``: the grey
+        image of :func:`read_dicom` in [0, 1], named after the file, with a
+        grey colour map, the DICOM metadata, and the pixel spacing (mm) as
+        the layer scale when the file has one.
+
+    Raises
+    ------
+    ValueError
+        If a file cannot be read (see :func:`read_dicom`).
+
+    Examples
+    --------
+    >>> from pydicom.data import get_testdata_file
+    >>> (image, kwargs, kind), = dicom_reader(get_testdata_file("MR_small.dcm"))
+    >>> kind, kwargs["name"], kwargs["scale"]
+    ('image', 'MR_small.dcm', (0.3125, 0.3125))
+    """
     layers = []
-    for p in paths:
+    for p in _as_paths(path):
         image, metadata = read_dicom(p)
         name = str(p).replace("\\", "/").rsplit("/", 1)[-1]
         scale = metadata["pixel_spacing_mm"]
@@ -144,4 +210,6 @@ def dicom_reader(path):
     return layers
 
 
-_read_layers = dicom_reader  # former private name
+def _as_paths(path):
+    """napari passes one path or a list of them."""
+    return [path] if isinstance(path, (str, bytes)) or not hasattr(path, "__iter__") else path

@@ -1,6 +1,8 @@
 """Command line: fit prints JSON, synthesize writes an image, errors are clear."""
 
+import io as io_module
 import json
+import re
 import subprocess
 import sys
 
@@ -78,8 +80,8 @@ def test_mammo_writes_labels_and_one_table(tmp_path, capsys):
 
     import pytest
 
-    from car_napari.mammography import TABLE_COLUMNS
     from car_napari.io.sample_data import mammogram
+    from car_napari.mammography import TABLE_COLUMNS
 
     (image, _, _), = mammogram()
     small = image.reshape(256, 4, 256, 4).mean(axis=(1, 3)).astype(np.uint8)
@@ -207,3 +209,51 @@ def test_retrieve_ranks_a_folder(tmp_path, capsys):
     assert len(lines) == 2 and lines[0].endswith("same.png")
     assert "grey.png" in captured.err
     assert main(["retrieve", str(tmp_path / "query.png"), str(tmp_path / "nope")]) == 2
+
+
+def test_no_inputs_writes_nothing(tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["mammo", str(tmp_path / "none*.png"), "-o", str(out)]) == 2
+    assert "no input images" in capsys.readouterr().err
+    assert not (out / "rois.csv").exists()
+
+
+class _Terminal(io_module.StringIO):
+    def isatty(self):
+        return True
+
+
+def test_progress_bar_on_a_terminal(monkeypatch):
+    from car_napari._progress import Progress
+    from car_napari.cli._common import ProgressBar
+
+    err = _Terminal()
+    monkeypatch.setattr(sys, "stderr", err)
+    with ProgressBar(4, unit="image") as bar:
+        bar.begin(2, "c.png")
+        bar.on_progress(Progress("rows", 0.5))
+        bar.write("c.png: done", err=True)
+    text = err.getvalue()
+    assert " 62%" in text and "3/4 c.png" in text and "c.png: done\n" in text
+
+
+def test_restore_drives_the_bar_to_the_end(tmp_path, monkeypatch):
+    from car_napari.cli._common import ProgressBar
+
+    noisy = np.random.default_rng(1).integers(0, 256, (40, 40)).astype(np.uint8)
+    io.imsave(tmp_path / "noisy.png", noisy, check_contrast=False)
+    err = _Terminal()
+    monkeypatch.setattr(sys, "stderr", err)
+    fractions = []
+    on_progress = ProgressBar.on_progress
+
+    def spy(bar, record):
+        fractions.append(record.fraction)
+        on_progress(bar, record)
+
+    monkeypatch.setattr(ProgressBar, "on_progress", spy)
+    assert main(["restore", str(tmp_path / "noisy.png"), "-o", str(tmp_path / "out")]) == 0
+    assert any(0 < f < 1 for f in fractions)  # the bar moved within the image
+    percents = [int(p) for p in re.findall(r"(\d+)%\|", err.getvalue())]
+    assert percents[-1] == 100
+    assert (tmp_path / "out" / "noisy_restored.png").exists()

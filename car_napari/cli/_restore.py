@@ -1,0 +1,77 @@
+"""``car-napari restore``: CAR restoration of degraded images, or of stacks of
+degraded versions (multichannel restoration)."""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from .._progress import drain
+from ..io.images import read_image, write_image
+from ._common import (
+    add_inputs,
+    add_quiet,
+    channel_axis,
+    each_input,
+    from_unit,
+    output_folder,
+)
+
+
+def add_parser(sub):
+    p = sub.add_parser("restore", help="CAR restoration of degraded images or stacks")
+    add_inputs(p, "images or stacks (e.g. multi-page TIFF), folders or globs")
+    p.add_argument("--stack-axis", type=int, default=None,
+                   help="each input is a stack of degraded versions along this axis "
+                        "(multichannel restoration of the sharpest)")
+    p.add_argument("--kappa", type=kappa_type, default=None,
+                   help="prediction-probability threshold in [0, 1) (default: 0.05 for "
+                        "stacks, off for single images)")
+    p.add_argument("--probability", action="store_true",
+                   help="also write <name>_probability.tif (prediction probability)")
+    add_quiet(p)
+    p.set_defaults(run=run)
+
+
+def kappa_type(text):
+    """argparse type for --kappa: a number in [0, 1)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"kappa must be a number in [0, 1); got {text!r}") \
+            from None
+    if not 0.0 <= value < 1.0:
+        raise argparse.ArgumentTypeError(f"kappa must be in [0, 1); got {value}")
+    return value
+
+
+def run(args):
+    from ..restoration import DEFAULT_KAPPA, iter_restore, iter_restore_multichannel
+
+    out = output_folder(args.output)
+    for path, bar in each_input(args.inputs):
+        t0 = time.perf_counter()
+        image = read_image(path)
+        if args.stack_axis is None:
+            job = iter_restore(image, kappa=args.kappa or 0.0, channel_axis=channel_axis(image),
+                               return_result=True)
+        else:
+            kappa = DEFAULT_KAPPA if args.kappa is None else args.kappa
+            job = iter_restore_multichannel(image, axis=args.stack_axis, kappa=kappa,
+                                            channel_axis=channel_axis(image, stack=True),
+                                            return_result=True)
+        result = drain(job, bar.on_progress)
+        restored = result.restored()
+        if restored.ndim == 3 and restored.shape[2] == 1:
+            restored = restored[..., 0]
+        restored = from_unit(restored, image.dtype)  # a stack's versions share its dtype
+        suffix = ".tif" if restored.dtype == np.float32 else ".png"
+        write_image(out / f"{path.stem}_restored{suffix}", restored)
+        if args.probability:
+            write_image(out / f"{path.stem}_probability.tif",
+                        result.probability.astype(np.float32))
+        ref = "" if result.reference is None else f", reference version {result.reference}"
+        bar.write(f"{path.name}: restored{ref}, {time.perf_counter() - t0:.1f} s",
+                  err=args.quiet)

@@ -1,0 +1,49 @@
+"""``car-napari synthesize``: a texture of any size from a model file or an
+example image."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from ..io.images import write_image
+from ._common import add_order, add_output, from_unit
+from ._fit_texture import texture_model
+
+
+def add_parser(sub):
+    p = sub.add_parser("synthesize", help="synthesise a texture of any size from a model "
+                                          "file or an example image")
+    p.add_argument("source", help="model file (.npz from fit-texture) or example texture")
+    add_output(p, "output image (.png/.jpg: 8-bit; .tif: float)")
+    p.add_argument("--size", nargs=2, type=int, metavar=("H", "W"), default=(256, 256))
+    p.add_argument("--seed", type=int, default=None)
+    p.add_argument("--tileable", action="store_true", help="wrap seamlessly (toroidal)")
+    p.add_argument("--levels", type=int, default=3, help="pyramid levels when fitting")
+    add_order(p, help="neighbourhood order when fitting, or 'auto' (default)")
+    p.set_defaults(run=run)
+
+
+def run(args):
+    model, image = texture_model(args)
+    sample = model.synthesize(tuple(args.size), seed=args.seed, tileable=args.tileable)
+    uint16 = image is not None and image.dtype == np.uint16
+    write_texture(args.output, sample, uint16=uint16)
+    print(f"wrote {args.output}: {sample.shape}, orders {list(model.orders)}",
+          file=sys.stderr)
+
+
+def write_texture(path, sample, *, uint16=False):
+    """PNG/JPEG/BMP: 8-bit (16-bit PNG with ``uint16``) of values in [0, 1];
+    TIFF: float32 as is."""
+    suffix = Path(path).suffix.lower()
+    if suffix in (".tif", ".tiff"):
+        out = from_unit(sample, np.float32)
+    elif suffix in (".png", ".jpg", ".jpeg", ".bmp"):
+        out = from_unit(sample, np.uint16 if uint16 and suffix == ".png" else np.uint8)
+    else:
+        raise ValueError(f"cannot write {path}: use .png, .jpg, .bmp (8-bit) or .tif (float).")
+    write_image(path, out)
+    return out
