@@ -1,20 +1,23 @@
 """Unsupervised texture segmentation: local CAR features, a Gaussian mixture
-and Kullback-Leibler merging (chapter 14.4)."""
+and Kullback-Leibler merging (section 14.4, docs/segmentation.md).
 
-from ._segment import (
-    iter_segment,
-    pseudo_colour,
-    segment,
-    SegmentationResult,
-    SegmentationState,
-    local_features,
-)
+:func:`segment` labels an image; :func:`iter_segment` is the same job as a
+generator of :class:`~car_napari.Progress` records (previews: the labels after
+initialisation and after every merge) that returns the
+:class:`SegmentationResult`, whose merge history (:class:`Mixture` states)
+re-cuts to any number of segments.
+"""
+
+from ._features import iter_local_features, local_features, pseudo_colour
+from ._mixture import Mixture
+from ._segment import SegmentationResult, iter_segment, segment
 
 __all__ = [
-    "segment",
+    "Mixture",
+    "SegmentationResult",
+    "iter_local_features",
     "iter_segment",
     "local_features",
-    "SegmentationState",
-    "SegmentationResult",
     "pseudo_colour",
+    "segment",
 ]

@@ -1,13 +1,16 @@
-"""Unsupervised multiresolution texture segmentation (SPEC section 3).
+"""Unsupervised multiresolution texture segmentation: the job (section 14.4,
+docs/segmentation.md).
 
 Four directional adaptive 3DCAR models at several resolutions give a feature
-vector ``Theta_r`` per pixel; a Gaussian mixture with diagonal covariances is
-fitted by EM from a regular initialisation and shrunk by Kullback-Leibler
-merging; pixels are labelled by the neighbourhood-weighted posterior.
+vector ``Theta_r`` per pixel (:mod:`._features`); a Gaussian mixture with
+diagonal covariances is fitted by EM from a regular initialisation and shrunk
+by Kullback-Leibler merging (:mod:`._mixture`); pixels are labelled by the
+neighbourhood-weighted posterior (:mod:`._labelling`).
 
-:func:`iter_segment` is a generator yielding a :class:`SegmentationState`
-after the features, after initialisation and after every merge, and finally
-the :class:`SegmentationResult`, so a GUI can show the segments merging live.
+:func:`iter_segment` is the job: it yields :class:`~car_napari.Progress`
+records whose previews are the labels after initialisation and after every
+merge (so a viewer can show the segments merging live) and returns the
+:class:`SegmentationResult`; :func:`segment` runs it to its end.
 """
 
 from __future__ import annotations
@@ -16,68 +19,53 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._validation import as_channel_last_float, check_not_constant, summarize
-from ..model.neighbourhood import Context, as_offsets
-from ..model.directions import DIRECTIONS, scan_view, unscan_view
-from ..model.recursive import adaptive_scan
+from .._progress import Progress, drain, stage
+from .._validation import as_channel_last_float, check_not_constant
+from ._docstrings import shared_parameters
+from ._features import iter_local_features, pseudo_colour
+from ._labelling import _renumber, label_pixels
+from ._mixture import _block_init, _choose_k, _drop_weak, _em_steps, _merge_closest
 
-__all__ = [
-    "segment",
-    "iter_segment",
-    "local_features",
-    "SegmentationState",
-    "SegmentationResult",
-    "pseudo_colour",
-]
+__all__ = ["SegmentationResult", "iter_segment", "segment"]
 
-_MIN_LEVEL_SIDE = 16
-
-
-@dataclass
-class SegmentationState:
-    """One step of :func:`iter_segment`, for progress and live display."""
-
-    stage: str
-    fraction: float
-    labels: np.ndarray | None
-    n_components: int
-    kl: float | None = None
-
-
-@dataclass
-class Mixture:
-    """Gaussian mixture with diagonal covariances; ``ids`` name components
-    stably across merges (a merged component keeps its stronger partner's id)."""
-
-    weights: np.ndarray
-    means: np.ndarray
-    variances: np.ndarray
-    ids: np.ndarray
-    loglik: float = np.nan
-
-    def copy(self):
-        return Mixture(self.weights.copy(), self.means.copy(), self.variances.copy(),
-                       self.ids.copy(), self.loglik)
-
-    @property
-    def k(self):
-        return self.weights.size
+# EM iterations of the initial mixture and before every merge
+_INIT_EM_STEPS = 10
+_PRE_MERGE_EM_STEPS = 2
+# pixels the mixture is fitted on (a random sample of the masked image)
+_EM_SAMPLE = 40000
+# parts of the job's progress: features, then initialisation, then merges
+_FEATURES_END, _INIT_END, _MERGES_END = 0.3, 0.35, 0.95
 
 
 @dataclass
 class SegmentationResult:
-    """Outcome of :func:`segment`: labels plus the whole merge history.
+    """Outcome of :func:`segment`: the labels plus the whole merge history.
 
-    Attributes
+    Parameters
     ----------
     labels : (H, W) ndarray of int
-        1..K, 0 where unclassified.
+        Segments 1..K, 0 where unclassified.
     n_segments : int
         K of ``labels`` (found automatically unless given).
     history : list of Mixture
         Mixtures from ``K_ini`` components down to 1, one per merge.
     probability : (H, W) ndarray
         Neighbourhood-weighted posterior probability of each pixel's label.
+    features : (H, W, D) ndarray
+        The per-pixel features the mixtures were fitted on.
+    smoothing, min_area, threshold : float, int, float
+        The labelling options used (reused by :meth:`labels_at`).
+    mask : (H, W) ndarray of bool or None
+        The segmented pixels (others are 0), or None for all.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from car_napari.segmentation import segment
+    >>> image = np.random.default_rng(0).random((32, 32))
+    >>> result = segment(image, levels=1, n_init=4)
+    >>> result.labels.shape, result.history[0].k, result.history[-1].k
+    ((32, 32), 4, 1)
     """
 
     labels: np.ndarray
@@ -91,17 +79,66 @@ class SegmentationResult:
     mask: np.ndarray | None = field(default=None, repr=False)
 
     def mixture_at(self, k):
+        """The mixture of the history with ``k`` components.
+
+        Weak components may be dropped between merges, so some K are missing
+        from the history: the mixture with the fewest components >= ``k`` is
+        taken, after clipping ``k`` to the range of the history.
+
+        Parameters
+        ----------
+        k : int
+            The number of components wanted.
+
+        Returns
+        -------
+        Mixture
+            One state of :attr:`history` (not a copy).
+
+        Raises
+        ------
+        ValueError
+            If the history is empty.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from car_napari.segmentation import segment
+        >>> result = segment(np.random.default_rng(0).random((32, 32)), levels=1, n_init=4)
+        >>> result.mixture_at(2).k, result.mixture_at(99).k
+        (2, 4)
+        """
         ks = [mx.k for mx in self.history]
         if not ks:
             raise ValueError("the merge history is empty.")
         k = int(np.clip(k, min(ks), max(ks)))
-        # the last mixture with at least k components (weak ones may be dropped)
-        best = min((mx for mx in self.history if mx.k >= k), key=lambda mx: mx.k)
-        return best
+        return min((mx for mx in self.history if mx.k >= k), key=lambda mx: mx.k)
 
     def labels_at(self, k, *, threshold=None):
-        """Labelling with ``k`` segments from the stored history (no new
-        features, no new EM): instant enough for a slider."""
+        """Labelling with ``k`` segments, re-cut from the stored history.
+
+        No new features and no new EM: fast enough for a slider.
+
+        Parameters
+        ----------
+        k : int
+            The number of segments (see :meth:`mixture_at`).
+        threshold : float, optional
+            Posterior threshold of the labelling (default: the segmentation's).
+
+        Returns
+        -------
+        (H, W) ndarray of int32
+            Segments 1..n (n <= k), 0 where unclassified or outside the mask.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from car_napari.segmentation import segment
+        >>> result = segment(np.random.default_rng(0).random((32, 32)), levels=1, n_init=4)
+        >>> int(result.labels_at(1).max())
+        1
+        """
         mix = self.mixture_at(k)
         labels, _ = label_pixels(
             self.features, mix, smoothing=self.smoothing,
@@ -113,303 +150,89 @@ class SegmentationResult:
         return _renumber(labels)
 
 
-def pseudo_colour(grey, gammas=(0.5, 2.0)):
-    """``[Y, Y^g1, Y^g2]`` from a grey image scaled to [0, 1] (SPEC 3.1)."""
-    g = np.asarray(grey, dtype=np.float64)
-    lo, hi = g.min(), g.max()
-    g = (g - lo) / (hi - lo) if hi > lo else np.zeros_like(g)
-    return np.stack([g] + [g**gm for gm in gammas], axis=-1)
+def _check_options(n_segments, n_init, threshold, grey):
+    if n_segments is not None and (not isinstance(n_segments, (int, np.integer))
+                                   or n_segments < 1):
+        raise ValueError(f"n_segments must be a positive int or None; got {n_segments!r}.")
+    if not isinstance(n_init, (int, np.integer)) or n_init < 2:
+        raise ValueError(f"n_init must be an int >= 2; got {n_init!r}.")
+    if n_segments is not None and n_segments > n_init:
+        raise ValueError(f"n_segments ({n_segments}) must not exceed n_init ({n_init}).")
+    if not 0.0 <= threshold < 1.0:
+        raise ValueError(f"threshold must be in [0, 1); got {threshold}.")
+    if grey not in ("pseudo_colour", "grey"):
+        raise ValueError(f"grey must be 'pseudo_colour' or 'grey'; got {grey!r}.")
 
 
-def _pca(X, n_components, rng, sample=20000):
-    """Principal axes of the rows of X (fitted on a subsample)."""
-    idx = rng.choice(X.shape[0], size=min(sample, X.shape[0]), replace=False)
-    S = X[idx]
-    mean = S.mean(axis=0)
-    _, _, vt = np.linalg.svd(S - mean, full_matrices=False)
-    return mean, vt[:n_components].T
+_MASK_ERROR = "mask must be (H, W) like the image and select at least one pixel."
 
 
-def _whiten_channels(level):
-    """Spectral Karhunen-Loeve transform with unit-variance factors (SPEC 1.2).
-
-    The 3DCAR parameters transform as ``A -> B A B^{-1}`` under a channel
-    mixing ``B`` (SPEC 2), so this changes no model, only how well the
-    cross-spectral terms are conditioned (RGB channels are nearly collinear)
-    and puts every parameter on a comparable scale.
-    """
-    h, w, d = level.shape
-    flat = level.reshape(-1, d)
-    mean = flat.mean(axis=0)
-    if d == 1:
-        std = flat.std()
-        return np.ascontiguousarray((level - mean) / (std if std > 0 else 1.0))
-    cov = np.cov((flat - mean).T)
-    ev, vec = np.linalg.eigh(cov)
-    ev = np.maximum(ev, 1e-6 * max(ev.max(), 1e-300))
-    return np.ascontiguousarray(((flat - mean) @ (vec / np.sqrt(ev))).reshape(h, w, d))
+def _check_mask(mask, features, image, channel_axis):
+    """Fail before the long feature scans when ``mask`` cannot fit the image."""
+    mask = np.asarray(mask, bool)
+    if features is not None:
+        shape = np.shape(features)[:2]
+    elif image is not None and image.ndim == 3 and channel_axis is not None:
+        shape = np.moveaxis(image, channel_axis, -1).shape[:2]
+    else:
+        shape = None if image is None else image.shape[:2]
+    if mask.ndim != 2 or (shape is not None and mask.shape != shape) or not mask.any():
+        raise ValueError(_MASK_ERROR)
 
 
-def _recentre(field_, direction, lag):
-    """Shift a scan's field back along the scan line by ``lag`` pixels.
-
-    The recursive estimate at ``r`` describes the pixels scanned before
-    ``r``; with forgetting ``phi`` its window trails ``r`` by
-    ``phi^2 / (1 - phi^2)`` pixels on average. Shifting by that lag centres
-    the window on ``r``, so boundaries are not displaced towards where each
-    scan goes."""
-    if lag <= 0:
-        return field_
-    g = scan_view(field_, direction)
-    g = np.concatenate([g[:, lag:], np.repeat(g[:, -1:], lag, axis=1)], axis=1)
-    return np.ascontiguousarray(unscan_view(g, direction))
-
-
-def _robust_scale(flat, clip=4.0):
-    """Columns centred on the median, scaled by the MAD and clipped: a few
-    ill-conditioned local fits must not dominate the PCA."""
-    sample = flat[:: max(1, flat.shape[0] // 20000)]
-    med = np.median(sample, axis=0)
-    mad = np.median(np.abs(sample - med), axis=0) * 1.4826
-    spread = np.where(mad > 0, mad, np.maximum(sample.std(axis=0), 1e-12))
-    out = (flat - med) / spread
-    return np.clip(out, -clip, clip, out=out)
-
-
-def local_features(
-    image,
-    *,
-    levels=3,
-    neighbourhood=2,
-    forgetting=0.99,
-    components=3,
-    smoothing=10.0,
-    mean_smoothing=None,
-    decorrelate=True,
-    centre=True,
-    clip=4.0,
-    energy=True,
-    level_smoothing="same",
-    channel_axis=-1,
-    seed=0,
-    progress=None,
-):
-    """Per-pixel texture features ``Theta_r`` of SPEC 3.4 at full resolution.
-
-    On each level of a Gaussian pyramid (colour first decorrelated by a
-    spectral Karhunen-Loeve transform), the adaptive parameters of the four
-    directional models (re-centred on the pixel, robustly standardised) are
-    each reduced by PCA to ``components`` values, stacked, smoothed
-    (Gaussian, ``smoothing`` pixels), reduced by PCA again to
-    ``components + 1`` values, and joined by the log prediction-error energy
-    of the local models and the local mean spectrum; coarse levels are
-    interpolated to full resolution. Every feature is standardised.
-
-    Returns
-    -------
-    features : (H, W, D) ndarray of float32
-    """
-    from scipy import ndimage
-    from skimage.transform import pyramid_reduce, resize
-
-    data = as_channel_last_float(image, channel_axis=channel_axis)
-    check_not_constant(data, summary=summarize(data))
-    _check_levels(data.shape, levels, neighbourhood)
-    offsets, _ = as_offsets(neighbourhood)
-    if mean_smoothing is None:
-        mean_smoothing = smoothing
-    rng = np.random.default_rng(seed)
-    h, w, d = data.shape
-    level = data
-    blocks = []
-    steps = levels * (len(DIRECTIONS) + 1)
-    done = 0
-    q = float(forgetting) ** 2
-    lag = int(round(q / (1.0 - q))) if (centre and q < 1) else 0
-    for m in range(levels):
-        if m:
-            level = pyramid_reduce(level, downscale=2, channel_axis=-1)
-        hm, wm = level.shape[:2]
-        sig = smoothing if level_smoothing == "same" else smoothing / 2**m
-        msig = mean_smoothing if level_smoothing == "same" else mean_smoothing / 2**m
-        source = _whiten_channels(level) if decorrelate else level
-        summary = summarize(source)
-        centred = np.ascontiguousarray(source - summary.mean)
-        ctx = Context.spatial(offsets, d)
-        reduced = []
-        err = np.zeros((hm, wm))
-        for direction in DIRECTIONS:
-            res = adaptive_scan(centred, ctx, summary.var, forgetting=forgetting,
-                                direction=direction, outputs=("gamma", "mean"))
-            gamma = res["gamma"].reshape(hm, wm, -1)
-            shift = min(lag, (wm if direction in ("down", "up") else hm) // 4)
-            gamma = _recentre(gamma, direction, shift)
-            if energy:
-                err2 = np.nan_to_num(((centred - res["mean"]) ** 2).sum(axis=2))
-                err += err2 / len(DIRECTIONS)
-            flat = gamma.reshape(hm * wm, -1)
-            if clip:
-                flat = _robust_scale(flat, clip)
-            mean, axes = _pca(flat, components, rng)
-            reduced.append(((flat - mean) @ axes).reshape(hm, wm, -1))
-            del gamma, flat, res
-            done += 1
-            if progress is not None:
-                progress(done / steps)
-        stacked = np.concatenate(reduced, axis=2)
-        if sig > 0:
-            stacked = ndimage.gaussian_filter(stacked, sigma=(sig, sig, 0))
-        flat = stacked.reshape(hm * wm, -1)
-        mean, axes = _pca(flat, components + 1, rng)
-        parts = [((flat - mean) @ axes).reshape(hm, wm, -1)]
-        if energy:
-            # the local models' prediction-error energy (their Sigma), log scale
-            e = ndimage.gaussian_filter(err, sig) if sig > 0 else err
-            parts.append(np.log(e + 1e-6 * float(np.mean(summary.var)))[..., None])
-        local_mean = level
-        if msig > 0:
-            local_mean = ndimage.gaussian_filter(level, sigma=(msig, msig, 0))
-        parts.append(local_mean)
-        feats = np.concatenate(parts, axis=2)
-        if m:
-            feats = resize(feats, (h, w), order=1, mode="edge", anti_aliasing=False)
-        blocks.append(feats)
-        done += 1
-        if progress is not None:
-            progress(done / steps)
-    theta = np.concatenate(blocks, axis=2)
-    theta -= theta.mean(axis=(0, 1))
-    std = theta.std(axis=(0, 1))
-    theta /= np.where(std > 0, std, 1.0)
-    return theta.astype(np.float32)
+_SEGMENT_PARAMETERS = """
+image : (H, W) or (H, W, C) array_like
+    The image, any numeric dtype. A grey image is turned into
+    pseudo-colour ``[Y, Y^0.5, Y^2]`` unless ``grey='grey'``.
+n_segments : int or None, optional
+    Labels with this many segments (at most ``n_init``); None finds the
+    number automatically (``merge_threshold``).
+levels : int, optional
+    Resolutions of the features (each halves the image).
+neighbourhood : int or (eta, 2) array_like, optional
+    Causal neighbourhood of the local models: an order or explicit
+    offsets (causal neighbourhoods, docs/model.md).
+forgetting : float, optional
+    Forgetting factor of the adaptive models, in (0, 1].
+n_init : int, optional
+    ``K_ini``: components of the initial regular block division (>= 2).
+smoothing : float, optional
+    Width (pixels) of the neighbourhood weighting in the labelling.
+threshold : float, optional
+    Pixels whose neighbourhood-weighted posterior is below this are 0;
+    in [0, 1).
+min_area : int, optional
+    Blobs smaller than this (pixels) join their neighbour (default:
+    1/2000 of the image, at least 16 pixels).
+merge_threshold : float, optional
+    Automatic stop: the largest loss of mean log-likelihood per pixel a
+    merge may cost (1.5 was best among 0.75-2.5 on 5-texture VisTex and
+    Brodatz mosaics of tuning seeds 101-102 with the default features).
+grey : {'pseudo_colour', 'grey'}, optional
+    How a grey image is segmented: as pseudo-colour, or as it is.
+mask : (H, W) array_like of bool, optional
+    Pixels to segment (the mixture is fitted on them; others are 0).
+channel_axis : int or None, optional
+    Axis of the channels; a 2-D image is grey, None forces grey.
+seed : int, optional
+    Seed of the random subsamples (PCA, EM sample).
+features : (H, W, D) array_like, optional
+    Precomputed :func:`local_features` (skips the scans: re-clustering
+    with other mixture options is then fast).
+feature_options : dict, optional
+    Extra keyword options for :func:`local_features` (``smoothing``,
+    ``components``, ``decorrelate``, ``centre``, ``clip``, ``energy``...).
+var_floor : float, optional
+    Floor of every component's variance, in units of the standardised
+    features' variance: stops EM from making narrow components that
+    split one texture (0.1 lifted ARI from 0.44 to 0.57 on VisTex
+    tuning mosaics told K = 5).
+merge_em_steps : int, optional
+    EM steps after each KL merge.
+"""
 
 
-def _check_levels(shape, levels, neighbourhood):
-    if not isinstance(levels, (int, np.integer)) or levels < 1:
-        raise ValueError(f"levels must be a positive int; got {levels!r}.")
-    offsets, _ = as_offsets(neighbourhood)
-    reach = Context.spatial(offsets, 1).reach
-    need = (2 ** (levels - 1)) * max(_MIN_LEVEL_SIDE, 4 * (1 + sum(reach[1]) + sum(reach[0])))
-    if min(shape[:2]) < need:
-        raise ValueError(
-            f"image {shape[0]}x{shape[1]} is too small for {levels} resolution "
-            f"levels: each side needs at least {need} pixels. Use fewer levels or a "
-            "larger image."
-        )
-
-
-# --- Gaussian mixture with diagonal covariances -----------------------------
-
-
-def _log_densities(X, mix):
-    """log(w_j N(x | mu_j, diag var_j)) for every row x and component j."""
-    inv = 1.0 / mix.variances  # (K, D)
-    const = -0.5 * (np.log(2 * np.pi * mix.variances).sum(axis=1)) + np.log(mix.weights)
-    quad = (X**2) @ inv.T - 2.0 * X @ (mix.means * inv).T + ((mix.means**2) * inv).sum(axis=1)
-    return const - 0.5 * quad
-
-
-def _posteriors(X, mix):
-    logd = _log_densities(X, mix)
-    top = logd.max(axis=1, keepdims=True)
-    dens = np.exp(logd - top)
-    total = dens.sum(axis=1, keepdims=True)
-    loglik = float(np.mean(np.log(total[:, 0]) + top[:, 0]))
-    return dens / total, loglik
-
-
-def _em_steps(X, mix, steps, var_floor):
-    for _ in range(steps):
-        post, loglik = _posteriors(X, mix)
-        nk = post.sum(axis=0) + 1e-12
-        mix.weights = nk / nk.sum()
-        mix.means = (post.T @ X) / nk[:, None]
-        mix.variances = np.maximum((post.T @ X**2) / nk[:, None] - mix.means**2, var_floor)
-        mix.loglik = loglik
-    _, mix.loglik = _posteriors(X, mix)
-    return mix
-
-
-def _block_init(features, n_init, var_floor):
-    """Components from a regular division of the image into ~n_init blocks."""
-    h, w, D = features.shape
-    rows = max(1, int(round(np.sqrt(n_init * h / w))))
-    cols = max(1, int(round(n_init / rows)))
-    means, variances = [], []
-    for bi in np.array_split(np.arange(h), rows):
-        for bj in np.array_split(np.arange(w), cols):
-            block = features[bi[0] : bi[-1] + 1, bj[0] : bj[-1] + 1].reshape(-1, D)
-            means.append(block.mean(axis=0))
-            variances.append(np.maximum(block.var(axis=0), var_floor))
-    k = len(means)
-    return Mixture(np.full(k, 1.0 / k), np.array(means), np.array(variances), np.arange(1, k + 1))
-
-
-def _kl_matrix(mix):
-    """Symmetric KL divergence between every pair of diagonal Gaussians."""
-    m, v = mix.means, mix.variances
-    diff2 = (m[:, None, :] - m[None, :, :]) ** 2
-    ratio = v[:, None, :] / v[None, :, :]
-    kl = 0.5 * (ratio + diff2 / v[None, :, :] - 1.0 - np.log(ratio)).sum(axis=2)
-    sym = kl + kl.T
-    np.fill_diagonal(sym, np.inf)
-    return sym
-
-
-def _merge(mix, i, j):
-    """Merge the weaker of (i, j) into the stronger by moment matching."""
-    if mix.weights[i] < mix.weights[j]:
-        i, j = j, i
-    wi, wj = mix.weights[i], mix.weights[j]
-    w = wi + wj
-    mean = (wi * mix.means[i] + wj * mix.means[j]) / w
-    var = (wi * (mix.variances[i] + mix.means[i] ** 2)
-           + wj * (mix.variances[j] + mix.means[j] ** 2)) / w - mean**2
-    mix.weights[i], mix.means[i], mix.variances[i] = w, mean, var
-    keep = np.arange(mix.k) != j
-    return Mixture(mix.weights[keep], mix.means[keep], mix.variances[keep], mix.ids[keep])
-
-
-def label_pixels(features, mix, *, smoothing=2.0, threshold=0.0, min_area=0):
-    """Neighbourhood-weighted labelling (SPEC 3.7) and small-blob clean-up (3.8).
-
-    The posterior of every component is averaged over a Gaussian window
-    (``smoothing`` pixels: the distance-weighted neighbourhood ``I_r``), each
-    pixel takes the best component (labels are the component ids, 1..), a
-    pixel whose best averaged posterior is below ``threshold`` is 0, and
-    blobs smaller than ``min_area`` pixels join the nearest larger segment.
-    """
-    from scipy import ndimage
-
-    h, w, D = features.shape
-    post, _ = _posteriors(features.reshape(-1, D).astype(np.float64), mix)
-    post = post.reshape(h, w, mix.k)
-    if smoothing > 0:
-        post = ndimage.gaussian_filter(post, sigma=(smoothing, smoothing, 0))
-    best = post.argmax(axis=2)
-    prob = np.take_along_axis(post, best[..., None], axis=2)[..., 0]
-    labels = mix.ids[best].astype(np.int32)
-    if min_area > 0:
-        labels = _absorb_small_blobs(labels, min_area)
-    if threshold > 0:
-        labels[prob < threshold] = 0
-    return labels, prob
-
-
-def _absorb_small_blobs(labels, min_area):
-    from skimage.measure import label as connected
-    from skimage.segmentation import expand_labels
-
-    regions = connected(labels, connectivity=1, background=-1)
-    sizes = np.bincount(regions.ravel())
-    small = sizes[regions] < min_area
-    if not small.any() or small.all():
-        return labels
-    out = labels.copy()
-    out[small] = 0
-    return expand_labels(out, distance=max(labels.shape))
-
-
+@shared_parameters(_SEGMENT_PARAMETERS)
 def iter_segment(
     image,
     *,
@@ -431,73 +254,85 @@ def iter_segment(
     var_floor=0.1,
     merge_em_steps=3,
 ):
-    """Segment a texture image, yielding progress and intermediate states.
+    """Segment a texture image as a job: yield progress and live labels, return the result.
 
-    Yields :class:`SegmentationState` objects (stage 'features', 'initialised',
-    'merged') and finally a :class:`SegmentationResult`. See :func:`segment`
-    for the parameters.
+    See :func:`segment` for what is computed.
+
+    Parameters
+    ----------
+    {parameters}
+
+    Returns
+    -------
+    SegmentationResult
+        What :func:`segment` returns (the generator's return value).
+
+    Yields
+    ------
+    Progress
+        Stage "features" (the local features), then "mixture" (after the
+        initial EM) and "merging" (after every merge); those have the
+        message ``"K = n"`` and preview the (H, W) int labels of that mixture.
+
+    Raises
+    ------
+    ValueError
+        If an option is out of range, the image is constant, has NaN or
+        infinite values or is too small for ``levels``, or ``mask`` does not
+        match the image or selects nothing.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from car_napari.segmentation import iter_segment
+    >>> image = np.random.default_rng(0).random((32, 32))
+    >>> [r.message for r in iter_segment(image, levels=1, n_init=4) if r.preview is not None]
+    ['K = 4', 'K = 3', 'K = 2', 'K = 1']
     """
-    if n_segments is not None and (not isinstance(n_segments, (int, np.integer))
-                                   or n_segments < 1):
-        raise ValueError(f"n_segments must be a positive int or None; got {n_segments!r}.")
-    if not isinstance(n_init, (int, np.integer)) or n_init < 2:
-        raise ValueError(f"n_init must be an int >= 2; got {n_init!r}.")
-    if n_segments is not None and n_segments > n_init:
-        raise ValueError(f"n_segments ({n_segments}) must not exceed n_init ({n_init}).")
-    if not 0.0 <= threshold < 1.0:
-        raise ValueError(f"threshold must be in [0, 1); got {threshold}.")
+    _check_options(n_segments, n_init, threshold, grey)
     arr = np.asarray(image) if image is not None else None
-    if arr is not None and arr.ndim == 2 or channel_axis is None:
-        if grey == "pseudo_colour":
-            data = as_channel_last_float(image, channel_axis=None)
-            check_not_constant(data)
-            image, channel_axis = pseudo_colour(data[..., 0]), -1
-        elif grey != "grey":
-            raise ValueError(f"grey must be 'pseudo_colour' or 'grey'; got {grey!r}.")
-    yield SegmentationState("features", 0.0, None, 0)
+    if mask is not None:
+        _check_mask(mask, features, arr, channel_axis)
+    if (arr is not None and arr.ndim == 2 or channel_axis is None) and grey == "pseudo_colour":
+        data = as_channel_last_float(image, channel_axis=None)
+        check_not_constant(data)
+        image, channel_axis = pseudo_colour(data[..., 0]), -1
     if features is None:
-        features = local_features(
+        features = yield from stage(iter_local_features(
             image, levels=levels, neighbourhood=neighbourhood, forgetting=forgetting,
             channel_axis=channel_axis, seed=seed, **(feature_options or {}),
-        )
+        ), 0.0, _FEATURES_END)
     else:
         features = np.asarray(features, dtype=np.float32)
+        yield Progress("features", _FEATURES_END, "features given")
     h, w, D = features.shape
     if min_area is None:
         min_area = max(16, (h * w) // 2000)
-    yield SegmentationState("features", 0.3, None, 0)
 
     rng = np.random.default_rng(seed)
     flat = features.reshape(-1, D).astype(np.float64)
     sel = np.ones(h * w, bool) if mask is None else np.asarray(mask, bool).ravel()
     if mask is not None and (sel.size != h * w or not sel.any()):
-        raise ValueError("mask must be (H, W) like the image and select at least one pixel.")
+        raise ValueError(_MASK_ERROR)
     idx = np.flatnonzero(sel)
-    sample = flat[rng.choice(idx, size=min(idx.size, 40000), replace=False)]
-    mix = _block_init(features, n_init, var_floor)
-    mix = _em_steps(sample, mix, 10, var_floor)
+    sample = flat[rng.choice(idx, size=min(idx.size, _EM_SAMPLE), replace=False)]
+    mix = _em_steps(sample, _block_init(features, n_init, var_floor), _INIT_EM_STEPS, var_floor)
     history = [mix.copy()]
     labels, _ = label_pixels(features, mix, smoothing=smoothing, min_area=0)
-    yield SegmentationState("initialised", 0.35, labels, mix.k)
+    yield Progress("mixture", _INIT_END, f"K = {mix.k}", labels)
 
     k_ini = mix.k
     while mix.k > 1:
-        mix = _em_steps(sample, mix, 2, var_floor)
-        weak = mix.weights < 0.01 / k_ini
-        if weak.any() and not weak.all():
-            mix = Mixture(mix.weights[~weak] / mix.weights[~weak].sum(), mix.means[~weak],
-                          mix.variances[~weak], mix.ids[~weak])
+        mix = _drop_weak(_em_steps(sample, mix, _PRE_MERGE_EM_STEPS, var_floor), 0.01 / k_ini)
         if mix.k == 1:
             break
-        kl = _kl_matrix(mix)
-        i, j = np.unravel_index(np.argmin(kl), kl.shape)
-        kl_value = float(kl[i, j])
-        mix = _merge(mix, i, j)
+        mix, _ = _merge_closest(mix)
         mix = _em_steps(sample, mix, merge_em_steps, var_floor)
         history.append(mix.copy())
         labels, _ = label_pixels(features, mix, smoothing=smoothing, min_area=0)
-        yield SegmentationState("merged", 0.35 + 0.6 * (1 - (mix.k - 1) / max(k_ini - 1, 1)),
-                                labels, mix.k, kl_value)
+        done = 1 - (mix.k - 1) / max(k_ini - 1, 1)
+        yield Progress("merging", _INIT_END + (_MERGES_END - _INIT_END) * done,
+                       f"K = {mix.k}", labels)
 
     if n_segments is None:
         n_segments = _choose_k(history, merge_threshold)
@@ -506,85 +341,77 @@ def iter_segment(
         features=features, smoothing=smoothing, min_area=min_area, threshold=threshold,
         mask=None if mask is None else np.asarray(mask, bool),
     )
-    mix = result.mixture_at(n_segments)
-    labels, prob = label_pixels(features, mix, smoothing=smoothing, threshold=threshold,
-                                min_area=min_area)
+    labels, prob = label_pixels(features, result.mixture_at(n_segments), smoothing=smoothing,
+                                threshold=threshold, min_area=min_area)
     if mask is not None:
-        labels[~np.asarray(mask, bool)] = 0
+        labels[~result.mask] = 0
     result.labels, result.probability = _renumber(labels), prob
     result.n_segments = int(result.labels.max())
-    yield result
+    return result
 
 
-def _renumber(labels):
-    """Labels 1..K (in order of the old values), 0 kept."""
-    values, inverse = np.unique(labels, return_inverse=True)
-    new = np.arange(values.size) + (0 if values[0] == 0 else 1)
-    return new[inverse].reshape(labels.shape).astype(labels.dtype)
+@shared_parameters(_SEGMENT_PARAMETERS)
+def segment(
+    image,
+    *,
+    n_segments=None,
+    levels=3,
+    neighbourhood=2,
+    forgetting=0.99,
+    n_init=16,
+    smoothing=2.0,
+    threshold=0.0,
+    min_area=None,
+    merge_threshold=1.5,
+    grey="pseudo_colour",
+    mask=None,
+    channel_axis=-1,
+    seed=0,
+    features=None,
+    feature_options=None,
+    var_floor=0.1,
+    merge_em_steps=3,
+):
+    """Unsupervised texture segmentation of an image.
 
-
-def _choose_k(history, threshold):
-    """Automatic number of segments: keep merging while a merge costs less
-    than ``threshold`` nats of mean log-likelihood per pixel (SPEC 3.6's
-    likelihood-gain stop); the first costlier merge stops it."""
-    for prev, nxt in zip(history, history[1:]):
-        if prev.loglik - nxt.loglik > threshold:
-            return prev.k
-    return history[-1].k
-
-
-def segment(image, **kwargs):
-    """Unsupervised texture segmentation (SPEC section 3).
+    Multiresolution local CAR features (:func:`local_features`), a Gaussian
+    mixture with diagonal covariances fitted by EM from a regular division
+    of the image into ``n_init`` blocks, Kullback-Leibler merging down to
+    one component, and the neighbourhood-weighted labelling with
+    ``n_segments`` segments (found automatically unless given); section
+    14.4, docs/segmentation.md.
 
     Parameters
     ----------
-    image : (H, W) or (H, W, C) array
-        Grey images are turned into pseudo-colour ``[Y, Y^0.5, Y^2]`` unless
-        ``grey='grey'``.
-    n_segments : int or None, optional
-        Stop merging at this many segments; None finds it automatically.
-    levels : int, optional
-        Resolutions (each halves the image).
-    neighbourhood : int or (eta, 2) array, optional
-    forgetting : float, optional
-        Forgetting factor of the adaptive models.
-    n_init : int, optional
-        ``K_ini``: components of the initial regular block division.
-    smoothing : float, optional
-        Width (pixels) of the neighbourhood weighting in the labelling.
-    threshold : float, optional
-        Pixels whose neighbourhood-weighted posterior is below this are 0.
-    min_area : int, optional
-        Blobs smaller than this join their neighbour (default: 1/2000 of
-        the image, at least 16 pixels).
-    merge_threshold : float, optional
-        Automatic stop: the largest loss of mean log-likelihood per pixel a
-        merge may cost (1.5 was best among 0.75-2.5 on 5-texture VisTex and
-        Brodatz mosaics of tuning seeds 101-102 with the default features).
-    mask : (H, W) bool array, optional
-        Pixels to segment (the mixture is fitted on them; others are 0).
-    channel_axis : int or None, optional
-    seed : int, optional
-    features : (H, W, D) array, optional
-        Precomputed :func:`local_features` (skips the scans: re-clustering
-        with other mixture options is then fast).
-    feature_options : dict, optional
-        Extra keyword options for :func:`local_features` (``smoothing``,
-        ``components``, ``decorrelate``, ``centre``, ``clip``, ``energy``...).
-    var_floor : float, optional
-        Floor of every component's variance, in units of the standardised
-        features' variance: stops EM from making narrow components that
-        split one texture (0.1 lifted ARI from 0.44 to 0.57 on VisTex
-        tuning mosaics told K = 5).
-    merge_em_steps : int, optional
-        EM steps after each KL merge.
+    {parameters}
 
     Returns
     -------
     SegmentationResult
-        ``.labels`` (H, W) int, 0 = unclassified, and ``.labels_at(k)``.
+        ``.labels`` (H, W) int, 0 = unclassified; ``.labels_at(k)`` re-cuts
+        the merge history for another number of segments.
+
+    Raises
+    ------
+    ValueError
+        If an option is out of range, the image is constant, has NaN or
+        infinite values or is too small for ``levels``, or ``mask`` does not
+        match the image or selects nothing.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from car_napari.segmentation import segment
+    >>> image = np.random.default_rng(0).random((32, 32))
+    >>> image[:, :16] *= 0.1  # a dark left half
+    >>> result = segment(image, levels=1, n_segments=2, n_init=4)
+    >>> result.labels.shape
+    (32, 32)
     """
-    result = None
-    for result in iter_segment(image, **kwargs):
-        pass
-    return result
+    return drain(iter_segment(
+        image, n_segments=n_segments, levels=levels, neighbourhood=neighbourhood,
+        forgetting=forgetting, n_init=n_init, smoothing=smoothing, threshold=threshold,
+        min_area=min_area, merge_threshold=merge_threshold, grey=grey, mask=mask,
+        channel_axis=channel_axis, seed=seed, features=features,
+        feature_options=feature_options, var_floor=var_floor, merge_em_steps=merge_em_steps,
+    ))

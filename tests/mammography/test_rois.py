@@ -1,4 +1,5 @@
-"""Mammograms: breast area, regions of interest (SPEC 3.1), DICOM reading."""
+"""Mammograms: breast area, regions of interest (section 14.4.1,
+docs/mammography.md), DICOM reading."""
 
 import sys
 
@@ -6,9 +7,11 @@ import numpy as np
 import pytest
 from skimage import io
 
+from car_napari import Progress
 from car_napari import mammography as mm
-from car_napari.mammography import detect_breast, detect_mammogram_rois
+from car_napari._progress import drain
 from car_napari.io.sample_data import resource_path
+from car_napari.mammography import detect_breast, detect_mammogram_rois
 from dicom_files import write_dicom as _write_dicom
 
 # mdb001's ground-truth mass (mini-MIAS): centre (col 535, row 599), radius 197
@@ -24,8 +27,11 @@ def sample():
 def rois(sample):
     """ROIs of the sample downsampled by 2 (512x512): one run for the tests."""
     half = sample.reshape(512, 2, 512, 2).mean(axis=(1, 3)).astype(np.uint8)
-    *progress, (labels, table) = mm.iter_detect_mammogram_rois(half)
-    return half, labels, table, progress
+    records = []
+    result = drain(mm.iter_detect_mammogram_rois(half), records.append)
+    assert isinstance(result, mm.MammogramROIs)
+    labels, table = result
+    return half, labels, table, records
 
 
 # --- breast area ---------------------------------------------------------------
@@ -119,8 +125,9 @@ def test_filter_regions_on_a_synthetic_segmentation():
     segments = np.ones((200, 200), np.int32)
     image[50:90, 50:90], segments[50:90, 50:90] = 0.66, 2  # a bright "mass"
     image[120:160, 120:160], segments[120:160, 120:160] = 0.95, 3  # too bright
-    labels, table = mm.filter_regions(image, segments, reference=0.66, tolerance=0.1,
-                                      max_regions=None)
+    rois = mm.filter_regions(image, segments, reference=0.66, tolerance=0.1, max_regions=None)
+    assert isinstance(rois, mm.MammogramROIs)
+    labels, table = rois
     # the one-pixel opening of the candidates takes the block's 4 corners
     assert labels.max() == 1 and table["area"].tolist() == [1596]
     assert table["centroid_row"][0] == pytest.approx(69.5)
@@ -133,10 +140,46 @@ def test_filter_regions_on_a_synthetic_segmentation():
         mm.filter_regions(image, segments, tolerance=0)
 
 
-def test_iter_yields_progress_then_result(rois):
-    progress = rois[3]
-    assert all(isinstance(p, float) for p in progress) and len(progress) > 3
-    assert progress == sorted(progress) and progress[-1] == 1.0
+def test_iter_yields_progress_then_returns_the_rois(rois):
+    half, labels, _, records = rois
+    assert all(isinstance(r, Progress) for r in records) and len(records) > 3
+    fractions = [r.fraction for r in records]
+    assert fractions == sorted(fractions) and fractions[-1] == 1.0
+    stages = [r.stage for r in records]
+    assert stages[0] == "breast" and stages[-1] == "regions"
+    assert {"features", "mixture", "merging"} <= set(stages)
+    assert records[-1].message == f"{labels.max()} regions"
+
+
+def test_closing_the_job_early_stops_it(sample):
+    job = mm.iter_detect_mammogram_rois(sample)
+    assert next(job).stage == "breast"
+    job.close()
+    assert list(job) == []
+
+
+def test_colour_export_is_read_as_its_luminance(sample):
+    rgb = np.stack([sample] * 3, axis=-1)
+    np.testing.assert_array_equal(detect_breast(rgb), detect_breast(sample))
+    np.testing.assert_array_equal(detect_breast(np.moveaxis(rgb, -1, 0), channel_axis=0),
+                                  detect_breast(sample))
+    with pytest.raises(ValueError, match="3-D"):
+        detect_breast(rgb, channel_axis=None)
+    with pytest.raises(ValueError, match="2 channels"):
+        detect_breast(rgb[..., :2])
+
+
+def test_segment_breast_pools_one_history(sample):
+    small = sample[::8, ::8]
+    records = []
+    seg = drain(mm.iter_segment_breast(small, levels=1, n_init=8, pool=(2, 4)), records.append)
+    assert isinstance(seg, mm.BreastSegmentation) and seg.factor == 1
+    assert records[0].stage == "breast" and records[-1].fraction <= 1.0
+    np.testing.assert_array_equal(seg.breast, detect_breast(small))
+    assert not seg.segments[~seg.breast].any() and seg.segments[seg.breast].min() >= 1
+    assert [len(np.unique(p[seg.breast])) for p in seg.pooled] == [2, 4]
+    again = mm.segment_breast(small, levels=1, n_init=8, n_segments=3)
+    assert again.pooled is None and again.segments.max() <= 3
 
 
 # --- DICOM ----------------------------------------------------------------------

@@ -1,10 +1,23 @@
-"""Texture segmentation core (SPEC 3): generator, merge history, bad input."""
+"""Texture segmentation core (section 14.4, docs/segmentation.md): the job,
+the merge history, bad input."""
+
+import inspect
+import time
 
 import numpy as np
 import pytest
 from skimage import data as skdata
 
-from car_napari.segmentation import SegmentationResult, SegmentationState, iter_segment, segment
+from car_napari import Progress
+from car_napari._progress import drain
+from car_napari.segmentation import (
+    Mixture,
+    SegmentationResult,
+    iter_local_features,
+    iter_segment,
+    local_features,
+    segment,
+)
 
 
 def _two_textures():
@@ -31,20 +44,75 @@ def test_two_textures_are_separated():
     assert _matched_accuracy(truth, result.labels) > 0.85
 
 
-def test_generator_yields_live_states_then_result():
-    image, _ = _two_textures()
-    items = list(iter_segment(image, levels=2, n_init=8))
-    states, result = items[:-1], items[-1]
+def test_job_yields_progress_with_label_previews_and_returns_the_result():
+    image, truth = _two_textures()
+    records = []
+    result = drain(iter_segment(image, levels=2, n_init=8), records.append)
     assert isinstance(result, SegmentationResult)
-    assert all(isinstance(s, SegmentationState) for s in states)
-    shown = [s for s in states if s.labels is not None]
-    assert len(shown) >= 3
-    ks = [s.n_components for s in shown]
-    assert ks == sorted(ks, reverse=True) and ks[-1] < ks[0]
-    fractions = [s.fraction for s in states]
-    assert fractions == sorted(fractions)
-    merged = [s for s in states if s.stage == "merged"]
-    assert all(s.kl is not None and s.kl >= 0 for s in merged)
+    assert all(isinstance(r, Progress) for r in records)
+    fractions = [r.fraction for r in records]
+    assert fractions == sorted(fractions) and 0.0 <= fractions[0] and fractions[-1] <= 1.0
+    assert records[0].stage == "features" and records[0].preview is None
+    shown = [r for r in records if r.preview is not None]
+    assert [r.stage for r in shown] == ["mixture"] + ["merging"] * (len(shown) - 1)
+    # one preview after the initialisation and one after every merge, K falling to 1
+    ks = [int(r.message.removeprefix("K = ")) for r in shown]
+    assert ks[0] == result.history[0].k and ks[-1] == 1 == result.history[-1].k
+    assert ks == sorted(ks, reverse=True) and len(shown) == len(result.history)
+    for r, mix in zip(shown, result.history, strict=True):
+        assert r.preview.shape == truth.shape and r.preview.dtype.kind == "i"
+        assert set(np.unique(r.preview)) <= set(mix.ids.tolist())
+    # the job returns exactly what segment returns
+    again = segment(image, levels=2, n_init=8)
+    np.testing.assert_array_equal(again.labels, result.labels)
+    assert again.n_segments == result.n_segments
+
+
+def test_closing_the_job_early_stops_it():
+    image, _ = _two_textures()
+    job = iter_segment(image, levels=2, n_init=8)
+    first = next(job)
+    assert first.stage == "features" and first.fraction == 0.0
+    t0 = time.perf_counter()
+    job.close()
+    assert time.perf_counter() - t0 < 0.5
+    with pytest.raises(StopIteration):
+        next(job)
+    # closed during the merges too: no result, nothing more yielded
+    job = iter_segment(image, levels=2, n_init=8)
+    for record in job:
+        if record.stage == "merging":
+            break
+    job.close()
+    assert list(job) == []
+
+
+def test_iter_local_features_yields_per_scan_and_level():
+    image, _ = _two_textures()
+    records = []
+    features = drain(iter_local_features(image, levels=2), records.append)
+    assert len(records) == 1 + 2 * (4 + 1)
+    assert [r.fraction for r in records] == sorted(r.fraction for r in records)
+    assert records[-1].fraction == 1.0 and all(r.stage == "features" for r in records)
+    np.testing.assert_array_equal(features, local_features(image, levels=2))
+    assert features.dtype == np.float32 and features.shape[:2] == image.shape
+
+
+def test_segment_lists_its_options_like_iter_segment():
+    params = inspect.signature(segment).parameters
+    assert list(params) == list(inspect.signature(iter_segment).parameters)
+    kinds = {p.kind for name, p in params.items() if name != "image"}
+    assert kinds == {inspect.Parameter.KEYWORD_ONLY}
+    assert params["channel_axis"].default == -1
+    for name in params:
+        assert f"{name} :" in segment.__doc__ and f"{name} :" in iter_segment.__doc__
+
+
+def test_history_is_mixtures():
+    image, _ = _two_textures()
+    result = segment(image, n_segments=2, levels=2, n_init=8)
+    assert all(isinstance(m, Mixture) for m in result.history)
+    assert all(np.isclose(m.weights.sum(), 1.0) for m in result.history)
 
 
 def test_labels_at_recuts_the_history():
@@ -80,6 +148,23 @@ def test_bad_input(image, match):
         segment(image, levels=3)
 
 
+@pytest.mark.parametrize(
+    "options, match",
+    [
+        ({"mask": np.zeros((128, 128), bool)}, "mask"),
+        ({"mask": np.ones((64, 128), bool)}, "mask"),
+        ({"grey": "gray"}, "grey must be"),
+        ({"n_segments": 9, "n_init": 8}, "must not exceed"),
+        ({"threshold": 1.0}, "threshold"),
+    ],
+)
+def test_bad_options_fail_before_the_features(options, match):
+    image, _ = _two_textures()
+    job = iter_segment(image, levels=2, **options)
+    with pytest.raises(ValueError, match=match):
+        next(job)
+
+
 def test_n_segments_stops_at_k_and_features_can_be_reused():
     image, _ = _two_textures()
     result = segment(image, n_segments=3, levels=2, n_init=8)
@@ -89,8 +174,6 @@ def test_n_segments_stops_at_k_and_features_can_be_reused():
 
 
 def test_labels_at_is_fast():
-    import time
-
     image, _ = _two_textures()
     result = segment(image, levels=2, n_init=8)
     t0 = time.perf_counter()

@@ -1,0 +1,180 @@
+"""Gaussian mixture with diagonal covariances ((14.34)-(14.35)), its EM fit and
+Kullback-Leibler merging ((14.36)), section 14.4, docs/segmentation.md."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from itertools import pairwise
+
+import numpy as np
+
+__all__ = ["Mixture"]
+
+
+@dataclass
+class Mixture:
+    """Gaussian mixture with diagonal covariances, one state of a merge history.
+
+    ``ids`` name the components stably across merges: a merged component
+    keeps its stronger partner's id, so labels of one history agree.
+
+    Parameters
+    ----------
+    weights : (K,) ndarray
+        Component weights (they sum to 1).
+    means : (K, D) ndarray
+        Component means.
+    variances : (K, D) ndarray
+        Diagonal covariances.
+    ids : (K,) ndarray of int
+        Stable component ids, 1.. (the labels of the segmentation).
+    loglik : float, optional
+        Mean log-likelihood per sample of the data the mixture was fitted to.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from car_napari.segmentation import Mixture
+    >>> mix = Mixture(np.array([0.5, 0.5]), np.zeros((2, 3)), np.ones((2, 3)),
+    ...               np.array([1, 2]))
+    >>> mix.k
+    2
+    """
+
+    weights: np.ndarray
+    means: np.ndarray
+    variances: np.ndarray
+    ids: np.ndarray
+    loglik: float = np.nan
+
+    def copy(self):
+        """Return an independent copy (the arrays are copied).
+
+        Returns
+        -------
+        Mixture
+            A mixture equal to this one that shares no array with it.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from car_napari.segmentation import Mixture
+        >>> mix = Mixture(np.ones(1), np.zeros((1, 2)), np.ones((1, 2)), np.array([1]))
+        >>> mix.copy().means is mix.means
+        False
+        """
+        return Mixture(self.weights.copy(), self.means.copy(), self.variances.copy(),
+                       self.ids.copy(), self.loglik)
+
+    @property
+    def k(self):
+        """Number of components ``K`` (an int).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from car_napari.segmentation import Mixture
+        >>> Mixture(np.ones(1), np.zeros((1, 2)), np.ones((1, 2)), np.array([1])).k
+        1
+        """
+        return self.weights.size
+
+
+def _log_densities(X, mix):
+    """log(w_j N(x | mu_j, diag var_j)) for every row x and component j."""
+    inv = 1.0 / mix.variances  # (K, D)
+    const = -0.5 * (np.log(2 * np.pi * mix.variances).sum(axis=1)) + np.log(mix.weights)
+    quad = (X**2) @ inv.T - 2.0 * X @ (mix.means * inv).T + ((mix.means**2) * inv).sum(axis=1)
+    return const - 0.5 * quad
+
+
+def _posteriors(X, mix):
+    """Posterior of every component for every row of X, and the mean log-likelihood."""
+    logd = _log_densities(X, mix)
+    top = logd.max(axis=1, keepdims=True)
+    dens = np.exp(logd - top)
+    total = dens.sum(axis=1, keepdims=True)
+    loglik = float(np.mean(np.log(total[:, 0]) + top[:, 0]))
+    return dens / total, loglik
+
+
+def _em_steps(X, mix, steps, var_floor):
+    """``steps`` EM iterations on the rows of X, in place; ``mix.loglik`` updated."""
+    for _ in range(steps):
+        post, loglik = _posteriors(X, mix)
+        nk = post.sum(axis=0) + 1e-12
+        mix.weights = nk / nk.sum()
+        mix.means = (post.T @ X) / nk[:, None]
+        mix.variances = np.maximum((post.T @ X**2) / nk[:, None] - mix.means**2, var_floor)
+        mix.loglik = loglik
+    _, mix.loglik = _posteriors(X, mix)
+    return mix
+
+
+def _block_init(features, n_init, var_floor):
+    """Components from a regular division of the image into ~n_init blocks."""
+    h, w, D = features.shape
+    rows = max(1, int(round(np.sqrt(n_init * h / w))))
+    cols = max(1, int(round(n_init / rows)))
+    means, variances = [], []
+    for bi in np.array_split(np.arange(h), rows):
+        for bj in np.array_split(np.arange(w), cols):
+            block = features[bi[0] : bi[-1] + 1, bj[0] : bj[-1] + 1].reshape(-1, D)
+            means.append(block.mean(axis=0))
+            variances.append(np.maximum(block.var(axis=0), var_floor))
+    k = len(means)
+    return Mixture(np.full(k, 1.0 / k), np.array(means), np.array(variances), np.arange(1, k + 1))
+
+
+def _drop_weak(mix, min_weight):
+    """The mixture without components lighter than ``min_weight`` (unless all are)."""
+    weak = mix.weights < min_weight
+    if not weak.any() or weak.all():
+        return mix
+    keep = ~weak
+    return Mixture(mix.weights[keep] / mix.weights[keep].sum(), mix.means[keep],
+                   mix.variances[keep], mix.ids[keep])
+
+
+def _kl_matrix(mix):
+    """Symmetric KL divergence between every pair of diagonal Gaussians."""
+    m, v = mix.means, mix.variances
+    diff2 = (m[:, None, :] - m[None, :, :]) ** 2
+    ratio = v[:, None, :] / v[None, :, :]
+    kl = 0.5 * (ratio + diff2 / v[None, :, :] - 1.0 - np.log(ratio)).sum(axis=2)
+    sym = kl + kl.T
+    np.fill_diagonal(sym, np.inf)
+    return sym
+
+
+def _merge(mix, i, j):
+    """Merge the weaker of (i, j) into the stronger by moment matching."""
+    if mix.weights[i] < mix.weights[j]:
+        i, j = j, i
+    wi, wj = mix.weights[i], mix.weights[j]
+    w = wi + wj
+    mean = (wi * mix.means[i] + wj * mix.means[j]) / w
+    var = (wi * (mix.variances[i] + mix.means[i] ** 2)
+           + wj * (mix.variances[j] + mix.means[j] ** 2)) / w - mean**2
+    mix.weights[i], mix.means[i], mix.variances[i] = w, mean, var
+    keep = np.arange(mix.k) != j
+    return Mixture(mix.weights[keep], mix.means[keep], mix.variances[keep], mix.ids[keep])
+
+
+def _merge_closest(mix):
+    """Merge the pair with the smallest symmetric KL divergence ((14.36));
+    return the new mixture and that divergence."""
+    kl = _kl_matrix(mix)
+    i, j = np.unravel_index(np.argmin(kl), kl.shape)
+    return _merge(mix, i, j), float(kl[i, j])
+
+
+def _choose_k(history, threshold):
+    """Automatic number of segments: keep merging while a merge costs less
+    than ``threshold`` nats of mean log-likelihood per pixel (the
+    likelihood-gain stop of the KL merging, section 14.4,
+    docs/segmentation.md); the first costlier merge stops it."""
+    for prev, nxt in pairwise(history):
+        if prev.loglik - nxt.loglik > threshold:
+            return prev.k
+    return history[-1].k
