@@ -1,16 +1,19 @@
 """Film scratch and blotch restoration: detection and filling from the
-directional CAR models (chapter 14.6)."""
+directional CAR models (section 14.7, docs/inpainting.md).
 
-from ._inpaint import (
-    detect_scratches,
-    inpaint,
-    InpaintState,
-    iter_inpaint,
-)
+A frame or a clip is read by one rule, with the default ``channel_axis=-1``:
+``(H, W)`` is a grey frame; a 3-D array is a colour frame ``(H, W, C)`` when
+its channel axis has at most 4 entries and a grey clip ``(T, H, W)``
+otherwise; a 4-D array is a colour clip ``(T, H, W, C)``. ``channel_axis=None``
+forces grey.
+"""
+
+from ._detection import detect_scratches, iter_detect_scratches
+from ._filling import inpaint, iter_inpaint
 
 __all__ = [
-    "InpaintState",
     "detect_scratches",
     "inpaint",
+    "iter_detect_scratches",
     "iter_inpaint",
 ]

@@ -1,4 +1,5 @@
-"""The four scan directions: views in which each scan is the plain raster."""
+"""The four scan directions: views in which each scan is the plain raster
+(causal neighbourhoods, docs/model.md)."""
 
 from __future__ import annotations
 
@@ -8,13 +9,56 @@ DIRECTIONS = ("down", "up", "right", "left")
 
 
 def scan_shape(shape, direction):
-    """(rows, columns) of the image as the scan sees it."""
+    """(rows, columns) of the image as the scan sees it.
+
+    Parameters
+    ----------
+    shape : tuple of int
+        The image's shape, (H, W, ...).
+    direction : {'down', 'up', 'right', 'left'}
+        The scan direction.
+
+    Returns
+    -------
+    tuple of 2 ints
+        ``(W, H)`` for the column scans 'right' and 'left', else ``(H, W)``.
+
+    Examples
+    --------
+    >>> scan_shape((4, 7, 3), "right")
+    (7, 4)
+    """
     h, w = shape[:2]
     return (w, h) if direction in ("right", "left") else (h, w)
 
 
 def scan_view(image, direction):
-    """A view of ``image`` (H, W, ...) in which the scan is the plain raster."""
+    """A view of ``image`` in which the scan is the plain raster.
+
+    Parameters
+    ----------
+    image : (H, W, ...) ndarray
+        The image.
+    direction : {'down', 'up', 'right', 'left'}
+        The scan direction.
+
+    Returns
+    -------
+    ndarray
+        A view (no copy): flipped for 'up', transposed for 'right',
+        transposed and flipped for 'left'.
+
+    Raises
+    ------
+    ValueError
+        If ``direction`` is not one of the four.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> scan_view(np.arange(6).reshape(2, 3), "left").tolist()
+    [[2, 5], [1, 4], [0, 3]]
+    """
     if direction == "down":
         return image
     if direction == "up":
@@ -27,7 +71,32 @@ def scan_view(image, direction):
 
 
 def unscan_view(field, direction):
-    """The inverse of :func:`scan_view`: the image whose scan reads ``field``."""
+    """The inverse of :func:`scan_view`: the image whose scan reads ``field``.
+
+    Parameters
+    ----------
+    field : ndarray
+        An array in scan order, (rows, columns, ...) as the scan sees them.
+    direction : {'down', 'up', 'right', 'left'}
+        The scan direction.
+
+    Returns
+    -------
+    ndarray
+        A view in image geometry.
+
+    Raises
+    ------
+    ValueError
+        If ``direction`` is not one of the four.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> image = np.arange(6).reshape(2, 3)
+    >>> bool(np.array_equal(unscan_view(scan_view(image, "left"), "left"), image))
+    True
+    """
     if direction == "down":
         return field
     if direction == "up":

@@ -1,23 +1,28 @@
 """Whole-image Bayesian estimation, support selection and prediction.
 
-SPEC 1.3 (statistics and estimates), 1.5 (the decision rule (14.6)), 1.6
-(Student-t prediction (14.23)) and the 2DCAR path of 1.2.
+The statistics and estimates ((14.7)-(14.14), (14.21), docs/model.md), the
+decision rule (14.6) that chooses the support (docs/model.md), Student-t
+prediction ((14.23)-(14.25), docs/model.md) and the 2DCAR path of the model
+((14.1)-(14.4), docs/model.md).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
+from .._progress import Progress, drain, stage
 from .._validation import as_channel_last_float, check_not_constant, check_size, summarize
 from .directions import DIRECTIONS, scan_view
 from .neighbourhood import Context, as_offsets
 from .recursive import scan
-from .statistics import data_statistics, estimate_parameters
+from .statistics import estimate_parameters, iter_data_statistics
 
-__all__ = ["CARModel", "fit_car", "select_support", "predict"]
+__all__ = ["CARModel", "Prediction", "SupportSelection", "fit_car", "iter_fit_car",
+           "iter_select_support", "predict", "select_support"]
 
 _PRIOR = 1e-9  # V_0 = _PRIOR * (per-pixel variance) * I: almost uninformative
 
@@ -26,10 +31,16 @@ _PRIOR = 1e-9  # V_0 = _PRIOR * (per-pixel variance) * I: almost uninformative
 class CARModel:
     """A fitted 3DCAR model ``Y_r - mean = gamma X_r + e_r``, ``e_r ~ N(0, sigma)``.
 
-    Attributes
+    Made by :func:`fit_car`; used by :func:`predict`,
+    :func:`~car_napari.model.synthesize` and
+    :func:`~car_napari.model.spectral_radius`. The model is (14.1)-(14.4),
+    docs/model.md.
+
+    Parameters
     ----------
     gamma : (d, d*eta) ndarray
-        ``[A_1, ..., A_eta]`` with ``gamma[:, k*d + c] = A_k[:, c]`` (SPEC 1.2).
+        ``[A_1, ..., A_eta]`` with ``gamma[:, k*d + c] = A_k[:, c]``
+        ((14.1)-(14.4), docs/model.md).
     sigma : (d, d) ndarray
         Noise covariance estimate ``lambda / beta``.
     mean : (d,) ndarray
@@ -54,6 +65,13 @@ class CARModel:
         For the 2DCAR path: an orthonormal spectral basis (d, d) whose columns
         are the principal components, and one single-channel model per factor.
         ``gamma`` and ``sigma`` then hold the equivalent colour-space model.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> model = fit_car(np.random.default_rng(0).random((32, 32, 3)), 1)
+    >>> model.gamma.shape, model.n_channels, model.eta, model.A.shape
+    ((3, 6), 3, 2, (2, 3, 3))
     """
 
     gamma: np.ndarray
@@ -72,28 +90,87 @@ class CARModel:
 
     @property
     def n_channels(self):
+        """The number of modelled channels ``d`` (an int).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> fit_car(np.random.default_rng(0).random((16, 16)), 1).n_channels
+        1
+        """
         return int(self.gamma.shape[0])
 
     @property
     def eta(self):
+        """The number of offsets ``eta`` in the neighbourhood (an int).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> fit_car(np.random.default_rng(0).random((16, 16)), 2).eta
+        4
+        """
         return int(self.offsets.shape[0])
 
     @property
     def A(self):
-        """The ``d x d`` matrices ``A_s`` as an (eta, d, d) array."""
+        """The matrices ``A_s``, one per offset, as an (eta, d, d) ndarray.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> model = fit_car(np.random.default_rng(0).random((16, 16, 2)), 1)
+        >>> bool(np.array_equal(model.A[1], model.gamma[:, 2:4]))
+        True
+        """
         d = self.n_channels
         return self.gamma.reshape(d, self.eta, d).transpose(1, 0, 2)
 
     @property
     def log_det_vx(self):
+        """The log-determinant ``ln |V_x|`` of :attr:`vx` (a float).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> model = fit_car(np.random.default_rng(0).random((16, 16)), 1)
+        >>> bool(np.isclose(model.log_det_vx, np.log(np.linalg.det(model.vx))))
+        True
+        """
         return float(np.linalg.slogdet(self.vx)[1])
 
     @property
     def context(self):
+        """The model's regression vector ``X_r`` as a Context: every channel at every offset.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> fit_car(np.random.default_rng(0).random((16, 16, 3)), 1).context.n_regressors
+        6
+        """
         return Context.spatial(self.offsets, self.n_channels)
 
     def to_dict(self):
-        """Plain, JSON-serialisable summary of the model."""
+        """Plain, JSON-serialisable summary of the model.
+
+        Returns
+        -------
+        dict
+            Order, offsets, direction, channels, ``gamma``, ``sigma``, mean,
+            ``beta``, pixel count, ``"model"`` ('3d' or '2d') and, when the
+            support was chosen, the decision-rule scores; lists and numbers only.
+
+        Examples
+        --------
+        >>> import json
+        >>> import numpy as np
+        >>> summary = fit_car(np.random.default_rng(0).random((16, 16)), 1).to_dict()
+        >>> summary["order"], summary["offsets"], summary["model"]
+        (1, [[0, 1], [1, 0]], '3d')
+        >>> isinstance(json.dumps(summary), str)
+        True
+        """
         out = {
             "order": self.order,
             "offsets": self.offsets.tolist(),
@@ -149,8 +226,58 @@ def _candidate_offsets(orders):
     return cands
 
 
-def _scores(centred, candidates, direction, channel_var):
-    """Score every candidate on the same pixels (SPEC 1.5, first condition)."""
+class SupportSelection(NamedTuple):
+    """What :func:`select_support` returns (unpacks as ``best, scores``).
+
+    Parameters
+    ----------
+    best : int or tuple
+        The winning candidate: its order, or its offsets as a tuple of
+        ``(di, dj)`` pairs for a custom candidate.
+    scores : dict
+        ``D_j`` of every candidate, keyed like ``best``; larger is more
+        probable.
+
+    Examples
+    --------
+    >>> best, scores = SupportSelection(2, {1: -5.0, 2: -3.0})
+    >>> best
+    2
+    """
+
+    best: int | tuple
+    scores: dict
+
+
+class Prediction(NamedTuple):
+    """What :func:`predict` returns (unpacks as ``mean, log_density``).
+
+    Parameters
+    ----------
+    mean : ndarray
+        The conditional mean, the image's shape.
+    log_density : (H, W) ndarray
+        The log predictive density of every observed pixel.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> mean, log_density = Prediction(np.zeros((2, 2)), np.zeros((2, 2)))
+    >>> log_density.shape
+    (2, 2)
+    """
+
+    mean: np.ndarray
+    log_density: np.ndarray
+
+
+def _candidate_label(key, k, n):
+    return f"order {key}" if isinstance(key, int) else f"candidate {k}/{n}"
+
+
+def _iter_scores(centred, candidates, direction, channel_var):
+    """Score every candidate on the same pixels (the first condition of the
+    decision rule (14.6), docs/model.md): Progress records, then the scores."""
     d = centred.shape[2]
     union = []
     for _, offs in candidates:
@@ -163,18 +290,35 @@ def _scores(centred, candidates, direction, channel_var):
     check_size(np.empty(view_shape[:2]), ctx.reach, minimum_pixels=4 * ctx.n_regressors + 4)
     # Whiten the channels: the scores then do not change under any invertible
     # colour transform Y -> B Y (in particular, under the image's value range).
-    V, count = data_statistics(_whiten(centred), ctx, direction=direction)
+    # The one pass over the pixels is the work; the candidates' scores are small
+    # factorisations of its sub-blocks.
+    V, count = yield from stage(
+        iter_data_statistics(_whiten(centred), ctx, direction=direction), 0.0, 0.9,
+        name="support")
     mu = ctx.n_regressors
     index = {s: k for k, s in enumerate(map(tuple, union.tolist()))}
     scores = {}
-    for key, offs in candidates:
+    for k, (key, offs) in enumerate(candidates, start=1):
         cols = np.array([index[s] * d + c for s in map(tuple, offs.tolist()) for c in range(d)])
         sel = np.r_[cols, mu + np.arange(d)]
         m = cols.size
         sub = V[np.ix_(sel, sel)]
         _, _, _, beta, L = estimate_parameters(sub, count, m, d, np.full(m + d, _PRIOR))
         scores[key] = _decision_score(L, beta, float(m - 1), m, d)
+        yield Progress("support", 0.9 + 0.1 * k / len(candidates),
+                       f"{_candidate_label(key, k, len(candidates))}: D = {scores[key]:.6g}")
     return scores
+
+
+def _support_share(candidates, d):
+    """The part of a fit with ``neighbourhood='auto'`` spent choosing the
+    support: one pass over the union of the candidates against one over the
+    winner, costed as ``(regressors + d)^2`` per pixel (the winner taken as
+    the largest candidate)."""
+    union = {s for _, offs in candidates for s in map(tuple, offs.tolist())}
+    choose = (len(union) * d + d) ** 2
+    fit = (max(len(offs) for _, offs in candidates) * d + d) ** 2
+    return choose / (choose + fit)
 
 
 def _whiten(centred):
@@ -186,37 +330,189 @@ def _whiten(centred):
     return np.linalg.solve(L, flat.T).T.reshape(centred.shape)
 
 
-def select_support(image, orders=range(1, 6), *, channel_axis=-1, direction="down"):
-    """Choose the most probable causal neighbourhood by the rule (14.6).
+def iter_select_support(image, orders=range(1, 6), *, channel_axis=-1, direction="down"):
+    """Choose the most probable causal neighbourhood, as a job.
 
-    Every candidate is scored on the same pixels (those whose neighbourhood
-    under the union of all candidates lies inside the image) with
-    ``beta(0) = d*eta - 1``, the two conditions SPEC 1.5 requires. The
-    channels are whitened first (unit covariance), so the scores do not
-    change under any invertible colour transform, the value range included.
+    The generator form of :func:`select_support`, with the same parameters
+    and result.
 
     Parameters
     ----------
-    image : (H, W) or (H, W, C) array
+    image : (H, W) or (H, W, C) array_like
+        Grey or multichannel image; any numeric dtype.
     orders : iterable of int or (eta, 2) arrays, optional
-        Candidate neighbourhoods.
+        Candidate neighbourhoods: orders (see :func:`causal_neighbourhood`)
+        or explicit causal offsets.
     channel_axis : int or None, optional
+        The channel axis of a 3-D image; a 2-D image is grey.
     direction : {'down', 'up', 'right', 'left'}, optional
+        The scan direction the offsets are relative to.
 
     Returns
     -------
-    best : int or tuple
-        The winning order (or offsets as a tuple of pairs for custom candidates).
-    scores : dict
-        ``D_j`` of every candidate; larger is more probable.
+    SupportSelection
+        What :func:`select_support` returns: ``(best, scores)``.
+
+    Yields
+    ------
+    Progress
+        Stage ``"support"``: after each block of rows of the one pass over
+        the pixels (message ``"rows 120/512"``), then after each candidate's
+        score (message ``"order 3: D = ..."``).
+
+    Raises
+    ------
+    ValueError
+        As :func:`select_support`.
+    TypeError
+        As :func:`select_support`.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from car_napari._progress import drain
+    >>> records = []
+    >>> image = np.random.default_rng(0).random((32, 32))
+    >>> best, scores = drain(iter_select_support(image, orders=[1, 2]), records.append)
+    >>> [r.message.split(":")[0] for r in records[-2:]]
+    ['order 1', 'order 2']
     """
     if direction not in DIRECTIONS:
         raise ValueError(f"direction must be one of {DIRECTIONS}; got {direction!r}.")
     centred, _, var = _prepare(image, channel_axis)
     candidates = _candidate_offsets(orders)
-    scores = _scores(centred, candidates, direction, var)
+    scores = yield from _iter_scores(centred, candidates, direction, var)
     best = max(scores, key=scores.get)
-    return best, scores
+    return SupportSelection(best, scores)
+
+
+def select_support(image, orders=range(1, 6), *, channel_axis=-1, direction="down"):
+    """Choose the most probable causal neighbourhood by the decision rule (14.6).
+
+    The rule is (14.6), docs/model.md. Every candidate is scored on the
+    same pixels (those whose neighbourhood under the union of all candidates
+    lies inside the image) with ``beta(0) = d*eta - 1``: the two conditions
+    the rule needs. The channels are whitened first (unit covariance), so
+    the scores do not change under any invertible colour transform, the
+    value range included.
+
+    Parameters
+    ----------
+    image : (H, W) or (H, W, C) array_like
+        Grey or multichannel image; any numeric dtype (integers are scaled
+        to [0, 1]).
+    orders : iterable of int or (eta, 2) arrays, optional
+        Candidate neighbourhoods: orders (see :func:`causal_neighbourhood`)
+        or explicit causal offsets.
+    channel_axis : int or None, optional
+        The channel axis of a 3-D image; a 2-D image is grey.
+    direction : {'down', 'up', 'right', 'left'}, optional
+        The scan direction the offsets are relative to.
+
+    Returns
+    -------
+    SupportSelection
+        ``(best, scores)``: the winning order (or offsets as a tuple of pairs
+        for custom candidates) and ``D_j`` of every candidate (larger is more
+        probable).
+
+    Raises
+    ------
+    ValueError
+        If the image is empty, constant, not 2-D or 3-D, holds NaN or
+        infinite values, or is too small for the largest candidate; if
+        ``orders`` is empty or holds an invalid neighbourhood; if
+        ``direction`` is unknown.
+    TypeError
+        If the image is None or not numeric.
+
+    See Also
+    --------
+    iter_select_support : The same as a job, with progress.
+    fit_car : With ``neighbourhood='auto'``, fits the winner.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> image = np.random.default_rng(0).random((32, 32))
+    >>> best, scores = select_support(image, orders=[1, 2, 3])
+    >>> sorted(scores), best in scores
+    ([1, 2, 3], True)
+    """
+    return drain(iter_select_support(image, orders, channel_axis=channel_axis,
+                                     direction=direction))
+
+
+def iter_fit_car(
+    image,
+    neighbourhood=2,
+    *,
+    model="3d",
+    orders=range(1, 6),
+    direction="down",
+    channel_axis=-1,
+):
+    """Fit a CAR model to a whole image, as a job: Progress records, then the model.
+
+    The generator form of :func:`fit_car`, with the same parameters and
+    result.
+
+    Parameters
+    ----------
+    image : (H, W) or (H, W, C) array_like
+        Grey or multichannel image; any numeric dtype (integers are scaled
+        to [0, 1]).
+    neighbourhood : int, (eta, 2) array_like or 'auto', optional
+        Order, explicit causal offsets, or 'auto' to choose among ``orders``
+        by the decision rule (see :func:`select_support`).
+    model : {'3d', '2d'}, optional
+        See :func:`fit_car`.
+    orders : iterable, optional
+        Candidates for ``neighbourhood='auto'``.
+    direction : {'down', 'up', 'right', 'left'}, optional
+        The scan direction the offsets are relative to.
+    channel_axis : int or None, optional
+        The channel axis of a 3-D image; a 2-D image is grey.
+
+    Returns
+    -------
+    CARModel
+        What :func:`fit_car` returns.
+
+    Yields
+    ------
+    Progress
+        With ``neighbourhood='auto'``, stage ``"support"`` first (the pass
+        over the pixels, then one record per candidate order, message
+        ``"order 3: D = ..."``); then stage ``"statistics"`` after each block
+        of rows of the fit (message ``"rows 120/512"``). The ``'2d'`` model
+        runs these once per spectral factor.
+
+    Raises
+    ------
+    ValueError
+        As :func:`fit_car`.
+    TypeError
+        As :func:`fit_car`.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from car_napari._progress import drain
+    >>> records = []
+    >>> image = np.random.default_rng(0).random((32, 32))
+    >>> model = drain(iter_fit_car(image, "auto", orders=[1, 2]), records.append)
+    >>> sorted({r.stage for r in records}), records[-1].fraction
+    (['statistics', 'support'], 1.0)
+    """
+    if model not in ("3d", "2d"):
+        raise ValueError(f"model must be '3d' or '2d'; got {model!r}.")
+    if direction not in DIRECTIONS:
+        raise ValueError(f"direction must be one of {DIRECTIONS}; got {direction!r}.")
+    centred, mean, var = _prepare(image, channel_axis)
+    if model == "2d":
+        return (yield from _iter_fit_2d(centred, mean, neighbourhood, orders, direction))
+    return (yield from _iter_fit_centred(centred, mean, var, neighbourhood, orders, direction))
 
 
 def fit_car(
@@ -228,13 +524,19 @@ def fit_car(
     direction="down",
     channel_axis=-1,
 ):
-    """Fit a CAR model to a whole image (Bayesian estimate, SPEC 1.3).
+    """Fit a CAR model to a whole image (the Bayesian estimate).
+
+    The estimates are (14.7)-(14.14), (14.21), docs/model.md: the mean is
+    subtracted, the data-gathering matrices are summed over the pixels whose
+    whole neighbourhood lies inside the image (flat neighbourhoods left out)
+    with an almost uninformative prior.
 
     Parameters
     ----------
-    image : (H, W) or (H, W, C) array
-        Any dtype; integer images are scaled to [0, 1].
-    neighbourhood : int, (eta, 2) array or 'auto', optional
+    image : (H, W) or (H, W, C) array_like
+        Grey or multichannel image; any numeric dtype (integers are scaled
+        to [0, 1]).
+    neighbourhood : int, (eta, 2) array_like or 'auto', optional
         Order, explicit causal offsets, or 'auto' to choose among ``orders`` by
         the decision rule (14.6) (see :func:`select_support`).
     model : {'3d', '2d'}, optional
@@ -244,32 +546,57 @@ def fit_car(
     orders : iterable, optional
         Candidates for ``neighbourhood='auto'``.
     direction : {'down', 'up', 'right', 'left'}, optional
+        The scan direction the offsets are relative to.
     channel_axis : int or None, optional
+        The channel axis of a 3-D image; a 2-D image is grey.
 
     Returns
     -------
     CARModel
+        The fitted model; ``scores`` holds the decision-rule scores when the
+        support was chosen.
+
+    Raises
+    ------
+    ValueError
+        If the image is empty, constant, not 2-D or 3-D, holds NaN or
+        infinite values, or is too small for the neighbourhood; if the
+        neighbourhood, ``model`` or ``direction`` is invalid; for
+        ``model='2d'``, if a spectral factor is constant.
+    TypeError
+        If the image is None or not numeric.
+
+    See Also
+    --------
+    iter_fit_car : The same as a job, with progress.
+    predict : The model's one-step predictions.
+    car_napari.model.synthesize : A texture from the model.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> image = np.random.default_rng(0).random((32, 32, 3))
+    >>> model = fit_car(image, 2)
+    >>> model.gamma.shape, model.sigma.shape, model.order
+    ((3, 12), (3, 3), 2)
     """
-    if model not in ("3d", "2d"):
-        raise ValueError(f"model must be '3d' or '2d'; got {model!r}.")
-    if direction not in DIRECTIONS:
-        raise ValueError(f"direction must be one of {DIRECTIONS}; got {direction!r}.")
-    centred, mean, var = _prepare(image, channel_axis)
-    if model == "2d":
-        return _fit_2d(centred, mean, neighbourhood, orders, direction)
-    return _fit_centred(centred, mean, var, neighbourhood, orders, direction)
+    return drain(iter_fit_car(image, neighbourhood, model=model, orders=orders,
+                              direction=direction, channel_axis=channel_axis))
 
 
-def _fit_centred(centred, mean, channel_var, neighbourhood, orders, direction):
+def _iter_fit_centred(centred, mean, channel_var, neighbourhood, orders, direction):
     d = centred.shape[2]
     scores = None
+    split = 0.0
     if isinstance(neighbourhood, str):
         if neighbourhood != "auto":
             raise ValueError(
                 f"neighbourhood must be an order, offsets or 'auto'; got {neighbourhood!r}."
             )
         candidates = _candidate_offsets(orders)
-        scores = _scores(centred, candidates, direction, channel_var)
+        split = _support_share(candidates, d)
+        scores = yield from stage(_iter_scores(centred, candidates, direction, channel_var),
+                                  0.0, split)
         best = max(scores, key=scores.get)
         offsets = dict(candidates)[best]
         order = best if isinstance(best, int) else None
@@ -278,7 +605,8 @@ def _fit_centred(centred, mean, channel_var, neighbourhood, orders, direction):
     ctx = Context.spatial(offsets, d)
     view_shape = scan_view(centred, direction).shape
     check_size(np.empty(view_shape[:2]), ctx.reach, minimum_pixels=ctx.n_regressors + 2)
-    V, count = data_statistics(centred, ctx, direction=direction)
+    V, count = yield from stage(iter_data_statistics(centred, ctx, direction=direction),
+                                split, 1.0)
     m = ctx.n_regressors
     var = float(np.mean(channel_var))
     gamma, lam, vx, beta, _ = estimate_parameters(V, count, m, d, np.full(m + d, _PRIOR * var))
@@ -288,7 +616,7 @@ def _fit_centred(centred, mean, channel_var, neighbourhood, orders, direction):
     )
 
 
-def _fit_2d(centred, mean, neighbourhood, orders, direction):
+def _iter_fit_2d(centred, mean, neighbourhood, orders, direction):
     d = centred.shape[2]
     cov = np.cov(centred.reshape(-1, d), rowvar=False).reshape(d, d)
     evals, basis = np.linalg.eigh(cov)
@@ -302,9 +630,9 @@ def _fit_2d(centred, mean, neighbourhood, orders, direction):
                 f"spectral factor {k} is constant (the channels are linearly dependent); "
                 "use model='3d' or fewer channels."
             )
-        factors.append(
-            _fit_centred(f, np.zeros(1), f.var(axis=(0, 1)), neighbourhood, orders, direction)
-        )
+        fit = _iter_fit_centred(f, np.zeros(1), f.var(axis=(0, 1)), neighbourhood, orders,
+                                direction)
+        factors.append((yield from stage(fit, k / d, (k + 1) / d)))
     # Equivalent colour-space model over the union of the factors' offsets.
     union = []
     for fm in factors:
@@ -316,7 +644,7 @@ def _fit_2d(centred, mean, neighbourhood, orders, direction):
     A = np.zeros((eta, d, d))
     for k, fm in enumerate(factors):
         pos = {s: i for i, s in enumerate(map(tuple, union.tolist()))}
-        for s, a in zip(map(tuple, fm.offsets.tolist()), fm.gamma[0]):
+        for s, a in zip(map(tuple, fm.offsets.tolist()), fm.gamma[0], strict=True):
             A[pos[s], k, k] = a
     A = basis @ A @ basis.T
     gamma = A.transpose(1, 0, 2).reshape(d, eta * d)
@@ -346,25 +674,49 @@ def _augmented_factor(model):
 
 
 def predict(model, image, *, channel_axis=-1):
-    """Conditional mean and log predictive density of every pixel (SPEC 1.6).
+    """Conditional mean and log predictive density of every pixel.
 
-    Each pixel is predicted from its causal neighbours by the fitted model:
-    the mean is ``mean + gamma_hat X_r`` and the density the Student t of
-    (14.23) with ``nu = beta - d*eta + 2`` degrees of freedom.
+    Each pixel is predicted from its causal neighbours by the fitted model
+    ((14.23)-(14.25), docs/model.md): the mean is ``mean + gamma_hat X_r``
+    and the density the Student t of (14.23) with ``nu = beta - d*eta + 2``
+    degrees of freedom.
 
     Parameters
     ----------
     model : CARModel
-    image : (H, W) or (H, W, C) array
-        With the model's number of channels.
+        A model from :func:`fit_car`.
+    image : (H, W) or (H, W, C) array_like
+        With the model's number of channels; any numeric dtype (integers are
+        scaled to [0, 1]).
     channel_axis : int or None, optional
+        The channel axis of a 3-D image; a 2-D image is grey.
 
     Returns
     -------
-    mean : ndarray, same shape as ``image`` (float64)
-        Conditional mean; NaN where the neighbourhood leaves the image.
-    log_density : (H, W) ndarray
-        Log predictive density of the observed pixel; NaN at the borders.
+    Prediction
+        ``(mean, log_density)``: the conditional mean, float64 in the shape
+        of ``image`` (NaN where the neighbourhood leaves the image), and the
+        (H, W) log predictive density of the observed pixel (NaN at the
+        borders).
+
+    Raises
+    ------
+    TypeError
+        If ``model`` is not a CARModel, or the image is not numeric.
+    ValueError
+        If the image's channels differ from the model's, or the image is too
+        small for the neighbourhood, not 2-D or 3-D, or holds NaN or
+        infinite values.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> image = np.random.default_rng(0).random((16, 16))
+    >>> mean, log_density = predict(fit_car(image, 1), image)
+    >>> mean.shape, bool(np.isnan(log_density[0]).all())
+    ((16, 16), True)
+    >>> bool(np.isfinite(log_density[1:, 1:]).all())
+    True
     """
     if not isinstance(model, CARModel):
         raise TypeError(f"model must be a CARModel (from fit_car); got {type(model).__name__}.")
@@ -399,4 +751,4 @@ def predict(model, image, *, channel_axis=-1):
         mean = mean[..., 0]
     elif channel_axis not in (-1, np.ndim(image) - 1):
         mean = np.moveaxis(mean, -1, channel_axis)
-    return mean, logp
+    return Prediction(mean, logp)

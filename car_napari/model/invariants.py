@@ -1,4 +1,4 @@
-"""Illumination invariants of the 3DCAR model (SPEC section 2, 14.3).
+"""Illumination invariants of the 3DCAR model (section 14.3, docs/model.md).
 
 If two images of one surface differ only in the illumination spectrum,
 ``Y' = B Y`` for an invertible ``d x d`` matrix ``B`` (14.30), the fitted
@@ -12,9 +12,9 @@ from __future__ import annotations
 import numpy as np
 
 from .._validation import as_channel_last_float, check_not_constant, check_size
-from .statistics import data_statistics, estimate_parameters
 from .neighbourhood import Context, as_offsets
 from .recursive import scan
+from .statistics import data_statistics, estimate_parameters
 
 __all__ = ["illumination_invariants"]
 
@@ -63,7 +63,7 @@ def _level_features(level, offsets):
 
 
 def illumination_invariants(image, neighbourhood=2, *, levels=1, channel_axis=-1):
-    """Illumination-invariant texture features (SPEC section 2).
+    """Illumination-invariant texture features (section 14.3, docs/model.md).
 
     Per level of a Gaussian-Laplacian pyramid (``levels=1``: the image itself),
     a 3DCAR model is fitted and these features are collected:
@@ -83,16 +83,40 @@ def illumination_invariants(image, neighbourhood=2, *, levels=1, channel_axis=-1
 
     Parameters
     ----------
-    image : (H, W) or (H, W, C) array
-    neighbourhood : int or (eta, 2) array, optional
+    image : (H, W) or (H, W, C) array_like
+        Grey or multichannel image with linearly independent channels; any
+        numeric dtype (integers are scaled to [0, 1]).
+    neighbourhood : int or (eta, 2) array_like, optional
+        Order or explicit causal offsets.
     levels : int, optional
         Levels of the Gaussian-Laplacian pyramid (each halves the size).
     channel_axis : int or None, optional
+        The channel axis of a 3-D image; a 2-D image is grey.
 
     Returns
     -------
-    features : 1-D ndarray of float64
+    1-D ndarray of float64
         ``levels * (eta + 2 * eta * d + 3)`` values.
+
+    Raises
+    ------
+    ValueError
+        If the image is empty, constant, not 2-D or 3-D, holds NaN or
+        infinite values, is too small for the neighbourhood and levels, or
+        has linearly dependent channels; if ``levels`` or the neighbourhood
+        is invalid.
+    TypeError
+        If the image is None or not numeric.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> image = np.random.default_rng(0).random((32, 32, 3))
+    >>> f = illumination_invariants(image, 1)
+    >>> B = np.array([[1.0, 0.2, 0.0], [0.0, 0.8, 0.0], [0.1, 0.0, 1.2]])  # an illumination change
+    >>> g = illumination_invariants(image @ B.T, 1)
+    >>> f.shape, bool(np.allclose(f, g, rtol=1e-4, atol=1e-6))
+    ((17,), True)
     """
     data = as_channel_last_float(image, channel_axis=channel_axis)
     check_not_constant(data)

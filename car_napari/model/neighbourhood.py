@@ -1,4 +1,5 @@
-"""Causal neighbourhoods and the regression context X_r (SPEC 1.1, 1.2).
+"""Causal neighbourhoods and the regression context X_r (causal neighbourhoods
+and (14.1)-(14.4), docs/model.md).
 
 A neighbourhood is an (eta, 2) int array of offsets ``s = (di, dj)``; the
 neighbour of pixel ``r`` is ``r - s``. It is causal for the raster scan when
@@ -15,7 +16,7 @@ kernels serve all of them.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 
@@ -24,7 +25,7 @@ __all__ = ["causal_neighbourhood", "as_offsets", "Context", "MAX_ORDER"]
 MAX_ORDER = 30
 
 
-@lru_cache(maxsize=None)
+@cache
 def _hierarchy(max_order):
     radius = int(np.ceil(np.sqrt(max_order))) + 2
     cand = [
@@ -39,12 +40,13 @@ def _hierarchy(max_order):
 
 
 def causal_neighbourhood(order):
-    """Offsets of the hierarchical causal neighbourhood of a given order.
+    """List the offsets of the hierarchical causal neighbourhood of a given order.
 
     Order ``k`` holds every causal offset whose squared length is at most the
     ``k``-th smallest squared length among causal offsets, sorted by squared
-    length, then ``di``, then ``dj`` (SPEC 1.1). Orders are nested: the offsets
-    of order ``k`` are the first rows of those of order ``k + 1``.
+    length, then ``di``, then ``dj`` (causal neighbourhoods, docs/model.md).
+    Orders are nested: the offsets of order ``k`` are the first rows of those
+    of order ``k + 1``.
 
     Parameters
     ----------
@@ -53,8 +55,15 @@ def causal_neighbourhood(order):
 
     Returns
     -------
-    offsets : (eta, 2) ndarray of int
+    (eta, 2) ndarray of int
         Offsets ``(di, dj)``; the neighbour of ``r`` is ``r - (di, dj)``.
+
+    Raises
+    ------
+    TypeError
+        If ``order`` is not an int.
+    ValueError
+        If ``order`` is outside 1 to 30.
 
     Examples
     --------
@@ -74,7 +83,35 @@ def causal_neighbourhood(order):
 def as_offsets(neighbourhood):
     """Validate a neighbourhood given as an order or an offset array.
 
-    Returns ``(offsets, order)`` where ``order`` is None for a custom list.
+    Parameters
+    ----------
+    neighbourhood : int or (eta, 2) array_like of int
+        An order (see :func:`causal_neighbourhood`) or explicit causal
+        offsets ``(di, dj)``, without duplicates.
+
+    Returns
+    -------
+    offsets : (eta, 2) ndarray of int64
+        The offsets.
+    order : int or None
+        The order, or None for explicit offsets.
+
+    Raises
+    ------
+    ValueError
+        If the order is out of range, or the offsets are not an (eta, 2)
+        integer array, not causal, or hold duplicates; for a string.
+    TypeError
+        If ``neighbourhood`` is not an int and cannot be read as an array,
+        or the order is not an int.
+
+    Examples
+    --------
+    >>> offsets, order = as_offsets(1)
+    >>> offsets.tolist(), order
+    ([[0, 1], [1, 0]], 1)
+    >>> as_offsets([[1, 0], [0, 2]])[0].tolist()
+    [[1, 0], [0, 2]]
     """
     if isinstance(neighbourhood, (int, np.integer)) and not isinstance(
         neighbourhood, (bool, np.bool_)
@@ -119,6 +156,13 @@ def as_offsets(neighbourhood):
 class Context:
     """What goes into the regression vector ``X_r``.
 
+    Parameters
+    ----------
+    taps : (m, 3) array_like of int
+        The attribute below; rows ``(di, dj, channel)``.
+    targets : (d,) array_like of int
+        The attribute below.
+
     Attributes
     ----------
     taps : (m, 3) ndarray of int
@@ -128,6 +172,19 @@ class Context:
         fully known (other images for 2.5D, previous frames for 3.5D).
     targets : (d,) ndarray of int
         Source channels that form ``Y_r``.
+
+    Raises
+    ------
+    ValueError
+        If there is no tap or no target, the targets are not distinct and
+        >= 0, a tap channel is negative, or a tap into a target channel is
+        not causal.
+
+    Examples
+    --------
+    >>> ctx = Context([[0, 1, 0], [1, 0, 0], [0, 0, 1]], [0])  # 2.5D: channel 1 at r
+    >>> ctx.n_regressors, ctx.n_targets, ctx.n_channels, ctx.reach
+    (3, 1, 2, ((1, 0), (1, 0)))
     """
 
     taps: np.ndarray
@@ -153,10 +210,34 @@ class Context:
 
     @classmethod
     def spatial(cls, offsets, n_channels):
-        """The 3DCAR context: every channel at every offset, ordered as SPEC 1.2.
+        """The 3DCAR context: every channel at every offset.
 
-        ``X_r = [Y_{r-s_1}; ...; Y_{r-s_eta}]`` so that ``gamma = [A_1, ..., A_eta]``
-        with ``gamma[:, k*d + c] = A_k[:, c]``.
+        Ordered as in (14.1)-(14.4), docs/model.md:
+        ``X_r = [Y_{r-s_1}; ...; Y_{r-s_eta}]`` so that
+        ``gamma = [A_1, ..., A_eta]`` with ``gamma[:, k*d + c] = A_k[:, c]``.
+
+        Parameters
+        ----------
+        offsets : (eta, 2) array_like of int
+            Causal offsets ``(di, dj)``.
+        n_channels : int
+            ``d``, the channels of the image (all modelled).
+
+        Returns
+        -------
+        Context
+            Taps ``(di, dj, c)`` offset by offset, channel by channel;
+            targets ``0..d-1``.
+
+        Raises
+        ------
+        ValueError
+            If an offset is not causal.
+
+        Examples
+        --------
+        >>> Context.spatial([[0, 1], [1, 0]], 2).taps.tolist()
+        [[0, 1, 0], [0, 1, 1], [1, 0, 0], [1, 0, 1]]
         """
         offsets = np.asarray(offsets, dtype=np.int64)
         d = int(n_channels)
@@ -168,20 +249,50 @@ class Context:
 
     @property
     def n_regressors(self):
+        """The length ``m`` of ``X_r``, one per tap (an int).
+
+        Examples
+        --------
+        >>> Context.spatial([[0, 1], [1, 0]], 3).n_regressors
+        6
+        """
         return self.taps.shape[0]
 
     @property
     def n_targets(self):
+        """The length ``d`` of ``Y_r``, one per target channel (an int).
+
+        Examples
+        --------
+        >>> Context.spatial([[0, 1], [1, 0]], 3).n_targets
+        3
+        """
         return self.targets.size
 
     @property
     def n_channels(self):
-        """Channels the source array must have at least."""
+        """The channels the source array must have at least (an int).
+
+        Examples
+        --------
+        >>> Context([[0, 1, 0], [0, 0, 2]], [0]).n_channels
+        3
+        """
         return int(max(self.taps[:, 2].max(), self.targets.max())) + 1
 
     @property
     def reach(self):
-        """((rows above, rows below), (columns left, columns right)) in scan terms."""
+        """How far the taps reach, in scan terms (a tuple of pairs).
+
+        ``((rows above, rows below), (columns left, columns right))`` from
+        ``r``; the pixels with a complete neighbourhood are those this far
+        from the edges.
+
+        Examples
+        --------
+        >>> Context.spatial([[0, 1], [1, -1], [1, 1]], 1).reach
+        ((1, 0), (1, 1))
+        """
         di, dj = self.taps[:, 0], self.taps[:, 1]
         return (
             (max(int(di.max()), 0), max(int(-di.min()), 0)),

@@ -1,4 +1,5 @@
-"""Recursive (adaptive) estimation along the four scan directions (SPEC 1.4)."""
+"""Recursive (adaptive) estimation along the four scan directions ((14.26)-(14.32),
+section 14.2.1, docs/model.md)."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ from .statistics import data_statistics
 
 __all__ = ["local_parameters", "scan", "ScanResult", "adaptive_scan", "default_prior",
            "DIRECTIONS", "scan_shape", "scan_view", "unscan_view"]
+
 
 def _geometry(shape, direction, context):
     """Strides that map scan position (a, b) to the original (H, W, C) array."""
@@ -42,7 +44,16 @@ def _geometry(shape, direction, context):
 
 
 class ScanResult(dict):
-    """Outputs of :func:`scan` by name, plus the final statistics."""
+    """Outputs of :func:`scan` by name, plus the final statistics.
+
+    A plain dict: the requested outputs (``'gamma'``, ``'mean'``, ...) and
+    ``'G'``, ``'lam'``, ``'T'``, ``'beta'``, ``'count'`` (see :func:`scan`).
+
+    Examples
+    --------
+    >>> sorted(ScanResult(beta=1.0, count=3))
+    ['beta', 'count']
+    """
 
 
 def scan(
@@ -60,30 +71,45 @@ def scan(
     fill_range=None,
     suspect_logrel=-np.inf,
 ):
-    """Run the recursive estimator over ``data`` (H, W, C) float64, C-ordered.
+    """Run the recursive square-root estimator over an image.
+
+    The recursion of (14.26)-(14.32), section 14.2.1, docs/model.md, in one
+    of the four scan directions, with exponential forgetting; it keeps a
+    Cholesky factor of the statistics, never an explicit inverse.
 
     Parameters
     ----------
-    data : (H, W, C) float64 C-contiguous array, already centred.
+    data : (H, W, C) ndarray of float64
+        C-contiguous, already centred; modified in place only where
+        ``missing`` asks for fills.
     context : Context
-    direction : {'down', 'up', 'right', 'left'}
-    forgetting : float in (0, 1]
-    intercept : bool, add a constant regressor.
-    prior : (n,) diagonal of ``V_0`` (``n = m + intercept + d``); required
-        unless ``initial`` is given.
-    initial : (U0, beta0) to start from given statistics instead of the prior:
+        What goes into ``X_r`` and ``Y_r``; ``C >= context.n_channels``.
+    direction : {'down', 'up', 'right', 'left'}, optional
+        The scan direction.
+    forgetting : float in (0, 1], optional
+        The forgetting factor ``phi``.
+    intercept : bool, optional
+        Add a constant regressor.
+    prior : (n,) array_like, optional
+        Diagonal of ``V_0`` (``n = m + intercept + d``); required unless
+        ``initial`` is given.
+    initial : tuple, optional
+        ``(U0, beta0)`` to start from given statistics instead of the prior:
         ``U0`` the upper Cholesky factor of the augmented ``V = U0^T U0`` of
         ``[X; (1); Y]`` (prior included). ``prior``, if also given, is still
         the floor that forgetting re-injects.
-    update : bool, False predicts with fixed statistics.
-    outputs : subset of {'gamma', 'mean', 'logp', 'q', 'maha', 'logrel'}
-        (``logrel``: log predictive density relative to its peak, <= 0).
-    missing : (H, W) bool array, optional
+    update : bool, optional
+        False predicts with fixed statistics.
+    outputs : subset of {'gamma', 'mean', 'logp', 'q', 'maha', 'logrel'}, optional
+        The per-pixel arrays to return (``logrel``: log predictive density
+        relative to its peak, <= 0).
+    missing : (H, W) array of bool or uint8, optional
         Pixels to fill in place in ``data`` (its target channels) with the
-        conditional mean as the scan reaches them (SPEC 6); they and pixels
-        whose neighbourhood holds one do not update the statistics.
-    fill_range : (lo, hi) arrays of d values, optional
-        Bounds for the filled values (default: unbounded).
+        conditional mean as the scan reaches them (section 14.7,
+        docs/inpainting.md); they and pixels whose neighbourhood holds one do
+        not update the statistics.
+    fill_range : tuple of 2 arrays of d values, optional
+        ``(lo, hi)`` bounds for the filled values (default: unbounded).
     suspect_logrel : float <= 0, optional
         ``missing`` may also be a uint8 array holding 2 at suspect known
         pixels (the edge of the damage): one the model finds improbable when
@@ -93,10 +119,28 @@ def scan(
 
     Returns
     -------
-    ScanResult with the requested arrays in image geometry (``gamma``:
-    (H, W, d, m), ``mean``: (H, W, d), others (H, W)), and the final
-    statistics: ``G`` (d, p) gamma with its intercept column, ``lam``,
-    ``T`` (lower, ``V_x^{-1} = T^T T``), ``beta`` and ``count`` (updates made).
+    ScanResult
+        The requested arrays in image geometry (``gamma``: (H, W, d, m),
+        ``mean``: (H, W, d), others (H, W)), and the final statistics: ``G``
+        (d, p) gamma with its intercept column, ``lam``, ``T`` (lower,
+        ``V_x^{-1} = T^T T``), ``beta`` and ``count`` (updates made).
+
+    Raises
+    ------
+    ValueError
+        If ``data`` has fewer channels than the context needs, the prior is
+        not ``n`` positive values, ``missing`` is not (H, W), or
+        ``direction`` is unknown.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from car_napari.model import Context
+    >>> y = np.random.default_rng(0).standard_normal((8, 8, 1))
+    >>> res = scan(y, Context.spatial([[0, 1], [1, 0]], 1), prior=np.full(3, 1e-6),
+    ...            outputs=("mean",))
+    >>> res["mean"].shape, res["count"]
+    ((8, 8, 1), 49)
     """
     h, w, c = data.shape
     if c < context.n_channels:
@@ -190,7 +234,33 @@ def scan(
 
 
 def default_prior(channel_var, n_regressors, intercept, n_targets, strength):
-    """Diagonal of V_0: ``strength`` times the data variance (1 for the intercept)."""
+    """Diagonal of the prior ``V_0``: ``strength`` times the data variance.
+
+    Parameters
+    ----------
+    channel_var : array_like
+        Per-channel variance of the data; their mean sets the scale (1 when
+        it is not positive).
+    n_regressors : int
+        ``m``, the length of ``X_r``.
+    intercept : bool
+        Whether a constant regressor follows ``X_r`` (its entry is
+        ``strength``, unscaled).
+    n_targets : int
+        ``d``, the length of ``Y_r``.
+    strength : float
+        The prior's weight relative to one pixel's data.
+
+    Returns
+    -------
+    (m + intercept + d,) ndarray of float64
+        The diagonal, in the order of ``[X_r; (1); Y_r]``.
+
+    Examples
+    --------
+    >>> default_prior([2.0, 4.0], 2, True, 1, 0.5).tolist()
+    [1.5, 1.5, 0.5, 1.5]
+    """
     var = float(np.mean(channel_var))
     var = var if var > 0 else 1.0
     prior = np.full(n_regressors + int(intercept) + n_targets, strength * var)
@@ -209,11 +279,12 @@ def local_parameters(
     prior=1e-6,
     warm_start=True,
 ):
-    """Adaptive 3DCAR parameters ``gamma_hat_r`` at every pixel (SPEC 1.4).
+    """Adaptive 3DCAR parameters ``gamma_hat_r`` at every pixel.
 
-    The recursive Bayesian estimator with exponential forgetting scans the
-    image in one direction, keeping a square-root (Cholesky) factor of its
-    statistics, so it stays finite and accurate on flat regions.
+    The recursive Bayesian estimator with exponential forgetting
+    ((14.26)-(14.32), section 14.2.1, docs/model.md) scans the image in one
+    direction, keeping a square-root (Cholesky) factor of its statistics, so
+    it stays finite and accurate on flat regions.
 
     Parameters
     ----------
@@ -241,10 +312,19 @@ def local_parameters(
 
     Returns
     -------
-    gamma : (H, W, d, d*eta) ndarray of float64
+    (H, W, d, d*eta) ndarray of float64
         ``gamma[i, j] = [A_1, ..., A_eta]`` estimated from the pixels scanned
         up to and including ``(i, j)``; where the neighbourhood leaves the image
         the running estimate carries over (zeros before the first update).
+
+    Raises
+    ------
+    ValueError
+        If the image is empty, constant, not 2-D or 3-D, holds NaN or
+        infinite values, or is too small; if the neighbourhood,
+        ``forgetting``, ``direction`` or ``prior`` is invalid.
+    TypeError
+        If the image is None or not numeric.
 
     Notes
     -----
@@ -252,6 +332,13 @@ def local_parameters(
     output), so the parameters describe texture, not local brightness; with
     ``forgetting=1`` the estimate at the last pixel equals least squares with
     an intercept over all pixels whose neighbourhood lies inside the image.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> image = np.random.default_rng(0).random((16, 16, 3))
+    >>> local_parameters(image, 1).shape
+    (16, 16, 3, 6)
     """
     data = as_channel_last_float(image, channel_axis=channel_axis)
     offsets, _ = as_offsets(neighbourhood)
@@ -273,8 +360,45 @@ def local_parameters(
 
 def adaptive_scan(centred, context, channel_var, *, forgetting, direction, prior=1e-6,
                   warm_start=True, outputs=("gamma",)):
-    """The scan behind :func:`local_parameters` on centred, validated data,
-    with any of :func:`scan`'s outputs (e.g. the one-step conditional mean)."""
+    """The scan behind :func:`local_parameters`, on centred, validated data.
+
+    With any of :func:`scan`'s outputs (e.g. the one-step conditional mean).
+
+    Parameters
+    ----------
+    centred : (H, W, C) ndarray of float64
+        C-contiguous, mean already subtracted.
+    context : Context
+        What goes into ``X_r`` and ``Y_r``.
+    channel_var : array_like
+        Per-channel variance of the data (scales the prior).
+    forgetting : float in (0, 1]
+        The forgetting factor ``phi``.
+    direction : {'down', 'up', 'right', 'left'}
+        The scan direction.
+    prior : float, optional
+        Strength of the prior (see :func:`default_prior`).
+    warm_start : bool, optional
+        Start from the whole image's statistics weighted as one forgetting
+        window (see :func:`local_parameters`).
+    outputs : tuple of str, optional
+        As :func:`scan`.
+
+    Returns
+    -------
+    ScanResult
+        As :func:`scan`, with an intercept.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from car_napari.model import Context
+    >>> y = np.random.default_rng(0).standard_normal((8, 8, 1))
+    >>> res = adaptive_scan(y, Context.spatial([[0, 1], [1, 0]], 1), [1.0],
+    ...                     forgetting=0.99, direction="down")
+    >>> res["gamma"].shape
+    (8, 8, 1, 2)
+    """
     pri = default_prior(channel_var, context.n_regressors, True, context.n_targets, prior)
     initial = None
     if warm_start and forgetting < 1.0:

@@ -1,4 +1,5 @@
-"""Synthesis from the model equation and the stability test (SPEC 1.7)."""
+"""Synthesis from the model equation and the stability test (synthesis,
+docs/model.md)."""
 
 from __future__ import annotations
 
@@ -6,10 +7,10 @@ import math
 
 import numpy as np
 
-from ._kernels import synthesize_field
 from .._validation import output_shape
-from .estimation import CARModel
+from ._kernels import synthesize_field
 from .directions import unscan_view
+from .estimation import CARModel
 
 __all__ = ["synthesize", "spectral_radius"]
 
@@ -57,8 +58,31 @@ def spectral_radius(model):
     recursion ``A(0, w2)`` has all its zeros outside the unit disc and (ii)
     for every ``|w2| = 1`` the row-to-row recursion in ``w1`` has too
     (Ekstrom and Woods, 1976). Both become spectral radii of companion
-    matrices; (ii) is checked on a grid of frequencies. Returns the largest
-    radius found.
+    matrices; (ii) is checked on a grid of frequencies.
+
+    Parameters
+    ----------
+    model : CARModel
+        A model from :func:`~car_napari.model.fit_car`.
+
+    Returns
+    -------
+    float
+        The largest radius found (``inf`` when the in-row filter is singular
+        at a frequency); below 1 means stable.
+
+    Raises
+    ------
+    TypeError
+        If ``model`` is not a CARModel.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from car_napari.model import fit_car
+    >>> model = fit_car(np.random.default_rng(0).random((32, 32)), 2)
+    >>> bool(spectral_radius(model) < 1)
+    True
     """
     if not isinstance(model, CARModel):
         raise TypeError(f"model must be a CARModel; got {type(model).__name__}.")
@@ -66,7 +90,7 @@ def spectral_radius(model):
     di, dj = model.offsets[:, 0], model.offsets[:, 1]
     d = model.n_channels
     row = [np.zeros((d, d), complex) for _ in range(int(dj[di == 0].max(initial=0)))]
-    for a, i, j in zip(A, di, dj):
+    for a, i, j in zip(A, di, dj, strict=True):
         if i == 0:
             row[j - 1] = row[j - 1] + a
     radius = _companion_radius(row)
@@ -84,7 +108,7 @@ def spectral_radius(model):
         phase = np.exp(1j * omega * dj)
         lead = np.eye(d, dtype=complex)
         coeffs = [np.zeros((d, d), complex) for _ in range(K)]
-        for a, i, ph in zip(A, di, phase):
+        for a, i, ph in zip(A, di, phase, strict=True):
             if i == 0:
                 lead -= a * ph
             else:
@@ -96,7 +120,7 @@ def spectral_radius(model):
 
 
 def synthesize(model, shape, *, seed=None, margin=None):
-    """Generate a texture from a fitted CAR model (SPEC 1.7).
+    """Generate a texture from a fitted CAR model (synthesis, docs/model.md).
 
     The field is generated directly from the model equation in scan order,
     ``Y_r = gamma X_r + Sigma^{1/2} w_r`` with white Gaussian ``w_r``, on a
@@ -106,6 +130,7 @@ def synthesize(model, shape, *, seed=None, margin=None):
     Parameters
     ----------
     model : CARModel
+        A model from :func:`~car_napari.model.fit_car`.
     shape : tuple of 2 ints
         (height, width) of the output.
     seed : int, numpy Generator or None, optional
@@ -116,13 +141,24 @@ def synthesize(model, shape, *, seed=None, margin=None):
 
     Returns
     -------
-    texture : (H, W) or (H, W, d) ndarray of float64
+    (H, W) or (H, W, d) ndarray of float64
         Single-channel models give a 2-D image.
 
     Raises
     ------
     ValueError
-        If the model is unstable (its field would grow without bound).
+        If the model is unstable (its field would grow without bound), or
+        ``shape`` is not two positive ints.
+    TypeError
+        If ``model`` is not a CARModel.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from car_napari.model import fit_car
+    >>> model = fit_car(np.random.default_rng(0).random((32, 32, 3)), 1)
+    >>> synthesize(model, (20, 30), seed=0).shape
+    (20, 30, 3)
     """
     if not isinstance(model, CARModel):
         raise TypeError(f"model must be a CARModel (from fit_car); got {type(model).__name__}.")

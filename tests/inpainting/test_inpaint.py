@@ -1,11 +1,18 @@
-"""Scratch and video restoration (SPEC 6)."""
+"""Scratch and video restoration (section 14.7, docs/inpainting.md)."""
 
 import numpy as np
 import pytest
 from scipy import ndimage
 from skimage import data as skdata
 
-from car_napari.inpainting import detect_scratches, inpaint, iter_inpaint
+from car_napari import Progress
+from car_napari._progress import drain
+from car_napari.inpainting import (
+    detect_scratches,
+    inpaint,
+    iter_detect_scratches,
+    iter_inpaint,
+)
 from car_napari.model.neighbourhood import Context
 from car_napari.model.recursive import default_prior, scan
 
@@ -133,22 +140,17 @@ def test_clip_uses_the_previous_frame():
         clip.append(damaged)
         masks.append(m)
     clip, masks = np.stack(clip), np.stack(masks)
-    states = list(_states(iter_inpaint(clip, masks, channel_axis=None)))
-    assert len(states) == 4 and states[-1].fraction == 1.0
+    records = []
+    from_job = drain(iter_inpaint(clip, masks, channel_axis=None), records.append)
+    frames = [r for r in records if r.preview is not None]
+    assert [r.preview[0] for r in frames] == [0, 1, 2, 3] and records[-1].fraction == 1.0
     with_time = inpaint(clip, masks, channel_axis=None)
+    np.testing.assert_array_equal(from_job, with_time)
     without = inpaint(clip, masks, channel_axis=None, temporal=False)
     truth = np.broadcast_to(base, clip.shape)
     assert _psnr(truth[1:], with_time[1:], masks[1:]) > _psnr(truth[1:], without[1:],
                                                               masks[1:]) + 0.5
     np.testing.assert_array_equal(with_time[~masks], clip[~masks])
-
-
-def _states(gen):
-    while True:
-        try:
-            yield next(gen)
-        except StopIteration:
-            return
 
 
 def test_mask_errors_and_empty_mask():
@@ -193,3 +195,131 @@ def test_detector_finds_blotches_in_a_clip():
     assert proposed.shape == clip.shape
     assert proposed[2, 30:36, 40:46].mean() > 0.8
     assert proposed[[0, 1, 3, 4]].sum() == 0 and proposed[2].sum() < 100
+
+
+def _clip_with_scratches(T=3, colour=False):
+    base = skdata.astronaut()[:48, :48] if colour else skdata.camera()[:48, :48]
+    rng = np.random.default_rng(0)
+    clip = np.stack([np.clip(base + rng.normal(0, 2, base.shape), 0, 255).astype(np.uint8)
+                     for _ in range(T)])
+    masks = np.zeros(clip.shape[:3], bool)
+    for t in range(T):
+        masks[t, :, 8 + 12 * t : 10 + 12 * t] = True
+    clip[masks] = 255
+    return clip, masks
+
+
+def test_iter_inpaint_yields_progress_and_returns_what_inpaint_returns():
+    clip, masks = _clip_with_scratches(T=3, colour=True)
+    records = []
+    restored = drain(iter_inpaint(clip, masks), records.append)
+    np.testing.assert_array_equal(restored, inpaint(clip, masks))
+    assert all(isinstance(r, Progress) and r.stage == "frames" for r in records)
+    fractions = [r.fraction for r in records]
+    assert fractions == sorted(fractions) and 0 < fractions[0] and fractions[-1] == 1.0
+    frames = [r for r in records if r.preview is not None]
+    assert [r.message for r in frames] == ["frame 1/3", "frame 2/3", "frame 3/3"]
+    for t, r in enumerate(frames):
+        index, frame = r.preview
+        assert index == t and frame.shape == clip.shape[1:] and frame.dtype == clip.dtype
+        np.testing.assert_array_equal(frame, restored[t])  # the frame as returned
+    # the scans of a frame report in between, without a preview
+    assert all(r.message.startswith("frame ") for r in records if r.preview is None)
+    assert len(records) == 3 * 4
+
+
+def test_iter_inpaint_preview_in_the_input_layout():
+    clip, masks = _clip_with_scratches(T=2, colour=True)
+    first = np.moveaxis(clip, -1, 1)  # (T, C, H, W)
+    records = []
+    restored = drain(iter_inpaint(first, masks, channel_axis=1), records.append)
+    np.testing.assert_array_equal(restored, np.moveaxis(inpaint(clip, masks), -1, 1))
+    index, frame = [r.preview for r in records if r.preview is not None][-1]
+    np.testing.assert_array_equal(frame, restored[index])
+
+
+def test_closing_the_job_stops_it():
+    clip, masks = _clip_with_scratches(T=3)
+    job = iter_inpaint(clip, masks)
+    first = next(job)
+    assert first.fraction < 1.0
+    job.close()  # a Cancel: no error, no further work
+
+
+def test_grey_frame_inpaints_with_the_default_channel_axis():
+    grey = skdata.camera()[:64, :64]
+    damaged, mask = _scratched(grey, columns=(20, 40), width=2)
+    out = inpaint(damaged, mask)  # channel_axis=-1: a 2-D image is grey
+    assert out.shape == grey.shape and out.dtype == grey.dtype
+    np.testing.assert_array_equal(out, inpaint(damaged, mask, channel_axis=None))
+    np.testing.assert_array_equal(out[~mask], damaged[~mask])
+    assert _psnr(grey, out, mask) > 20
+
+
+def test_channel_axis_rule_for_3d_images():
+    # a grey clip (last axis > 4): read as (T, H, W) with the default channel_axis
+    clip, masks = _clip_with_scratches(T=3)
+    grey_clip = inpaint(clip, masks, channel_axis=None)
+    np.testing.assert_array_equal(inpaint(clip, masks), grey_clip)
+    np.testing.assert_array_equal(inpaint(clip, masks[0]),
+                                  inpaint(clip, masks[0], channel_axis=None))
+    # a colour frame, channels last or first
+    frame, fmask = _scratched(skdata.astronaut()[:48, :48], columns=(20,), width=2)
+    last = inpaint(frame, fmask)
+    first = inpaint(np.moveaxis(frame, -1, 0), fmask, channel_axis=0)
+    np.testing.assert_array_equal(np.moveaxis(first, 0, -1), last)
+    # ambiguous: a colour frame with a mask per channel
+    with pytest.raises(ValueError, match=r"colour frame .* channel_axis=None"):
+        inpaint(frame, np.repeat(fmask[..., None], 3, axis=2))
+    # a grey clip of 3 frames of width 48 whose mask is drawn as for a colour frame
+    with pytest.raises(ValueError, match="grey clip"):
+        inpaint(clip, masks[:, :, 0])
+    with pytest.raises(ValueError, match="more than 4"):
+        inpaint(np.zeros((2, 16, 16, 6)), np.zeros((16, 16), bool))
+    with pytest.raises(ValueError, match="out of range"):
+        inpaint(frame, fmask, channel_axis=3)
+
+
+def test_iter_detect_scratches_yields_progress_and_returns_the_mask():
+    clip, _ = _clip_with_scratches(T=4)
+    clip = clip / 255.0
+    clip[2, 20:26, 30:36] = 1.0
+    records = []
+    mask = drain(iter_detect_scratches(clip), records.append)
+    np.testing.assert_array_equal(mask, detect_scratches(clip))
+    assert [r.stage for r in records] == ["lines"] * 4 + ["blotches"] * 2
+    assert [r.message for r in records][-2:] == ["frame 2/4", "frame 3/4"]
+    fractions = [r.fraction for r in records]
+    assert fractions == sorted(fractions) and fractions[-1] == 1.0
+    assert mask[2, 20:26, 30:36].mean() > 0.8
+
+
+def test_detector_reads_frames_and_clips_by_the_same_rule():
+    frame = skdata.camera()[:64, :64] / 255.0
+    frame[:, 30:32] += 0.3
+    grey = detect_scratches(frame, kinds="line")  # 2-D: grey with channel_axis=-1
+    np.testing.assert_array_equal(grey, detect_scratches(frame, kinds="line",
+                                                         channel_axis=None))
+    assert grey[:, 30:32].mean() > 0.7
+    rgb = np.repeat(frame[..., None], 3, axis=2)
+    np.testing.assert_array_equal(detect_scratches(rgb, kinds="line"), grey)
+    clip = np.stack([frame] * 3)
+    np.testing.assert_array_equal(detect_scratches(clip),
+                                  detect_scratches(clip, channel_axis=None))
+
+
+def test_blotch_test_frame_by_frame_equals_the_whole_clip_at_once():
+    """The per-frame blotch test (a yield between frames) gives the mask of
+    the spike detector written over the whole (T, H, W) clip."""
+    rng = np.random.default_rng(3)
+    grey = np.clip(ndimage.uniform_filter(rng.random((5, 40, 40)), (1, 5, 5))
+                   + (rng.random((5, 40, 40)) > 0.995) * 0.5, 0, 1)
+    prev_diff, next_diff = grey[1:-1] - grey[:-2], grey[1:-1] - grey[2:]
+    spikes = (np.sign(prev_diff) == np.sign(next_diff)) & (
+        np.minimum(np.abs(prev_diff), np.abs(next_diff)) > 0.12)
+    spikes = ndimage.binary_opening(spikes, structure=np.ones((1, 2, 2), bool))
+    expected = np.zeros(grey.shape, bool)
+    expected[1:-1] = ndimage.binary_dilation(spikes, structure=np.ones((1, 3, 3), bool))
+    got = detect_scratches(grey, kinds="blotch", channel_axis=None)
+    assert expected.any()
+    np.testing.assert_array_equal(got, expected)

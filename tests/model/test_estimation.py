@@ -1,11 +1,19 @@
-"""Whole-image estimation, the decision rule and prediction (SPEC 1.3, 1.5, 1.6)."""
+"""Whole-image estimation, the decision rule and prediction ((14.7)-(14.14), (14.6),
+(14.23)-(14.25), docs/model.md)."""
 
 import numpy as np
 import pytest
 from skimage import data as skdata
 
-from car_napari import CARModel, fit_car, predict, select_support
 from car_fields import ORDERS, car_field, gamma_of, random_stable_model
+from car_napari import CARModel, Progress, fit_car, predict, select_support
+from car_napari._progress import drain
+from car_napari.model import (
+    Prediction,
+    SupportSelection,
+    iter_fit_car,
+    iter_select_support,
+)
 
 
 def test_fit_recovers_true_parameters_of_a_3dcar_field():
@@ -90,7 +98,8 @@ def test_predictive_density_integrates_to_one_with_mean_gamma_x(d):
     field = car_field(A, offsets, sigma, (14, 14), seed=7) + 3.0
     model = fit_car(field, 2)
     x_values = [rng.standard_normal(d) + 3.0 for _ in range(4)]
-    # SPEC ordering of X_r: offsets (0,1)=left, (1,0)=up, (1,-1)=up-right, (1,1)=up-left
+    # ordering of X_r (docs/model.md): offsets (0,1)=left, (1,0)=up, (1,-1)=up-right,
+    # (1,1)=up-left
     X = np.concatenate([x_values[k] - model.mean for k in (3, 1, 2, 0)])
     expected_mean = model.gamma @ X + model.mean
     sd = np.sqrt(np.diag(model.sigma))
@@ -137,7 +146,7 @@ def test_2d_path_spectral_factors():
     A_pca = model.basis.T @ model.A @ model.basis
     for k, fm in enumerate(model.factors):
         pos = {tuple(s): i for i, s in enumerate(model.offsets.tolist())}
-        for s, a in zip(map(tuple, fm.offsets.tolist()), fm.gamma[0]):
+        for s, a in zip(map(tuple, fm.offsets.tolist()), fm.gamma[0], strict=True):
             assert A_pca[pos[s], k, k] == pytest.approx(a)
         off = A_pca[:, k, :].copy()
         off[:, k] = 0
@@ -148,7 +157,7 @@ def test_2d_path_spectral_factors():
 
 def test_predict_density_equals_independent_student_t():
     """logp of predict() against a multivariate t written out in NumPy from
-    plain least-squares statistics (SPEC 1.6: nu = beta - d*eta + 2)."""
+    plain least-squares statistics ((14.23), docs/model.md: nu = beta - d*eta + 2)."""
     from math import lgamma
 
     img = skdata.astronaut()[300:340, 0:50] / 255.0
@@ -186,3 +195,73 @@ def test_grey_image_stored_as_rgb():
         assert np.all(np.isfinite(list(scores.values())))
         assert np.isfinite(mean[3:, 3:-3]).all() and np.isfinite(logp[3:, 3:-3]).all()
         assert np.abs(model.gamma).max() < 10
+
+
+def _same_model(a, b):
+    for name in ("gamma", "sigma", "mean", "offsets", "lam", "vx"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    assert (a.beta, a.n_pixels, a.order, a.scores, a.direction) == (
+        b.beta, b.n_pixels, b.order, b.scores, b.direction)
+
+
+def _run(job):
+    records = []
+    result = drain(job, records.append)
+    assert records and all(isinstance(r, Progress) for r in records)
+    fractions = [r.fraction for r in records]
+    assert fractions == sorted(fractions) and 0 <= fractions[0] and fractions[-1] == 1.0
+    return result, records
+
+
+@pytest.mark.parametrize("kwargs", [
+    dict(neighbourhood=2),
+    dict(neighbourhood="auto", orders=range(1, 4)),
+    dict(neighbourhood="auto", model="2d", orders=[1, 2]),
+    dict(neighbourhood=[[0, 1], [2, 0]], direction="left"),
+])
+def test_iter_fit_car_yields_progress_and_returns_what_fit_car_returns(kwargs):
+    img = skdata.astronaut()[100:164, 100:164]
+    model, records = _run(iter_fit_car(img, **kwargs))
+    assert isinstance(model, CARModel)
+    _same_model(model, fit_car(img, **kwargs))
+    if model.factors is not None:
+        for a, b in zip(model.factors, fit_car(img, **kwargs).factors, strict=True):
+            _same_model(a, b)
+    assert records[-1].stage == "statistics"
+
+
+def test_iter_fit_car_reports_every_candidate_order():
+    img = skdata.gravel()[:96, :96]
+    model, records = _run(iter_fit_car(img, "auto", orders=range(1, 6)))
+    support = [r for r in records if r.stage == "support"]
+    scored = [r.message for r in support if ": D = " in r.message]
+    assert [m.split(":")[0] for m in scored] == [f"order {k}" for k in range(1, 6)]
+    assert records.index(support[-1]) < records.index(
+        next(r for r in records if r.stage == "statistics"))
+    # the scores printed are the model's
+    for k, m in zip(range(1, 6), scored, strict=True):
+        assert float(m.split("= ")[1]) == pytest.approx(model.scores[k], rel=1e-5)
+
+
+def test_iter_select_support_returns_what_select_support_returns():
+    img = skdata.brick()[:96, :96]
+    selection, records = _run(iter_select_support(img, orders=[1, 2, [[0, 1], [1, 1]]]))
+    assert isinstance(selection, SupportSelection)
+    best, scores = select_support(img, orders=[1, 2, [[0, 1], [1, 1]]])
+    assert selection.best == best and selection.scores == scores
+    assert {r.stage for r in records} == {"support"}
+    assert records[-1].message.startswith("candidate 3/3: D = ")
+
+
+def test_predict_returns_a_named_pair():
+    img = skdata.camera()[:32, :32]
+    result = predict(fit_car(img, 1), img)
+    assert isinstance(result, Prediction)
+    mean, logp = result
+    assert result.mean is mean and result.log_density is logp
+
+
+def test_closing_a_fit_stops_it():
+    job = iter_fit_car(skdata.astronaut()[:128, :128], "auto")
+    assert next(job).stage == "support"
+    job.close()

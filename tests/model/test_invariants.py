@@ -1,4 +1,4 @@
-"""Illumination invariants (SPEC section 2): invariance under Y -> B Y."""
+"""Illumination invariants (section 14.3, docs/model.md): invariance under Y -> B Y."""
 
 import numpy as np
 import pytest

@@ -1,9 +1,9 @@
 import numpy as np
 import pytest
 
+from car_fields import ORDERS
 from car_napari import Context, causal_neighbourhood
 from car_napari.model.neighbourhood import as_offsets
-from car_fields import ORDERS
 
 
 @pytest.mark.parametrize("order", [1, 2, 3, 4, 5])

@@ -1,4 +1,5 @@
-"""Recursive square-root estimator (SPEC 1.4) against independent computations."""
+"""Recursive square-root estimator ((14.26)-(14.32), docs/model.md) against
+independent computations."""
 
 import math
 
@@ -6,9 +7,9 @@ import numpy as np
 import pytest
 from skimage import data as skdata
 
+from car_fields import ORDERS, SHARED_DATA
 from car_napari import Context, local_parameters
 from car_napari.model.recursive import default_prior, scan
-from car_fields import ORDERS, SHARED_DATA
 
 
 def batch_ls_with_intercept(Y, offsets):
@@ -136,7 +137,7 @@ def test_input_not_modified_and_any_dtype():
 
 
 def _dense_recursion(img, offsets, phi, prior, with_density=False):
-    """SPEC 1.4 with explicit matrices: V = phi^2 V + (1 - phi^2) V_0 + z z^T at
+    """(14.32) with explicit matrices: V = phi^2 V + (1 - phi^2) V_0 + z z^T at
     every pixel, z = [X; 1; Y] (raster scan), estimates by np.linalg.solve."""
     H, W, d = img.shape
     m = d * len(offsets)

@@ -1,11 +1,11 @@
-"""Synthesis from the model equation and the stability test (SPEC 1.7)."""
+"""Synthesis from the model equation and the stability test (synthesis, docs/model.md)."""
 
 import numpy as np
 import pytest
 from skimage import data as skdata
 
-from car_napari import CARModel, fit_car, spectral_radius, synthesize
 from car_fields import car_field, random_stable_model
+from car_napari import CARModel, fit_car, spectral_radius, synthesize
 
 
 @pytest.mark.parametrize("name, order", [("gravel", 3), ("grass", 2)])

@@ -5,13 +5,13 @@ Every kernel is compiled with ``cache=True`` (a fast second start) and
 responsive). Kernels see flat C-ordered arrays plus integer strides, so one
 compiled kernel serves all four scan directions without copying the image.
 
-Square-root form (SPEC 1.4, chapter (14.26)-(14.29)): the inverse of the
+Square-root form ((14.26)-(14.29), section 14.2.2, docs/model.md): the inverse of the
 regressors' data-gathering matrix is kept as ``P = V_x^{-1} = tau^2 S S^T``
 with ``S`` upper triangular (stored transposed, ``T = S^T``) and ``tau`` a
 scalar, and updated by Carlson's square-root measurement update; no inverse
 is ever formed, so rounding cannot make it indefinite. Forgetting divides
 ``tau`` by ``phi`` instead of touching ``S``. ``gamma`` and ``lambda`` follow
-the recursions of SPEC 1.4 with the gain that update yields.
+the recursions of (14.26)-(14.32) with the gain that update yields.
 
 Wind-up: in a flat region the data excite at most one direction while
 forgetting inflates ``P`` in all others. We use stabilised forgetting,
@@ -170,14 +170,14 @@ def recursive_scan(
     gamma_out : float64[N*d*m] or empty. Estimate after each pixel (carried
         over where the neighbourhood leaves the image).
     mean_out, logp_out, q_out, maha_out : float64[N*d], [N], [N], [N] or empty.
-        One-step-ahead conditional mean, Student-t log density (SPEC 1.6),
+        One-step-ahead conditional mean, Student-t log density ((14.23)-(14.25)),
         ``q = 1 + X^T V_x^{-1} X`` and ``e^T lambda^{-1} e`` from the
         statistics before the pixel's update; NaN where the neighbourhood
         leaves the image.
     logrel_out : float64[N] or empty. Log of the predictive density relative
         to its peak (at the conditional mean): ``-(nu + d)/2 log(1 + maha/q)``,
         in (-inf, 0]; scale-free, so thresholds on it need no units.
-    missing : uint8[N] or empty. Pixels to fill (SPEC 6): their targets in
+    missing : uint8[N] or empty. Pixels to fill (section 14.7): their targets in
         ``data`` are overwritten by the conditional mean as the scan reaches
         them, so later pixels use them as neighbours; they never update the
         statistics, nor do pixels whose neighbourhood holds a missing pixel.

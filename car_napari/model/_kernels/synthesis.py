@@ -2,15 +2,13 @@
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numba import njit
 
 
 @njit(cache=True, nogil=True)
 def synthesize_field(gamma, chol_sigma, noise, tap_di, tap_dj, tap_ch, limit):
-    """Generate a zero-mean CAR field in raster order (SPEC 1.7).
+    """Generate a zero-mean CAR field in raster order (synthesis, docs/model.md).
 
     ``noise`` (H, W, C) holds standard normal draws in its first ``d``
     channels (``d`` = rows of ``gamma``); they are overwritten by the field.

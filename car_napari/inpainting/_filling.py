@@ -1,4 +1,4 @@
-"""Scratch, blotch and video restoration (SPEC section 6).
+"""Filling scratches and blotches (section 14.7, docs/inpainting.md).
 
 :func:`inpaint` fills the masked pixels of a frame or a clip with the
 conditional mean of adaptive CAR models that move towards the damage: four
@@ -14,27 +14,22 @@ improbable (the halo of soft-edged damage). In a clip, the previous (already
 restored) frame joins the regression vector (the 3.5D model). Models learn
 only from undamaged pixels whose neighbourhood is undamaged; pixels outside
 the mask are returned bit-identical.
-
-:func:`detect_scratches` proposes a mask: vertical line scratches (thin,
-brighter or darker than both sides, persisting down the frame) and, in clips,
-blotches (pixels that disagree with both neighbouring frames in the same
-direction).
 """
 
 from __future__ import annotations
 
 import warnings
-from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from concurrent.futures import ThreadPoolExecutor, as_completed
 
 import numpy as np
 
-from .._progress import drain
-from .._validation import as_channel_last_float
+from .._progress import Progress, drain, stage
 from ..model.neighbourhood import Context
 from ..model.recursive import default_prior, scan
+from ._layout import MAX_COLOURS, read_layout
 
-__all__ = ["InpaintState", "detect_scratches", "inpaint", "iter_inpaint"]
+__all__ = ["DEFAULT_INTERLEAVE", "EDGE_OUTLIER_LOGREL", "inpaint", "iter_inpaint",
+           "line_offsets"]
 
 DEFAULT_INTERLEAVE = 2.0  # pixels: decay length of each side's weight
 # A known pixel bordering the damage is treated as damaged by a scan when its
@@ -45,48 +40,24 @@ DEFAULT_INTERLEAVE = 2.0  # pixels: decay length of each side's weight
 # on real scans, -60 leaves the halos.
 EDGE_OUTLIER_LOGREL = -12.0
 _CROSS = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], bool)
-
-
-@dataclass
-class InpaintState:
-    """What :func:`iter_inpaint` yields after each frame."""
-
-    frame: int
-    fraction: float
-    restored: np.ndarray  # that frame restored, (H, W) or (H, W, C), the input's dtype
+_DIRECTIONS = ("down", "up", "right", "left")  # from the top, bottom, left, right
+_CLEAN_FRAME_WORK = 0.01  # a frame without damage is only copied: its share of the work
 
 
 # --- validation ------------------------------------------------------------------
 
 
 def _as_clip(image, mask, channel_axis):
-    """(clip (T, H, W, C) view in the input dtype, masks (T, H, W) bool,
-    single-frame flag, channel flag)."""
+    """The image read by the channel_axis rule (see ``_layout``) and its
+    masks as (T, H, W) bool."""
     try:
         arr = np.asarray(image)
     except Exception as exc:
         raise TypeError(f"image could not be converted to an array: {exc}") from exc
     if arr.dtype.kind not in "uif" or arr.dtype == np.float16:
         raise TypeError(f"image must be numeric (integer or float32/64); got {arr.dtype}.")
-    colour = channel_axis is not None
-    if colour:
-        if arr.ndim not in (3, 4):
-            raise ValueError(
-                f"with channel_axis={channel_axis}, image must be one colour frame (H, W, C) "
-                f"or a colour clip (T, H, W, C); got shape {arr.shape}. For grey images and "
-                "grey clips pass channel_axis=None.")
-        arr = np.moveaxis(arr, channel_axis, -1)
-        if arr.shape[-1] > 4:
-            raise ValueError(
-                f"the colour axis has {arr.shape[-1]} entries: is this a grey clip (T, H, W)? "
-                "Then pass channel_axis=None.")
-    elif arr.ndim not in (2, 3):
-        raise ValueError(f"with channel_axis=None, image must be (H, W) or a grey clip "
-                         f"(T, H, W); got shape {arr.shape}.")
-    single = arr.ndim == (3 if colour else 2)
-    clip = arr[None] if single else arr
-    if not colour:
-        clip = clip[..., None]
+    layout = read_layout(arr, channel_axis)
+    clip = layout.clip
     if clip.dtype.kind == "f" and not np.all(np.isfinite(clip)):
         raise ValueError("image contains NaN or infinite values; replace them (they are "
                          "missing pixels: put them in the mask and fill them with 0).")
@@ -96,29 +67,64 @@ def _as_clip(image, mask, channel_axis):
     T, H, W = clip.shape[:3]
     if m.shape == (H, W):
         masks = np.broadcast_to(m != 0, (T, H, W))
-    elif m.shape == (T, H, W) and not single:
+    elif m.shape == (T, H, W) and not layout.single:
         masks = m != 0
     else:
-        want = f"({H}, {W})" + ("" if single else f" or ({T}, {H}, {W})")
-        raise ValueError(f"mask has shape {m.shape}; it must be {want} (True where pixels "
-                         "are missing).")
+        want = f"({H}, {W})" + ("" if layout.single else f" or ({T}, {H}, {W})")
+        raise ValueError(f"mask has shape {m.shape}; the image {arr.shape} reads as "
+                         f"{layout.reading}, so the mask must be {want} (True where pixels "
+                         f"are missing).{_layout_hint(arr, m, layout, channel_axis)}")
     full = [t for t in range(T) if masks[t].all()]
     if full:
         raise ValueError(
             f"the mask covers every pixel of frame {full[0]}: there is nothing to learn the "
             "texture from. Mark only the damaged pixels.")
-    return clip, masks, single, colour
+    return layout, masks
+
+
+def _layout_hint(arr, mask, layout, channel_axis):
+    """What to pass when the mask fits another reading of a 3-D image."""
+    if arr.ndim != 3 or channel_axis is None:
+        return ""
+    if layout.colour and mask.shape == arr.shape:
+        return (" A colour frame takes one (H, W) mask for all its channels; for a grey "
+                "clip (T, H, W) pass channel_axis=None.")
+    if not layout.colour and mask.ndim == 2:
+        return (f" A colour frame (H, W, C) has at most {MAX_COLOURS} channels; this "
+                "array's last axis is longer, so it is read as a grey clip.")
+    return ""
 
 
 def line_offsets(depth, half_width=2):
-    """Causal offsets in the previous ``depth`` scan lines only, ``half_width``
-    either side: ``(di, dj)`` for ``di = 1..depth``, ``|dj| <= half_width``.
+    """Causal offsets in the previous ``depth`` scan lines only.
 
     A model moving towards the damage predicts a missing pixel from the lines
     it has already passed, never from the pixel before it on its own line:
     along a scratch that pixel is itself a prediction, and chaining
     predictions along the scratch drifts (measured: the hierarchical order-2
     neighbourhood loses 2 dB on vertical scratches).
+
+    Parameters
+    ----------
+    depth : int
+        Scan lines used, 1 to 8.
+    half_width : int, optional
+        Pixels either side of the pixel's own column in each line.
+
+    Returns
+    -------
+    (depth * (2 * half_width + 1), 2) ndarray of int64
+        ``(di, dj)`` for ``di = 1..depth`` and ``|dj| <= half_width``.
+
+    Raises
+    ------
+    ValueError
+        If ``depth`` is not an int from 1 to 8.
+
+    Examples
+    --------
+    >>> line_offsets(1, half_width=1).tolist()
+    [[1, -1], [1, 0], [1, 1]]
     """
     if isinstance(depth, (bool, np.bool_)) or int(depth) != depth or not 1 <= depth <= 8:
         raise ValueError(f"neighbourhood (scan lines used) must be an int from 1 to 8; "
@@ -143,9 +149,11 @@ def _side_distance(mask):
     return dist
 
 
-def _fill_frame(frame, mask, previous, offsets, forgetting, interleave, prior, halo):
-    """Conditional-mean fill of one (H, W, C) float frame; returns the filled
-    values at ``mask`` as (n_missing, C)."""
+def _iter_fill_frame(frame, mask, previous, offsets, forgetting, interleave, prior, halo,
+                     message):
+    """Conditional-mean fill of one (H, W, C) float frame, a Progress record
+    after each of the four scans but the last; returns the filled values at
+    ``mask`` as (n_missing, C)."""
     H, W, C = frame.shape
     known = ~mask
     mean = frame[known].mean(axis=0)
@@ -187,10 +195,20 @@ def _fill_frame(frame, mask, previous, offsets, forgetting, interleave, prior, h
         out = work[pad:-pad, pad:-pad, :C] if pad else work[..., :C]
         return out[mask]
 
-    directions = ("down", "up", "right", "left")  # from the top, bottom, left, right
+    # the scans are independent (two at a time: the machine's cores); a yield
+    # after each lets a Cancel stop the frame between them
     with ThreadPoolExecutor(max_workers=2) as pool:
-        filled = list(pool.map(fill, directions))
-    # exponential interleaving (14.53): each model's weight decays with the
+        futures = [pool.submit(fill, direction) for direction in _DIRECTIONS]
+        try:
+            for done, _ in enumerate(as_completed(futures), start=1):
+                if done < len(futures):
+                    yield Progress("frames", done / len(futures),
+                                   f"{message}, scan {done}/{len(futures)}")
+        finally:
+            for future in futures:
+                future.cancel()  # those not started yet, when the job is closed
+        filled = [future.result() for future in futures]
+    # exponential interleaving (section 14.7): each model's weight decays with the
     # distance from the known data on its side
     distance = [
         _side_distance(mask.T).T[mask],  # from the top
@@ -200,7 +218,7 @@ def _fill_frame(frame, mask, previous, offsets, forgetting, interleave, prior, h
     ]
     nearest = np.minimum.reduce(distance)  # exp of differences only: no underflow
     weights = [np.exp(-(d - nearest) / interleave)[:, None] for d in distance]
-    values = sum(w * f for w, f in zip(weights, filled)) / sum(weights)
+    values = sum(w * f for w, f in zip(weights, filled, strict=True)) / sum(weights)
     return values + mean
 
 
@@ -213,9 +231,78 @@ def _to_dtype(values, dtype):
 
 def iter_inpaint(image, mask, *, temporal=True, neighbourhood=1, forgetting=0.9995,
                  interleave=DEFAULT_INTERLEAVE, halo=EDGE_OUTLIER_LOGREL, channel_axis=-1):
-    """:func:`inpaint` as a generator: yields an :class:`InpaintState` after
-    each frame (the restored frame, for live display), returns the result."""
-    clip, masks, single, colour = _as_clip(image, mask, channel_axis)
+    """Fill damaged pixels, as a job: Progress records, then the result.
+
+    The generator form of :func:`inpaint`, with the same parameters and
+    result. Each frame is four scans; a record follows each scan, and the
+    last record of frame ``t`` carries that frame restored, for live display.
+
+    Parameters
+    ----------
+    image : ndarray
+        A frame ``(H, W)`` or ``(H, W, C)``, or a clip ``(T, H, W)`` or
+        ``(T, H, W, C)``; see :func:`inpaint` for how ``channel_axis`` reads it.
+    mask : (H, W) or (T, H, W) array_like of bool
+        True (nonzero) where pixels are missing; (H, W) applies to every frame.
+    temporal : bool, optional
+        Use the previous restored frame as context (clips only).
+    neighbourhood : int, optional
+        How many previous scan lines the models see (see :func:`inpaint`).
+    forgetting : float in (0, 1], optional
+        Forgetting factor of the adaptive models.
+    interleave : float, optional
+        Decay length (pixels) of each side's weight.
+    halo : float <= 0 or None, optional
+        Threshold of the edge test (see :func:`inpaint`); None disables it.
+    channel_axis : int or None, optional
+        The colour axis; None forces grey.
+
+    Returns
+    -------
+    ndarray
+        What :func:`inpaint` returns: like ``image`` (same shape and dtype),
+        pixels outside the mask bit-identical to the input.
+
+    Yields
+    ------
+    Progress
+        Stage ``"frames"``, with a fraction proportional to the damaged
+        frames done. After frame ``t`` of ``T``: message ``"frame t+1/T"`` and
+        preview ``(t, restored_frame)``, the frame in the layout of the
+        input's frames (a read-only view of the result). Between its scans:
+        message ``"frame t+1/T, scan k/4"``, no preview.
+
+    Raises
+    ------
+    TypeError
+        If the image or the mask is not numeric.
+    ValueError
+        If the image is neither a frame nor a clip, holds NaN or infinite
+        values, or is too small; if the mask has the wrong shape or covers a
+        whole frame; if an option is out of range.
+
+    Warns
+    -----
+    UserWarning
+        When the mask is empty (the input is returned unchanged).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from car_napari._progress import drain
+    >>> frame = np.random.default_rng(0).random((16, 16))
+    >>> mask = np.zeros((16, 16), bool)
+    >>> mask[:, 7] = True
+    >>> job = iter_inpaint(frame, mask)
+    >>> records = []
+    >>> restored = drain(job, records.append)
+    >>> records[-1].message, records[-1].preview[0]
+    ('frame 1/1', 0)
+    >>> bool(np.array_equal(restored[~mask], frame[~mask]))
+    True
+    """
+    layout, masks = _as_clip(image, mask, channel_axis)
+    clip = layout.clip
     if not 0.0 < float(forgetting) <= 1.0:
         raise ValueError(f"forgetting must be in (0, 1]; got {forgetting}.")
     if not float(interleave) > 0:
@@ -229,49 +316,55 @@ def iter_inpaint(image, mask, *, temporal=True, neighbourhood=1, forgetting=0.99
         raise ValueError(f"the frame ({H}x{W}) is too small for neighbourhood order "
                          f"{neighbourhood}: it needs more than {2 * reach} pixels each way.")
     out = np.array(clip, copy=True)
-    if not masks.any():
+    damaged = [bool(np.asarray(masks[t]).any()) for t in range(T)]
+    if not any(damaged):
         warnings.warn("the mask is empty: nothing to restore, the input is returned "
                       "unchanged.", UserWarning, stacklevel=2)
+    work = np.cumsum([1.0 if d else _CLEAN_FRAME_WORK for d in damaged])
+    work /= work[-1]
     previous = None
     for t in range(T):
-        frame_mask = np.asarray(masks[t])
-        if frame_mask.any():
+        message = f"frame {t + 1}/{T}"
+        if damaged[t]:
+            frame_mask = np.asarray(masks[t])
             frame = clip[t].astype(np.float64)
-            values = _fill_frame(frame, frame_mask, previous if temporal else None, offsets,
-                                 float(forgetting), float(interleave), 1e-6,
-                                 None if halo is None else float(halo))
+            fill = _iter_fill_frame(frame, frame_mask, previous if temporal else None,
+                                    offsets, float(forgetting), float(interleave), 1e-6,
+                                    None if halo is None else float(halo), message)
+            values = yield from stage(fill, work[t - 1] if t else 0.0, work[t])
             out[t][frame_mask] = _to_dtype(values, clip.dtype)
         previous = out[t].astype(np.float64)
-        yield InpaintState(t, (t + 1) / T, out[t] if colour else out[t, ..., 0])
-    return _layout(out[0] if single else out, colour, channel_axis)
-
-
-def _layout(arr, colour, channel_axis):
-    """Channel-last working array -> the caller's layout."""
-    if not colour:
-        return arr[..., 0]
-    return np.moveaxis(arr, -1, channel_axis)
+        restored_frame = layout.frame_to_input(out[t]).view()
+        restored_frame.flags.writeable = False
+        yield Progress("frames", float(work[t]), message, (t, restored_frame))
+    return layout.to_input(out)
 
 
 def inpaint(image, mask, *, temporal=True, neighbourhood=1, forgetting=0.9995,
             interleave=DEFAULT_INTERLEAVE, halo=EDGE_OUTLIER_LOGREL, channel_axis=-1):
     """Fill damaged pixels with the conditional mean of adaptive CAR models.
 
-    SPEC section 6: four models move towards the damage (downwards,
-    upwards, rightwards and leftwards), filled pixels serving as neighbours
-    of later ones; the four fills are combined by exponential interleaving.
-    Known pixels bordering the damage that a model finds improbable (the
-    halo of soft-edged damage) are not used as its neighbours. In a clip the
-    previous restored frame is part of each pixel's context (3.5D model)
-    when ``temporal`` is True.
+    Section 14.7, docs/inpainting.md: four models move towards the damage
+    (downwards, upwards, rightwards and leftwards), filled pixels serving as
+    neighbours of later ones (14.54); the four fills are combined by
+    exponential interleaving. Known pixels bordering the damage that a model
+    finds improbable (the halo of soft-edged damage) are not used as its
+    neighbours. In a clip the previous restored frame is part of each
+    pixel's context (3.5D model) when ``temporal`` is True.
 
     Parameters
     ----------
-    image : array
-        One frame (H, W) or (H, W, C), or a clip (T, H, W) or (T, H, W, C);
-        grey frames and clips need ``channel_axis=None``.
-    mask : (H, W) or (T, H, W) array of bool
-        True (nonzero) where pixels are missing; (H, W) applies to every frame.
+    image : ndarray
+        A frame or a clip, any integer or float32/64 dtype. How
+        ``channel_axis`` reads it: ``(H, W)`` is a grey frame; a 3-D array is
+        a colour frame ``(H, W, C)`` when the channel axis has at most 4
+        entries and a grey clip ``(T, H, W)`` otherwise; a 4-D array is a
+        colour clip ``(T, H, W, C)``; ``channel_axis=None`` forces grey
+        (``(H, W)`` or ``(T, H, W)``, e.g. for a grey clip of 4 frames or
+        fewer).
+    mask : (H, W) or (T, H, W) array_like of bool
+        True (nonzero) where pixels are missing (in every channel); (H, W)
+        applies to every frame of a clip.
     temporal : bool, optional
         Use the previous restored frame as context (clips only).
     neighbourhood : int, optional
@@ -292,100 +385,43 @@ def inpaint(image, mask, *, temporal=True, neighbourhood=1, forgetting=0.9995,
         a halo just outside a mask drawn at its core. Default
         ``EDGE_OUTLIER_LOGREL`` (-12); None disables the test.
     channel_axis : int or None, optional
-        Colour axis; None for grey.
+        The colour axis (default -1, the last); None forces grey.
 
     Returns
     -------
-    restored : ndarray, like ``image`` (same shape and dtype); pixels outside
-        the mask are bit-identical to the input.
+    ndarray
+        Like ``image`` (same shape and dtype); pixels outside the mask are
+        bit-identical to the input.
+
+    Raises
+    ------
+    TypeError
+        If the image or the mask is not numeric.
+    ValueError
+        If the image is neither a frame nor a clip, holds NaN or infinite
+        values, or is too small for the neighbourhood; if the mask has the
+        wrong shape or covers a whole frame; if an option is out of range.
 
     Warns
     -----
     UserWarning
         When the mask is empty (the input is returned unchanged).
+
+    See Also
+    --------
+    iter_inpaint : The same as a job, with progress and each restored frame.
+    detect_scratches : Propose a mask.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> frame = np.random.default_rng(0).random((16, 16))
+    >>> mask = np.zeros((16, 16), bool)
+    >>> mask[4:8, 4:8] = True
+    >>> restored = inpaint(frame, mask)
+    >>> restored.shape, bool(np.array_equal(restored[~mask], frame[~mask]))
+    ((16, 16), True)
     """
     return drain(iter_inpaint(image, mask, temporal=temporal, neighbourhood=neighbourhood,
                               forgetting=forgetting, interleave=interleave, halo=halo,
                               channel_axis=channel_axis))
-
-
-# --- detection ------------------------------------------------------------------------
-
-
-def detect_scratches(image, *, kinds=("line", "blotch"), channel_axis=-1, line_width=3,
-                     line_length=0.5, line_threshold=4.0, blotch_threshold=0.12):
-    """Propose a damage mask for a frame or a clip.
-
-    * ``'line'``: vertical line scratches. A pixel of the grey frame is a
-      line candidate when it is brighter (or darker) than both pixels
-      ``w = line_width`` to its left and right by more than ``line_threshold``
-      robust standard deviations of the horizontal pixel differences (a step
-      edge is brighter than one side only). It is proposed when more than
-      half of the rows in a vertical window of ``line_length`` times the frame
-      height are candidates of the same sign: the scratch persists down the
-      frame.
-    * ``'blotch'`` (clips only): the spike detector index SDIa. A pixel is
-      proposed when it differs from both the previous and the next frame by
-      more than ``blotch_threshold`` (image scale [0, 1]) in the same
-      direction. Real motion fails the test on one side.
-
-    Misses: scratches that are not vertical, lines fainter than the texture's
-    own vertical structure, blotches that persist over two frames and damage
-    on the first and last frames of a clip (they have one neighbour only).
-
-    Returns
-    -------
-    mask : bool array, (H, W) for a frame or (T, H, W) for a clip.
-    """
-    from scipy import ndimage
-
-    kinds = (kinds,) if isinstance(kinds, str) else tuple(kinds)
-    bad = [k for k in kinds if k not in ("line", "blotch")]
-    if bad or not kinds:
-        raise ValueError(f"kinds must be a subset of ('line', 'blotch'); got {kinds}.")
-    arr = np.asarray(image)
-    colour = channel_axis is not None
-    if colour and arr.ndim in (3, 4):
-        arr = np.moveaxis(arr, channel_axis, -1)
-        if arr.shape[-1] > 4:
-            raise ValueError("the colour axis has more than 4 entries: for a grey clip pass "
-                             "channel_axis=None.")
-    single = arr.ndim == (3 if colour else 2)
-    frames = []
-    for f in (arr[None] if single else arr):
-        g = as_channel_last_float(f, channel_axis=-1 if colour else None, name="frame")
-        frames.append(g.mean(axis=2))
-    grey = np.stack(frames)
-    T, H, W = grey.shape
-    mask = np.zeros((T, H, W), bool)
-    if "line" in kinds:
-        w = int(line_width)
-        if W <= 2 * w:
-            raise ValueError(f"the frame is too narrow ({W} px) for line_width {w}.")
-        length = max(3, int(line_length * H) | 1)
-        for t in range(T):
-            g = grey[t]
-            left = g[:, w:-w] - g[:, : -2 * w]
-            right = g[:, w:-w] - g[:, 2 * w :]
-            # a line is brighter (darker) than *both* sides; a step edge is not
-            both = np.where(left * right > 0, np.sign(left) * np.minimum(np.abs(left),
-                                                                         np.abs(right)), 0.0)
-            contrast = np.zeros_like(g)
-            contrast[:, w:-w] = both
-            scale = 1.4826 * np.median(np.abs(g[:, 1:] - g[:, :-1])) + 1e-12
-            strong = np.abs(contrast) > line_threshold * scale
-            signed = np.sign(contrast) * strong
-            # persistence: most rows of a long vertical window agree in sign
-            along = ndimage.uniform_filter1d(signed, length, axis=0, mode="nearest")
-            lines = strong & (np.abs(along) > 0.5) & (np.sign(along) == np.sign(contrast))
-            # fill the scratch's width (the contrast peaks at its centre)
-            mask[t] |= ndimage.binary_dilation(lines, structure=np.ones((1, 3), bool))
-    if "blotch" in kinds and T >= 3:
-        prev_diff = grey[1:-1] - grey[:-2]
-        next_diff = grey[1:-1] - grey[2:]
-        same_sign = np.sign(prev_diff) == np.sign(next_diff)
-        spikes = same_sign & (np.minimum(np.abs(prev_diff), np.abs(next_diff))
-                              > blotch_threshold)
-        spikes = ndimage.binary_opening(spikes, structure=np.ones((1, 2, 2), bool))
-        mask[1:-1] |= ndimage.binary_dilation(spikes, structure=np.ones((1, 3, 3), bool))
-    return mask[0] if single else mask

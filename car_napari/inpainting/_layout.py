@@ -1,0 +1,93 @@
+"""How a frame or a clip is read: the channel_axis rule of inpainting.
+
+One rule serves :func:`~car_napari.inpainting.inpaint` and
+:func:`~car_napari.inpainting.detect_scratches`:
+
+* ``(H, W)``: a grey frame, whatever ``channel_axis`` says;
+* 3-D with an integer ``channel_axis``: a colour frame ``(H, W, C)`` when that
+  axis has at most :data:`MAX_COLOURS` entries, else a grey clip ``(T, H, W)``
+  (no colour image has more channels than that, no frame is that narrow);
+* 4-D: a colour clip ``(T, H, W, C)``;
+* ``channel_axis=None`` forces grey: ``(H, W)`` or ``(T, H, W)``.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+MAX_COLOURS = 4  # more entries on the channel axis of a 3-D array: a grey clip
+
+
+class ClipLayout(NamedTuple):
+    """A frame or clip as a channel-last clip view, and how it was read."""
+
+    clip: np.ndarray  # (T, H, W, C) view of the input, its dtype
+    single: bool  # one frame, not a clip
+    colour: bool  # the input has a channel axis
+    channel_axis: int | None  # that axis, normalised to >= 0 (None for grey)
+
+    @property
+    def reading(self):
+        """The layout in words, for error messages."""
+        if self.single:
+            return "a colour frame (H, W, C)" if self.colour else "a grey frame (H, W)"
+        return "a colour clip (T, H, W, C)" if self.colour else "a grey clip (T, H, W)"
+
+    def to_input(self, arr):
+        """A channel-last (T, H, W, C) working array in the input's layout."""
+        arr = arr[0] if self.single else arr
+        if not self.colour:
+            return arr[..., 0]
+        return np.moveaxis(arr, -1, self.channel_axis)
+
+    def frame_to_input(self, frame):
+        """One channel-last (H, W, C) frame in the layout of the input's frames."""
+        if not self.colour:
+            return frame[..., 0]
+        # a clip's frame loses the time axis, which comes first after the colour
+        axis = self.channel_axis if self.single else max(self.channel_axis - 1, 0)
+        return np.moveaxis(frame, -1, axis)
+
+
+def read_layout(arr, channel_axis):
+    """Read ``arr`` as a frame or clip by the module's rule; a clear
+    ValueError when it is neither."""
+    if channel_axis is None:
+        if arr.ndim not in (2, 3):
+            raise ValueError(
+                f"with channel_axis=None, image must be a grey frame (H, W) or a grey clip "
+                f"(T, H, W); got shape {arr.shape}. For colour pass channel_axis=-1.")
+        colour, axis = False, None
+    elif arr.ndim == 2:
+        colour, axis = False, None
+    elif arr.ndim in (3, 4):
+        axis = _normalised_axis(channel_axis, arr.ndim)
+        colour = arr.ndim == 4 or arr.shape[axis] <= MAX_COLOURS
+        if arr.ndim == 4 and arr.shape[axis] > MAX_COLOURS:
+            raise ValueError(
+                f"image of shape {arr.shape} reads as a colour clip (T, H, W, C), but its "
+                f"channel axis ({channel_axis}) has {arr.shape[axis]} entries, more than "
+                f"{MAX_COLOURS}: pass the right channel_axis.")
+        if not colour:
+            axis = None
+    else:
+        raise ValueError(
+            f"image must be a frame (H, W) or (H, W, C), or a clip (T, H, W) or "
+            f"(T, H, W, C); got {arr.ndim}-D shape {arr.shape}.")
+    work = np.moveaxis(arr, axis, -1) if colour else arr[..., None]
+    single = work.ndim == 3
+    return ClipLayout(work[None] if single else work, single, colour, axis)
+
+
+def _normalised_axis(channel_axis, ndim):
+    if isinstance(channel_axis, (bool, np.bool_)) or not isinstance(
+        channel_axis, (int, np.integer)
+    ):
+        raise TypeError(f"channel_axis must be an int or None; got {channel_axis!r}.")
+    if not -ndim <= channel_axis < ndim:
+        raise ValueError(
+            f"channel_axis {channel_axis} is out of range for a {ndim}-D image; pass an axis "
+            f"from {-ndim} to {ndim - 1}, or None for grey.")
+    return int(channel_axis) % ndim
