@@ -1,4 +1,4 @@
-"""Scratch and video restoration (SPEC 6) against OpenCV and scikit-image, by hand.
+"""Scratch and video restoration (section 14.7, docs/inpainting.md) against OpenCV and scikit-image, by hand.
 
     PYTHONPATH=. python benchmarks/bench_inpainting.py [--frames N] [--skip-speed]
 
@@ -55,7 +55,7 @@ def methods():
         return np.clip(np.round(out * 255), 0, 255).astype(np.uint8)
 
     return {
-        "ours (CAR, SPEC 6)": lambda image, mask: inpaint(image, mask),
+        "ours (CAR)": lambda image, mask: inpaint(image, mask),
         "OpenCV Telea": opencv(cv2.INPAINT_TELEA),
         "OpenCV Navier-Stokes": opencv(cv2.INPAINT_NS),
         "scikit-image biharmonic": biharmonic,

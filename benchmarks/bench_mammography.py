@@ -1,4 +1,4 @@
-"""Mammogram regions of interest (SPEC 3.1) on mini-MIAS, run by hand.
+"""Mammogram regions of interest (docs/mammography.md) on mini-MIAS, run by hand.
 
     PYTHONPATH=. python benchmarks/bench_mammography.py [--limit N] [--cache DIR]
 
@@ -8,11 +8,11 @@ takes 15-40 minutes on 2 cores.)
 1. Split: the 81 images in refnum order, even positions learn (mdb001,
    mdb009, ...), odd positions are held out (mdb005, mdb013, ...); each side
    has 6 mass images (6 and 7 mass findings).
-2. Learns SPEC 3.1's reference grey: the median, over the learning split's
+2. Learns the reference grey (docs/mammography.md): the median, over the learning split's
    mass findings (CIRC, SPIC, MISC), of the mean grey level (8-bit / 255)
    inside the ground-truth circle. ``car_napari.mammography.REFERENCE_GREY``
    must be the printed value.
-3. Segments every breast once (``iter_segment_breast`` at ``work_side`` 512,
+3. Segments every breast once (``segment_breast`` at ``work_side`` 512,
    keeping the merge-history states with ``DEFAULT_POOL_SEGMENTS`` segments;
    cached in ``--cache`` so re-runs only redo the cheap filtering), tunes
    ``tolerance`` and
@@ -44,7 +44,7 @@ import numpy as np
 from skimage import io
 
 from car_napari import mammography as mm
-from car_napari.mammography._rois import _block_mean
+from car_napari.mammography._images import _block_mean
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "mammograms" / "mini-mias"
 MASSES = ("CIRC", "SPIC", "MISC")
@@ -123,12 +123,9 @@ def segments_for(name, cache):
         return list(z["pooled"]), float(z["seconds"])
     image = read(name)
     t = time.perf_counter()
-    out = None
-    for step in mm.iter_segment_breast(image, pool=mm.DEFAULT_POOL_SEGMENTS):
-        if isinstance(step, dict):
-            out = step
+    out = mm.segment_breast(image, pool=mm.DEFAULT_POOL_SEGMENTS)
     seconds = time.perf_counter() - t
-    pooled = np.array(out["pooled"], np.uint8)
+    pooled = np.array(out.pooled, np.uint8)
     np.savez_compressed(path, pooled=pooled, seconds=seconds)
     return list(pooled), seconds
 

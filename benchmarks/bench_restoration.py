@@ -1,4 +1,4 @@
-"""Restoration quality and speed (SPEC 4, 5), run by hand.
+"""Restoration quality and speed (sections 14.5-14.6, docs/restoration.md), run by hand.
 
     PYTHONPATH=. python benchmarks/bench_restoration.py [--limit N] [--skip-speed]
 

@@ -1,21 +1,33 @@
 """car-napari: Haindl's causal autoregressive (CAR) random-field models.
 
 The model (:mod:`car_napari.model`) and every application on it are reached
-from here; each long computation also has a generator form ``iter_<name>``
-that yields :class:`Progress` records and returns the result. The core is
-NumPy + Numba and imports neither Qt nor napari; the napari dock widgets live
-in :mod:`car_napari._widgets`.
+from here. Each long computation has a generator form ``iter_<name>`` that
+yields :class:`Progress` records and returns what ``<name>`` returns
+(``<name>(...)`` is ``drain(iter_<name>(...))``). The core is NumPy + Numba and
+imports neither Qt nor napari; the napari dock widgets live in
+:mod:`car_napari._widgets`, the command line in :mod:`car_napari.cli`.
 """
 
-from ._progress import Progress
-from .inpainting import detect_scratches, inpaint, iter_inpaint
-from .mammography import detect_breast, detect_mammogram_rois, iter_detect_mammogram_rois
+from ._progress import Progress, drain
+from .inpainting import detect_scratches, inpaint, iter_detect_scratches, iter_inpaint
+from .mammography import (
+    MammogramROIs,
+    detect_breast,
+    detect_mammogram_rois,
+    iter_detect_mammogram_rois,
+    iter_segment_breast,
+    segment_breast,
+)
 from .model import (
     CARModel,
     Context,
+    Prediction,
+    SupportSelection,
     causal_neighbourhood,
     fit_car,
     illumination_invariants,
+    iter_fit_car,
+    iter_select_support,
     local_parameters,
     predict,
     select_support,
@@ -23,6 +35,7 @@ from .model import (
     synthesize,
 )
 from .restoration import (
+    MultichannelRestoration,
     RestorationResult,
     estimate_noise,
     estimate_psf,
@@ -31,8 +44,25 @@ from .restoration import (
     restore,
     restore_multichannel,
 )
-from .segmentation import SegmentationResult, iter_segment, local_features, segment
-from .texture import BTFModel, DynamicTextureModel, TextureModel, rank, texture_features
+from .segmentation import (
+    SegmentationResult,
+    iter_local_features,
+    iter_segment,
+    local_features,
+    segment,
+)
+from .texture import (
+    BTFModel,
+    DynamicTextureModel,
+    Ranking,
+    TextureModel,
+    iter_fit_btf,
+    iter_fit_dynamic_texture,
+    iter_fit_texture,
+    iter_rank,
+    rank,
+    texture_features,
+)
 
 __version__ = "0.1.0"
 
@@ -40,9 +70,13 @@ __all__ = [
     # the model
     "CARModel",
     "Context",
+    "Prediction",
+    "SupportSelection",
     "causal_neighbourhood",
     "fit_car",
     "illumination_invariants",
+    "iter_fit_car",
+    "iter_select_support",
     "local_parameters",
     "predict",
     "select_support",
@@ -50,13 +84,18 @@ __all__ = [
     "synthesize",
     # segmentation and mammograms
     "SegmentationResult",
+    "iter_local_features",
     "iter_segment",
     "local_features",
     "segment",
+    "MammogramROIs",
     "detect_breast",
     "detect_mammogram_rois",
     "iter_detect_mammogram_rois",
+    "iter_segment_breast",
+    "segment_breast",
     # restoration
+    "MultichannelRestoration",
     "RestorationResult",
     "estimate_noise",
     "estimate_psf",
@@ -67,13 +106,20 @@ __all__ = [
     # scratches and blotches
     "detect_scratches",
     "inpaint",
+    "iter_detect_scratches",
     "iter_inpaint",
     # textures
     "BTFModel",
     "DynamicTextureModel",
+    "Ranking",
     "TextureModel",
+    "iter_fit_btf",
+    "iter_fit_dynamic_texture",
+    "iter_fit_texture",
+    "iter_rank",
     "rank",
     "texture_features",
     # the job protocol
     "Progress",
+    "drain",
 ]
