@@ -1,5 +1,5 @@
 """Mammogram regions of interest on the CAR texture segmentation of the breast
-(section 14.4.1, docs/mammography.md).
+(section 14.4, docs/mammography.md).
 
 :func:`detect_breast` finds the breast; :func:`segment_breast` segments it;
 :func:`filter_regions` keeps the mass-like regions of a segmentation;

@@ -1,5 +1,5 @@
 """The breast area of a mammogram: background, labels, markers and film edges
-removed, and the pectoral muscle of MLO views (section 14.4.1,
+removed, and the pectoral muscle of MLO views (section 14.4,
 docs/mammography.md)."""
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """Candidate regions of interest on a segmentation of the breast, the
-grey-level filter that keeps mass-like ones (section 14.4.1,
+grey-level filter that keeps mass-like ones (section 14.4,
 docs/mammography.md), and their outlines."""
 
 from __future__ import annotations
@@ -131,7 +131,7 @@ def filter_regions(image, segments, *, reference=None, tolerance=None, max_regio
                    split_sigmas=SPLIT_SIGMAS, split_delta=SPLIT_DELTA, channel_axis=-1):
     """Mass-like regions of a segmentation of the breast: the grey-level filter.
 
-    The filter of section 14.4.1, docs/mammography.md, with candidate
+    The filter of section 14.4, docs/mammography.md, with candidate
     splitting and ranking. ``segments`` is one (H, W) labelling (0 outside
     the breast) or a list of them (e.g. several states of one merge history,
     pooled). The analysis runs on a grid of about 256 pixels on the long

@@ -1,4 +1,4 @@
-"""Mammogram regions of interest: the job (section 14.4.1, docs/mammography.md).
+"""Mammogram regions of interest: the job (section 14.4, docs/mammography.md).
 
 :func:`iter_segment_breast` runs the unsupervised CAR texture segmentation
 (section 14.4, docs/segmentation.md) on the pseudo-colour mammogram
@@ -19,7 +19,7 @@ import numpy as np
 from .._progress import Progress, drain, stage
 from ..segmentation import iter_segment, pseudo_colour
 from ._breast import detect_breast
-from ._docstrings import shared_parameters
+from .._docstrings import shared_parameters
 from ._images import _as_grey, _block_mean, _grey01
 from ._regions import DEFAULT_MAX_REGIONS, filter_regions
 
@@ -350,7 +350,7 @@ def detect_mammogram_rois(image, *, reference=None, tolerance=None, levels=3, n_
                           pool=DEFAULT_POOL_SEGMENTS, split=True, channel_axis=-1):
     """Find regions of interest (candidate masses) in a mammogram.
 
-    The method of section 14.4.1, docs/mammography.md:
+    The method of section 14.4, docs/mammography.md:
 
     1. Breast area: :func:`detect_breast` (or ``breast`` if given).
     2. The mammogram is block-averaged to about ``work_side`` pixels (512:

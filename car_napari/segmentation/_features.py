@@ -11,7 +11,7 @@ from .._validation import as_channel_last_float, check_not_constant, summarize
 from ..model.directions import DIRECTIONS, scan_view, unscan_view
 from ..model.neighbourhood import Context, as_offsets
 from ..model.recursive import adaptive_scan
-from ._docstrings import shared_parameters
+from .._docstrings import shared_parameters
 
 __all__ = ["iter_local_features", "local_features", "pseudo_colour"]
 
@@ -23,7 +23,7 @@ def pseudo_colour(grey, gammas=(0.5, 2.0)):
     """Pseudo-colour ``[Y, Y^g1, Y^g2]`` of a grey image scaled to [0, 1].
 
     A grey image gives the three-channel CAR models of the segmentation
-    something to correlate (section 14.4.1, docs/mammography.md).
+    something to correlate (section 14.4, docs/mammography.md).
 
     Parameters
     ----------
