@@ -115,7 +115,7 @@ def timings():
         print(f"{label:52s} {value:7.2f} {unit}")
 
     for order in (2, 5):
-        t = best_of(lambda: cn.fit_car(img, order))
+        t = best_of(lambda order=order: cn.fit_car(img, order))
         per_px = t * 1e9 / npx
         print(f"fit_car 1024x1024x3 order {order}:        {t:6.3f} s ({per_px:5.0f} ns/pixel)")
     t = best_of(lambda: cn.select_support(img))

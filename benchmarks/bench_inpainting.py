@@ -1,4 +1,5 @@
-"""Scratch and video restoration (section 14.7, docs/inpainting.md) against OpenCV and scikit-image, by hand.
+"""Scratch and video restoration (section 14.7, docs/inpainting.md) by hand,
+against OpenCV and scikit-image.
 
     PYTHONPATH=. python benchmarks/bench_inpainting.py [--frames N] [--skip-speed]
 
@@ -164,7 +165,7 @@ def bench_c(table):
     frames = [io.imread(p)[..., :3] for p in sorted((DATA / "old-film-clips" / "001")
                                                      .glob("*.png"))]
     damaged, masks = zip(*[composite(f, rng, overlays, n_overlays=2, n_lines=2)[:2]
-                           for f in frames])
+                           for f in frames], strict=True)
     clip, masks, truth = np.stack(damaged), np.stack(masks), np.stack(frames)
     for temporal in (True, False):
         t0 = time.perf_counter()

@@ -251,7 +251,8 @@ def main():
             sens, nf, fpi, secs, strict, rad = summarise(res, ns)
             print(f"| {label} | {split} | {len(ns)} | {nf} | {sens:.2f} | {strict:.2f} | "
                   f"{fpi:.2f} | {rad:.0f} | {secs:.1f} |")
-    missed = [(n, m) for n in everything for m, h in zip(masses[n], ours[n][0]) if not h]
+    missed = [(n, m) for n in everything
+              for m, h in zip(masses[n], ours[n][0], strict=True) if not h]
     print(f"\nmissed by ours: {missed}")
 
 

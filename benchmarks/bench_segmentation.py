@@ -102,7 +102,7 @@ def main():
         for name in methods:
             means = [np.mean([r[key] for r in rows[name]]) for key in KEYS]
             print(f"| {name} | " + " | ".join(f"{m:.3f}" if key in ("ARI", "VI") else f"{m:.2f}"
-                                              for key, m in zip(KEYS, means))
+                                              for key, m in zip(KEYS, means, strict=True))
                   + f" | {np.mean(secs[name]):.1f} |")
 
 

@@ -159,7 +159,7 @@ def run_synthesis(textures):
     ):
         print(f"| {label} | " + " | ".join(f"{np.mean([r[k] for r in rows]):.3f}" for k in keys)
               + f" | {comp} | {fit:.2f} | {syn:.2f} |")
-    wins = {k: sum(o[k] < r[k] for o, r in zip(ours, rpn)) for k in keys}
+    wins = {k: sum(o[k] < r[k] for o, r in zip(ours, rpn, strict=True)) for k in keys}
     print("\n| distance | textures where ours is closer | mean ours | mean RPN | ours closer "
           "on the mean |")
     print("|---|---|---|---|---|")

@@ -51,8 +51,8 @@ def car_field(A, offsets, sigma, shape, seed, burn=64):
     pad = 4
     Y = np.zeros((Hb + pad, Wb + 2 * pad, d))
     E = rng.standard_normal((Hb, Wb, d)) @ np.linalg.cholesky(sigma).T
-    prev = [(a, di, dj) for a, (di, dj) in zip(A, offsets) if di > 0]
-    same = [(a, dj) for a, (di, dj) in zip(A, offsets) if di == 0]
+    prev = [(a, di, dj) for a, (di, dj) in zip(A, offsets, strict=True) if di > 0]
+    same = [(a, dj) for a, (di, dj) in zip(A, offsets, strict=True) if di == 0]
     for i in range(Hb):
         r = i + pad
         row = E[i].copy()

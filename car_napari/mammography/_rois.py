@@ -16,10 +16,10 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .._docstrings import shared_parameters
 from .._progress import Progress, drain, stage
 from ..segmentation import iter_segment, pseudo_colour
 from ._breast import detect_breast
-from .._docstrings import shared_parameters
 from ._images import _as_grey, _block_mean, _grey01
 from ._regions import DEFAULT_MAX_REGIONS, filter_regions
 

@@ -6,12 +6,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._docstrings import shared_parameters
 from .._progress import Progress, drain
 from .._validation import as_channel_last_float, check_not_constant, summarize
 from ..model.directions import DIRECTIONS, scan_view, unscan_view
 from ..model.neighbourhood import Context, as_offsets
 from ..model.recursive import adaptive_scan
-from .._docstrings import shared_parameters
 
 __all__ = ["iter_local_features", "local_features", "pseudo_colour"]
 

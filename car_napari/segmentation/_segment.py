@@ -19,9 +19,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._docstrings import shared_parameters
 from .._progress import Progress, drain, stage
 from .._validation import as_channel_last_float, check_not_constant
-from .._docstrings import shared_parameters
 from ._features import iter_local_features, pseudo_colour
 from ._labelling import _renumber, label_pixels
 from ._mixture import _block_init, _choose_k, _drop_weak, _em_steps, _merge_closest
