@@ -142,13 +142,3 @@ def stage(job, start, stop, *, name=None, prefix=""):
             prefix + record.message,
             record.preview,
         )
-
-
-def relay(gen):  # transitional: removed when every job yields Progress records
-    while True:
-        try:
-            state = next(gen)
-        except StopIteration as stop:
-            return stop.value
-        yield float(state.fraction)
-        yield state

@@ -1,93 +1,140 @@
-"""Run a core function or generator in a napari worker thread.
+"""Run a core job (a generator of Progress records) in a napari worker thread.
 
-One place for the glue every widget needs: progress bar, Cancel button,
-and results applied only when the job was not cancelled (so a cancelled run
-leaves the viewer as it was). An exception in the job becomes one napari
-error notification with its message (the core's messages say what to do).
+The core's long computations are generators ``iter_<name>(...)`` that yield
+:class:`car_napari._progress.Progress` records and return their result; a
+:class:`Job` drives one in a worker and hands the records, the result or the
+error to the widget, in the main thread. A cancelled job hands over nothing
+more. Plain functions (a synthesis) run through :func:`call`.
 """
 
 from __future__ import annotations
 
 from napari.qt.threading import create_worker
-from napari.utils.notifications import show_error
+
+from .._progress import Progress
+
+
+class _Failed(Exception):
+    """Carries a RuntimeError out of the worker: superqt takes a RuntimeError
+    in a generator for a deleted worker and swallows it."""
+
+
+def _run(job):
+    try:
+        return (yield from job)
+    except RuntimeError as exc:
+        raise _Failed(exc) from exc
+
+
+def call(function, *args, stage="running", **kwargs):
+    """A plain function call as a job: one record, then its result.
+
+    Parameters
+    ----------
+    function : callable
+        The core function (one without a generator form).
+    *args
+        Its positional arguments.
+    stage : str, optional
+        The stage word of the record shown while it runs.
+    **kwargs
+        Its keyword arguments.
+
+    Yields
+    ------
+    Progress
+        One record, at fraction 0, before the call.
+
+    Returns
+    -------
+    object
+        What ``function(*args, **kwargs)`` returns.
+
+    Examples
+    --------
+    >>> from car_napari._progress import drain
+    >>> drain(call(divmod, 7, 2))
+    (3, 1)
+    """
+    yield Progress(stage, 0.0)
+    return function(*args, **kwargs)
 
 
 class Job:
-    """A running worker with its progress and cancel controls.
+    """One core generator running in a napari worker thread.
 
-    ``function`` may be a plain function or a generator function; a generator
-    yields either a float in [0, 1] (progress) or any other object, passed to
-    ``on_yield``. The return value goes to ``on_done``. ``cancel`` (a button)
-    is enabled while the job runs and ``buttons`` are disabled; the widget
-    connects its Cancel button to :meth:`cancel`.
+    The callbacks run in the main thread: ``on_progress(record)`` for every
+    :class:`Progress` record, ``on_done(result)`` with the generator's return
+    value, ``on_error(exc)`` when it raises, ``on_cancel()`` when
+    :meth:`cancel` stops it, and ``on_finished(job)`` at the end, whatever
+    the outcome. After a cancel no record, result or error is handed over.
+
+    Parameters
+    ----------
+    job : generator
+        A generator of :class:`Progress` records that returns the result
+        (an ``iter_<name>(...)`` call, not yet started).
+    on_progress, on_done, on_error, on_cancel, on_finished : callable
+        The callbacks.
+
+    Attributes
+    ----------
+    cancelled : bool
+        :meth:`cancel` was called before the job ended.
+    done : bool
+        The worker has finished (returned, failed or stopped).
+
+    Examples
+    --------
+    >>> Job.__name__  # a worker needs a running Qt application; see the tests
+    'Job'
     """
 
-    def __init__(self, function, *args, progress=None, cancel=None, buttons=(),
-                 on_yield=None, on_done=None, on_error=None, **kwargs):
+    def __init__(self, job, *, on_progress, on_done, on_error, on_cancel, on_finished):
         self.cancelled = False
-        self.done = False  # set when the worker has finished, whatever the outcome
-        self._progress = progress
-        self._cancel = cancel
-        self._buttons = buttons
-        self._on_yield = on_yield
-        self._on_done = on_done
-        self._on_error = on_error
-        # We show errors ourselves (the message, no traceback): no re-raise in
-        # the main thread, and no second notification from napari's relay.
-        self.worker = create_worker(function, *args, _start_thread=False,
-                                    _ignore_errors=True, **kwargs)
+        self.done = False
+        self._settled = False  # a result or an error was handed over
+        self._gen = job
+        self._callbacks = on_progress, on_done, on_error, on_cancel, on_finished
+        # Errors are the widget's to show (one notification, no traceback):
+        # nothing re-raised in the main thread, no second message from napari.
+        self.worker = create_worker(_run, job, _start_thread=False, _ignore_errors=True)
         try:
             self.worker.errored.disconnect(self.worker._relay_error)
         except (AttributeError, TypeError, RuntimeError):
             pass  # this napari version does not relay worker errors
-        if hasattr(self.worker, "yielded"):
-            self.worker.yielded.connect(self._yielded)
+        self.worker.yielded.connect(self._yielded)
         self.worker.returned.connect(self._returned)
         self.worker.errored.connect(self._errored)
         self.worker.finished.connect(self._finished)
-        self._set_busy(True)
         self.worker.start()
 
     def cancel(self):
+        """Stop the job at its next record; nothing more is handed over.
+
+        Does nothing when the job has already ended or been handed over.
+        """
+        if self.cancelled or self._settled or self.done:
+            return
         self.cancelled = True
         self.worker.quit()
-        if self._progress is not None:
-            self._progress.label = "cancelled"
+        self._callbacks[3]()
 
-    def _set_busy(self, busy):
-        if self._cancel is not None:
-            self._cancel.enabled = busy
-        for button in self._buttons:
-            button.enabled = not busy
-        if self._progress is not None and busy:
-            self._progress.value = 0
-
-    def _yielded(self, item):
-        if self.cancelled:
-            return
-        if isinstance(item, float) and self._progress is not None:
-            self._progress.value = int(round(100 * item))
-        elif self._on_yield is not None:
-            self._on_yield(item)
+    def _yielded(self, record):
+        if not (self.cancelled or self._settled):
+            self._callbacks[0](record)
 
     def _returned(self, result):
-        if self.cancelled:
-            return
-        if self._progress is not None:
-            self._progress.value = 100
-        if self._on_done is not None:
-            try:
-                self._on_done(result)
-            except Exception as exc:  # a failure applying results is the user's to see
-                show_error(f"{type(exc).__name__}: {exc}")
+        if not (self.cancelled or self._settled):
+            self._settled = True
+            self._callbacks[1](result)
 
     def _errored(self, exc):
-        if self._progress is not None:
-            self._progress.value = 0
-        show_error(f"{type(exc).__name__}: {exc}")
-        if self._on_error is not None:
-            self._on_error(exc)
+        if not (self.cancelled or self._settled):
+            self._settled = True
+            self._callbacks[2](exc.__cause__ if isinstance(exc, _Failed) else exc)
 
     def _finished(self):
-        self._set_busy(False)
         self.done = True
+        self._gen.close()  # a stopped generator runs its clean-up; the thread is done
+        self._callbacks[4](self)

@@ -1,82 +1,237 @@
-"""Reading image data out of napari layers without modifying them."""
+"""Layers in and out: a layer's data as an array, and the record of what a run
+writes into the viewer (so that a cancelled or failed run can be undone)."""
 
 from __future__ import annotations
 
 import numpy as np
 
+NO_LAYER = "no image layer selected: open an image (or a sample) first."
+NOT_2D = "choose a 2-D grey or RGB layer (for a stack, split it or pick one plane)."
 
-def image_data(layer, region=None):
-    """(array, channel_axis) of a 2-D grey or RGB(A) image layer, optionally
-    cropped to the first rectangle of a Shapes layer. Always a copy."""
+
+def layer_array(layer, region=None, *, ndims=(2,), hint=NOT_2D):
+    """The data of an image layer as a fresh array, and its channel axis.
+
+    Parameters
+    ----------
+    layer : napari.layers.Image or None
+        The layer; its data is never modified (the array is a copy).
+    region : napari.layers.Shapes, optional
+        Crop to the bounding box of its first shape (when it has one).
+    ndims : tuple of int, optional
+        The numbers of non-colour axes accepted (2: an image; 3: a stack or
+        a clip).
+    hint : str, optional
+        What to do when the layer has another number of axes.
+
+    Returns
+    -------
+    data : ndarray
+        A copy of the data; an RGBA layer loses its alpha.
+    channel_axis : int or None
+        -1 for an RGB(A) layer, None (grey) otherwise.
+
+    Raises
+    ------
+    ValueError
+        No layer, an empty one, one with the wrong number of axes, or a
+        rectangle that hardly overlaps it.
+
+    Examples
+    --------
+    >>> from types import SimpleNamespace
+    >>> layer = SimpleNamespace(name="grey", data=np.zeros((4, 5)), rgb=False)
+    >>> data, channel_axis = layer_array(layer)
+    >>> data.shape, channel_axis, data is layer.data
+    ((4, 5), None, False)
+    """
     if layer is None:
-        raise ValueError("no image layer selected: open an image (or a sample) first.")
+        raise ValueError(NO_LAYER)
     data = np.asarray(layer.data)
     if data.size == 0:
         raise ValueError(f"layer {layer.name!r} is empty.")
     rgb = bool(getattr(layer, "rgb", False))
+    spatial = data.ndim - rgb
+    if spatial not in ndims:
+        raise ValueError(f"layer {layer.name!r} has shape {data.shape} ({spatial} non-colour "
+                         f"axes); {hint}")
     if rgb:
         data = data[..., :3]
-    if data.ndim != (3 if rgb else 2):
-        raise ValueError(
-            f"layer {layer.name!r} has shape {data.shape}; choose a 2-D grey or RGB layer "
-            "(for a stack, split it or pick one plane)."
-        )
     if region is not None and len(region.data):
-        rows, cols = rectangle_bounds(region, data.shape[:2])
-        data = data[rows, cols]
-        if data.shape[0] < 2 or data.shape[1] < 2:
+        rows, cols = rectangle_bounds(region, data.shape[spatial - 2:spatial])
+        data = data[(Ellipsis, rows, cols) + ((slice(None),) if rgb else ())]
+        if min(data.shape[spatial - 2:spatial]) < 2:
             raise ValueError(f"the rectangle in {region.name!r} hardly overlaps the image.")
-    return data.copy(), (-1 if rgb else None)
+    return np.array(data, copy=True), (-1 if rgb else None)
 
 
 def rectangle_bounds(shapes, shape):
-    """Row and column slices of the first shape's bounding box, clipped."""
+    """Row and column slices of the first shape's bounding box, clipped to
+    ``shape`` (rows, columns).
+
+    Examples
+    --------
+    >>> from types import SimpleNamespace
+    >>> box = SimpleNamespace(data=[np.array([[1.5, 2.0], [8.2, 30.0]])])
+    >>> rectangle_bounds(box, (6, 20))
+    (slice(1, 6, None), slice(2, 20, None))
+    """
     vertices = np.asarray(shapes.data[0])[:, -2:]
     lo = np.clip(np.floor(vertices.min(axis=0)).astype(int), 0, shape)
     hi = np.clip(np.ceil(vertices.max(axis=0)).astype(int), 0, shape)
-    return slice(lo[0], hi[0]), slice(lo[1], hi[1])
+    return slice(int(lo[0]), int(hi[0])), slice(int(lo[1]), int(hi[1]))
 
 
 def value_range(data):
     """(min, max) of ``data`` in the core's float units (integers scaled to
-    [0, 1] as the core does), to clip synthesised samples for display."""
+    [0, 1] as the core does), to clip synthesised samples for display.
+
+    Examples
+    --------
+    >>> value_range(np.array([0, 255], np.uint8))
+    (0.0, 1.0)
+    """
     if data.dtype.kind in "ui":
         info = np.iinfo(data.dtype)
         return float(data.min()) / info.max, float(data.max()) / info.max
     return float(data.min()), float(data.max())
 
 
-class RunLayers:
-    """What one run writes into the viewer, so that a cancelled or failed run
-    can be undone: layers it created are removed, layers it overwrote get
-    their data back. :meth:`commit` when the run completes."""
+class RunRecord:
+    """What one run adds to or changes in the viewer, to undo it.
+
+    Every change a run makes goes through this record: a layer it creates,
+    a layer whose data it overwrites, a layer it replaces or removes, the
+    slider step it moves. :meth:`undo` (a Cancel, an error) puts the viewer
+    back as it was before the run, newest change first; :meth:`commit` (the
+    run completed) forgets the changes.
+
+    Parameters
+    ----------
+    viewer : napari.Viewer
+        The viewer the run writes into.
+
+    Examples
+    --------
+    >>> from types import SimpleNamespace
+    >>> record = RunRecord(SimpleNamespace(layers={}))
+    >>> record.commit()
+    """
 
     def __init__(self, viewer):
         self._viewer = viewer
-        self._created = []
-        self._backup = {}
+        self._undo = []  # closures, oldest first
+        self._saved = {}  # id -> layer whose data is backed up (or that this run created)
+
+    def _layers(self):
+        return self._viewer.layers
 
     def put(self, name, data, add):
-        """Set layer ``name``'s data, or create it with ``add(data, name)``."""
-        layers = self._viewer.layers
+        """Set layer ``name``'s data, or create the layer.
+
+        Parameters
+        ----------
+        name : str
+            The layer's name.
+        data : array
+            Its new data.
+        add : callable
+            ``add(data, name)`` creates the layer (with its display options)
+            when there is none of that name.
+
+        Returns
+        -------
+        napari.layers.Layer
+            The layer written.
+        """
+        layers = self._layers()
         if name in layers:
-            if name not in self._backup and name not in self._created:
-                self._backup[name] = layers[name].data
-            layers[name].data = data
-            return layers[name]
-        layer = add(data, name)
-        self._created.append(name)
+            layer = layers[name]
+            if id(layer) not in self._saved:
+                self._saved[id(layer)] = layer
+                old = layer.data
+                self._undo.append(lambda: setattr(layer, "data", old))
+            layer.data = data
+            return layer
+        return self.add(lambda: add(data, name))  # created: removing it undoes all
+
+    def replace(self, name, add):
+        """Remove layer ``name`` if there is one, then create it anew.
+
+        Parameters
+        ----------
+        name : str
+            The layer's name.
+        add : callable
+            ``add(name)`` creates the new layer.
+
+        Returns
+        -------
+        napari.layers.Layer
+            The new layer.
+        """
+        self.remove(name)
+        return self.add(lambda: add(name))
+
+    def add(self, add):
+        """Create a layer with ``add()``; undo removes it.
+
+        Parameters
+        ----------
+        add : callable
+            ``add()`` creates the layer (napari renames a duplicate name).
+
+        Returns
+        -------
+        napari.layers.Layer
+            The new layer.
+        """
+        layer = add()
+        self._saved[id(layer)] = layer
+        self._undo.append(lambda: self._drop(layer))
         return layer
 
+    def remove(self, name):
+        """Remove layer ``name`` (if there is one); undo puts it back in place.
+
+        Parameters
+        ----------
+        name : str
+            The layer's name.
+        """
+        layers = self._layers()
+        if name not in layers:
+            return
+        layer = layers[name]
+        index = layers.index(layer)
+        layers.remove(layer)
+        self._undo.append(lambda: self._layers().insert(index, layer))
+
+    def set_step(self, axis, value):
+        """Move the viewer's slider on ``axis`` to ``value``.
+
+        Parameters
+        ----------
+        axis : int
+            The dimension of the slider.
+        value : int
+            Its new step.
+        """
+        dims = self._viewer.dims
+        old = dims.current_step[axis]
+        self._undo.append(lambda: dims.set_current_step(axis, old))
+        dims.set_current_step(axis, value)
+
+    def _drop(self, layer):
+        if layer in self._layers():
+            self._layers().remove(layer)
+
     def undo(self):
-        layers = self._viewer.layers
-        for name in self._created:
-            if name in layers:
-                layers.remove(name)
-        for name, data in self._backup.items():
-            if name in layers:
-                layers[name].data = data
+        """Put the viewer back as it was before the run, newest change first."""
+        while self._undo:
+            self._undo.pop()()
         self.commit()
 
     def commit(self):
-        self._created, self._backup = [], {}
+        """The run is complete: forget its changes."""
+        self._undo, self._saved = [], {}

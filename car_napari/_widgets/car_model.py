@@ -4,23 +4,34 @@ parameters, synthesise a sample of any size."""
 from __future__ import annotations
 
 import numpy as np
-from magicgui.widgets import Container, Label, ProgressBar, PushButton, SpinBox, TextEdit
-from magicgui.widgets import create_widget
+from magicgui.widgets import Label, SpinBox, TextEdit
 
-from .. import fit_car, synthesize
-from ._jobs import Job
-from ._layers import image_data, value_range
-
-
-def _fit_job(data, channel_axis, max_order):
-    yield 0.05
-    model = fit_car(data, "auto", orders=range(1, max_order + 1), channel_axis=channel_axis)
-    yield 0.9
-    return model
+from ..model import iter_fit_car, synthesize
+from ._base import ModelWidget
+from ._jobs import call
+from ._layers import value_range
 
 
 def describe(model):
-    """Plain-text summary: decision-rule scores, gamma, Sigma."""
+    """Plain-text summary of a fitted model: decision-rule scores, gamma, Sigma.
+
+    Parameters
+    ----------
+    model : CARModel
+        A fitted model.
+
+    Returns
+    -------
+    str
+        One line per score, then the support and the parameter matrices.
+
+    Examples
+    --------
+    >>> import car_napari as car
+    >>> image = np.random.default_rng(0).random((32, 32))
+    >>> describe(car.fit_car(image, 1)).splitlines()[0]
+    'decision-rule score D_j (larger is more probable):'
+    """
     lines = ["decision-rule score D_j (larger is more probable):"]
     for order, score in (model.scores or {}).items():
         mark = "  <- chosen" if order == model.order else ""
@@ -29,90 +40,58 @@ def describe(model):
                  f"{[tuple(s) for s in model.offsets.tolist()]}")
     lines.append(f"pixels used: {model.n_pixels}")
     with np.printoptions(precision=4, suppress=True, linewidth=120):
-        for s, A in zip(model.offsets.tolist(), model.A):
+        for s, A in zip(model.offsets.tolist(), model.A, strict=True):
             lines.append(f"A{tuple(s)} =\n{A}")
         lines.append(f"Sigma =\n{model.sigma}")
         lines.append(f"mean = {model.mean}")
     return "\n".join(lines)
 
 
-class CARModelWidget(Container):
-    """Fit a CAR model to an image layer (or a rectangle on it) and synthesise."""
+class CARModelWidget(ModelWidget):
+    """Fit a CAR model to an image layer (or a rectangle on it) and synthesise.
+
+    Parameters
+    ----------
+    napari_viewer : napari.Viewer
+        The viewer.
+    """
+
+    control_labels = {"orders": "max order"}
 
     def __init__(self, napari_viewer):
-        super().__init__(labels=True)
-        self._viewer = napari_viewer
-        self.model = None
+        super().__init__(napari_viewer, size=256, min_size=4)
         self._source = None
-        self._job = None
-        self._image = create_widget(annotation="napari.layers.Image", label="image")
-        self._region = create_widget(
-            annotation="napari.layers.Shapes", label="rectangle",
-            options={"nullable": True, "tooltip": "optional: fit only inside its first shape"},
-        )
+        self._range = None
         self._max_order = SpinBox(value=5, min=1, max=8, label="max order",
                                   tooltip="candidates 1..max for the decision rule (14.6)")
-        self._fit = PushButton(text="Fit")
-        self._cancel = PushButton(text="Cancel", enabled=False)
-        self._progress = ProgressBar(value=0, min=0, max=100, label="progress")
+        self._fit = self.action("Fit", self.start_fit)
         self._report = TextEdit(value="", label="model")
         self._report.native.setReadOnly(True)
-        self._height = SpinBox(value=256, min=4, max=8192, label="height")
-        self._width = SpinBox(value=256, min=4, max=8192, label="width")
-        self._seed = SpinBox(value=0, min=0, max=2**31 - 1, label="seed")
-        self._synth = PushButton(text="Synthesize", enabled=False)
-        self.extend([
-            self._image, self._region, self._max_order, self._fit, self._cancel,
-            self._progress, self._report, Label(value="synthesis"), self._height,
-            self._width, self._seed, self._synth,
-        ])
-        self._fit.changed.connect(self.start_fit)
-        self._synth.changed.connect(self.start_synthesis)
-        self._cancel.changed.connect(self.cancel)
+        self.arrange([self._max_order, self._fit],
+                     after=[self._report, Label(value="synthesis"), self._height,
+                            self._width, self._seed, self._synth])
 
-    def cancel(self, *_):
-        if self._job is not None:
-            self._job.cancel()
-
-    def start_fit(self, *_):
-        try:
-            layer = self._image.value
-            data, channel_axis = image_data(layer, self._region.value)
-        except ValueError as exc:
-            from napari.utils.notifications import show_error
-
-            show_error(str(exc))
-            return
-        self._source = layer.name
-        self._range = value_range(data)
-        self._job = Job(
-            _fit_job, data, channel_axis, int(self._max_order.value),
-            progress=self._progress, cancel=self._cancel, buttons=(self._fit, self._synth),
-            on_done=self._fitted,
-        )
-        return self._job
+    def _start(self):
+        """Fit a model to the picked layer (or its rectangle)."""
+        data, channel_axis = self.input_array()
+        self._fitting = self._image.value.name, value_range(data)
+        orders = range(1, int(self._max_order.value) + 1)
+        return self.run(iter_fit_car(data, "auto", orders=orders, channel_axis=channel_axis),
+                        done=self._fitted)
 
     def _fitted(self, model):
+        self._source, self._range = self._fitting  # what the samples are named and clipped to
         self.model = model
         self._report.value = describe(model)
-        self._synth.enabled = True
+        self._status.value = f"order {model.order} chosen"
 
-    def start_synthesis(self, *_):
-        if self.model is None:
-            from napari.utils.notifications import show_error
-
-            show_error("fit a model first.")
-            return
-        shape = (int(self._height.value), int(self._width.value))
-        self._job = Job(
-            synthesize, self.model, shape, seed=int(self._seed.value),
-            progress=self._progress, cancel=self._cancel, buttons=(self._fit, self._synth),
-            on_done=self._add_sample,
-        )
-        return self._job
+    def _synthesis(self, shape, seed):
+        return self.run(call(synthesize, self.model, shape, seed=seed, stage="synthesis"),
+                        done=self._add_sample)
 
     def _add_sample(self, sample):
         # the model lives in the core's float units (integers scaled to [0, 1])
         sample = np.clip(sample, *self._range)
         rgb = sample.ndim == 3 and sample.shape[2] == 3
-        self._viewer.add_image(sample, name=f"{self._source} CAR sample", rgb=rgb)
+        self.record.add(lambda: self._viewer.add_image(sample, name=f"{self._source} CAR sample",
+                                                       rgb=rgb))

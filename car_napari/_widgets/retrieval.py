@@ -6,30 +6,22 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from magicgui.widgets import ComboBox, Container, FileEdit, Label, ProgressBar, PushButton
-from magicgui.widgets import create_widget
-from napari.utils.notifications import show_error
+from magicgui.widgets import ComboBox, FileEdit
 from qtpy.QtCore import QSize, Qt
 from qtpy.QtGui import QIcon, QImage, QPixmap
 from qtpy.QtWidgets import QListWidget, QListWidgetItem
 
-from ..texture.retrieval import rank
-from ._jobs import Job
-from ._layers import image_data
+from ..io.images import IMAGE_SUFFIXES, read_image
+from ..texture import iter_rank
+from ._base import JobWidget
+from ._layers import layer_array
 
 LAYERS, FOLDER = "open image layers", "a folder"
 THUMBNAIL = 64
-IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp"}
-
-
-def _rank_job(query, gallery):
-    yield 0.05
-    indices, distances = rank(query, gallery, channel_axis=-1 if query.ndim == 3 else None)
-    return indices, distances
 
 
 def _thumbnail(image):
-    """A QIcon of an (H, W[, 3]) image, scaled to its own range."""
+    """A QIcon of an (H, W[, 3]) image, scaled to its own range (for display)."""
     a = np.asarray(image, dtype=np.float64)
     step = max(1, max(a.shape[:2]) // THUMBNAIL)
     a = a[::step, ::step]
@@ -43,44 +35,33 @@ def _thumbnail(image):
     return QIcon(QPixmap.fromImage(qimage))
 
 
-class TextureRetrievalWidget(Container):
+class TextureRetrievalWidget(JobWidget):
     """Rank a gallery of textures by illumination-invariant CAR features
-    (SPEC section 2): a query layer (or a rectangle on it) against the open
-    image layers or a folder of images."""
+    (section 14.3, docs/texture.md): a query layer (or a rectangle on it)
+    against the open image layers or a folder of images.
+
+    Parameters
+    ----------
+    napari_viewer : napari.Viewer
+        The viewer.
+    """
 
     def __init__(self, napari_viewer):
-        super().__init__(labels=True)
-        self._viewer = napari_viewer
-        self._job = None
+        super().__init__(napari_viewer, image_label="query", region=True)
         self.ranking = []  # (name, distance) nearest first
         self._entries = []  # gallery entries: ("layer", name) or ("file", path)
-        self._query = create_widget(annotation="napari.layers.Image", label="query")
-        self._region = create_widget(
-            annotation="napari.layers.Shapes", label="rectangle",
-            options={"nullable": True, "tooltip": "optional: the query is this rectangle"},
-        )
         self._source = ComboBox(value=LAYERS, choices=[LAYERS, FOLDER], label="gallery")
         self._folder = FileEdit(mode="d", label="folder")
-        self._run = PushButton(text="Rank")
-        self._cancel = PushButton(text="Cancel", enabled=False)
-        self._progress = ProgressBar(value=0, min=0, max=100, label="progress")
-        self._status = Label(value="")
+        self._run = self.action("Rank", self.start)
         self._results = QListWidget()
         self._results.setIconSize(QSize(THUMBNAIL, THUMBNAIL))
         self._results.setMinimumHeight(200)
-        self.extend([self._query, self._region, self._source, self._folder, self._run,
-                     self._cancel, self._progress, self._status])
+        self.arrange([self._source, self._folder, self._run])
         self.native.layout().addWidget(self._results)
-        self._run.changed.connect(self.start)
-        self._cancel.changed.connect(self.cancel)
         self._results.itemClicked.connect(lambda item: self.show(self._results.row(item)))
 
-    def cancel(self, *_):
-        if self._job is not None:
-            self._job.cancel()
-
     def _gallery(self, query_layer, query_colour, use_region):
-        """(entries, images) of the gallery with the query's colour-ness."""
+        """(entries, images, skipped) of the gallery with the query's colour-ness."""
         entries, images, skipped = [], [], 0
         if self._source.value == LAYERS:
             for layer in self._viewer.layers:
@@ -89,7 +70,7 @@ class TextureRetrievalWidget(Container):
                 if layer is query_layer and not use_region:
                     continue  # the query itself would always come first
                 try:
-                    data, channel_axis = image_data(layer)
+                    data, channel_axis = layer_array(layer)
                 except ValueError:
                     skipped += 1
                     continue
@@ -99,42 +80,36 @@ class TextureRetrievalWidget(Container):
                 entries.append(("layer", layer.name))
                 images.append(data)
         else:
-            from skimage import io
-
             folder = Path(self._folder.value)
             if not folder.is_dir():
                 raise ValueError(f"{folder} is not a folder; choose one with images.")
             for path in sorted(folder.iterdir()):
                 if path.suffix.lower() not in IMAGE_SUFFIXES:
                     continue
-                data = io.imread(path)
-                colour = data.ndim == 3
-                if colour != query_colour:
+                try:
+                    data = read_image(path)
+                except ImportError:  # DICOM without pydicom
+                    skipped += 1
+                    continue
+                if (data.ndim == 3) != query_colour:
                     skipped += 1
                     continue
                 entries.append(("file", path))
-                images.append(data[..., :3] if colour else data)
+                images.append(data)
         if not images:
             raise ValueError("the gallery is empty: open other image layers (of the same "
                              "kind, grey or colour, as the query) or choose a folder.")
         return entries, images, skipped
 
-    def start(self, *_):
-        try:
-            layer = self._query.value
-            region = self._region.value
-            query, channel_axis = image_data(layer, region)
-            use_region = region is not None and len(region.data) > 0
-            entries, images, skipped = self._gallery(layer, channel_axis is not None,
-                                                     use_region)
-        except (ValueError, OSError) as exc:
-            show_error(str(exc))
-            return None
-        self._entries, self._images = entries, images
-        self._skipped = skipped
-        self._job = Job(_rank_job, query, images, progress=self._progress,
-                        cancel=self._cancel, buttons=(self._run,), on_done=self._show_ranking)
-        return self._job
+    def _start(self):
+        """Rank the gallery by distance to the query."""
+        layer, region = self._image.value, self._region.value
+        query, channel_axis = self.input_array()
+        use_region = region is not None and len(region.data) > 0
+        entries, images, skipped = self._gallery(layer, channel_axis is not None, use_region)
+        self._pending = entries, images, skipped
+        return self.run(iter_rank(query, images, channel_axis=channel_axis),
+                        done=self._show_ranking)
 
     def _name(self, entry):
         kind, value = entry
@@ -142,11 +117,12 @@ class TextureRetrievalWidget(Container):
 
     def _show_ranking(self, result):
         indices, distances = result
+        self._entries, self._images, self._skipped = self._pending
         self._results.clear()
         self.ranking = []
         order = [int(i) for i in indices]
         self._order = order
-        for rank_, (i, dist) in enumerate(zip(order, distances), start=1):
+        for rank_, (i, dist) in enumerate(zip(order, distances, strict=True), start=1):
             name = self._name(self._entries[i])
             self.ranking.append((name, float(dist)))
             item = QListWidgetItem(_thumbnail(self._images[i]), f"{rank_}. {name}   {dist:.3g}")

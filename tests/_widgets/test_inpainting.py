@@ -41,7 +41,10 @@ def test_clip_restores_frame_by_frame_and_detect_is_undoable(widget, qtbot):
     clip[1, :, 40:42] = 255
     layer = viewer.add_image(clip, name="clip")
     w._image.value = layer
-    mask_layer = w.detect()
+    job = w.detect()  # runs in a worker
+    qtbot.waitUntil(lambda: job.done, timeout=120000)
+    mask_layer = viewer.layers["clip scratch mask"]
+    assert "proposed" in w._status.value
     proposed = mask_layer.data.copy()
     assert proposed.shape == clip.shape and proposed[1, :, 40:42].mean() > 0.8
     mask_layer.undo()
@@ -73,3 +76,15 @@ def test_empty_mask_and_cancel(widget, qtbot, last_notification):
     w.cancel()
     qtbot.waitUntil(lambda: job.done, timeout=60000)
     assert [lay.name for lay in viewer.layers] == names
+
+
+def test_detect_runs_in_a_worker_and_cancel_adds_nothing(widget, qtbot):
+    viewer, w = widget
+    clip = np.stack([skdata.camera()[:96, :96] for _ in range(3)])
+    w._image.value = viewer.add_image(clip, name="clip")
+    job = w.detect()
+    assert job is not None and not w._detect.enabled and w._cancel.enabled
+    w.cancel()
+    qtbot.waitUntil(lambda: job.done, timeout=60000)
+    assert [lay.name for lay in viewer.layers] == ["clip"]
+    assert w._status.value == "cancelled" and w._detect.enabled

@@ -36,7 +36,8 @@ def test_detect_gives_labels_outlines_and_table(widget, qtbot, small_mammogram):
     assert list(outlines.features["label"]) == list(range(1, n + 1))
     assert w._table.rowCount() == n
     # every outline encloses its region's centroid's row span
-    for poly, r0, r1 in zip(outlines.data, w.table["bbox_min_row"], w.table["bbox_max_row"]):
+    rows = zip(outlines.data, w.table["bbox_min_row"], w.table["bbox_max_row"], strict=True)
+    for poly, r0, r1 in rows:
         assert r0 - 1 <= poly[:, 0].min() and poly[:, 0].max() <= r1
     np.testing.assert_array_equal(layer.data, small_mammogram)
     # re-running replaces the outputs, it does not add more

@@ -37,7 +37,7 @@ def test_rank_the_open_layers_and_click(widget, qtbot, textures):
     query = viewer.add_image(_relit(textures["vistex"], 0), name="query", rgb=True)
     for name in ("cells", "coffee", "cat", "vistex other tile"):
         viewer.add_image(_relit(textures[name], 1), name=name, rgb=True)
-    w._query.value = query
+    w._image.value = query
     job = w.start()
     qtbot.waitUntil(lambda: job.done, timeout=60000)
     names = [name for name, _ in w.ranking]
@@ -54,7 +54,7 @@ def test_folder_gallery(widget, qtbot, textures, tmp_path, last_notification):
     for name in ("cells", "coffee", "cat", "vistex other tile"):
         io.imsave(tmp_path / f"{name}.png",
                   np.round(np.clip(_relit(textures[name], 2), 0, 1) * 255).astype(np.uint8))
-    w._query.value = viewer.add_image(_relit(textures["vistex"], 0), name="query", rgb=True)
+    w._image.value = viewer.add_image(_relit(textures["vistex"], 0), name="query", rgb=True)
     w._source.value = "a folder"
     w._folder.value = tmp_path / "missing"
     w.start()

@@ -1,0 +1,383 @@
+"""The base of every dock widget: an image picker, the widget's controls, its
+action buttons, Cancel, a progress bar and a status line, and the run of a
+core job in a napari worker with everything it writes into the viewer
+recorded, so that a Cancel or an error leaves the viewer as it was."""
+
+from __future__ import annotations
+
+import functools
+import re
+
+from magicgui.widgets import Container, Label, ProgressBar, PushButton, SpinBox, create_widget
+from napari.utils.notifications import show_error
+
+from ._jobs import Job
+from ._layers import RunRecord, layer_array
+
+
+def guarded(method):
+    """Decorate a widget method so that its ValueError or OSError (bad input,
+    an unreadable file) becomes an error notification, and it returns None.
+
+    Parameters
+    ----------
+    method : callable
+        A method of a :class:`JobWidget`.
+
+    Returns
+    -------
+    callable
+        The method, guarded (see :meth:`JobWidget.launch`).
+
+    Examples
+    --------
+    >>> guarded(lambda self: 1).__name__
+    '<lambda>'
+    """
+
+    @functools.wraps(method)
+    def guarded_method(self, *args, **kwargs):
+        return self.launch(lambda: method(self, *args, **kwargs))
+
+    return guarded_method
+
+
+class JobWidget(Container):
+    """A dock widget that runs core jobs on an image layer.
+
+    Subclasses create their controls, make their action buttons with
+    :meth:`action`, lay them out with :meth:`arrange`, and define
+    ``_start()``, which reads the input and the controls and starts the job
+    with :meth:`run` (the "Run" button's :meth:`start`). While a job runs
+    the action buttons are disabled and Cancel is enabled; every change to
+    the viewer goes through :attr:`record`
+    (:class:`~car_napari._widgets._layers.RunRecord`) and is undone by a
+    Cancel or an error.
+
+    Parameters
+    ----------
+    napari_viewer : napari.Viewer
+        The viewer the widget reads layers from and writes results to.
+    image_label : str, optional
+        The label of the image picker.
+    region : bool, optional
+        Add an optional Shapes picker: the job reads only the bounding box
+        of its first shape.
+
+    Attributes
+    ----------
+    control_labels : dict
+        The core's argument names -> this widget's control labels, so that
+        the core's validation messages speak of the controls.
+    """
+
+    control_labels: dict = {}
+
+    def __init__(self, napari_viewer, *, image_label="image", region=False):
+        super().__init__(labels=True)
+        self._viewer = napari_viewer
+        self.record = RunRecord(napari_viewer)
+        self._job = None
+        self._actions = []  # (button, when): enabled when idle and when()
+        self._image = create_widget(annotation="napari.layers.Image", label=image_label)
+        self._region = None
+        if region:
+            self._region = create_widget(
+                annotation="napari.layers.Shapes", label="rectangle",
+                options={"nullable": True, "tooltip": "optional: only inside its first shape"},
+            )
+        self._cancel = PushButton(text="Cancel", enabled=False)
+        self._progress = ProgressBar(value=0, min=0, max=100, label="progress")
+        self._status = Label(value="")
+        self._cancel.changed.connect(self.cancel)
+
+    # --- building -----------------------------------------------------------------
+
+    def action(self, text, callback, *, when=None, tooltip=None):
+        """An action button: starts ``callback``, disabled while a job runs.
+
+        Parameters
+        ----------
+        text : str
+            The button's text.
+        callback : callable
+            Called when the button is pressed.
+        when : callable, optional
+            ``when()`` says whether the button may be enabled when no job
+            runs (e.g. only once there is a model).
+        tooltip : str, optional
+            The button's tooltip.
+
+        Returns
+        -------
+        magicgui.widgets.PushButton
+            The button.
+        """
+        when = when or (lambda: True)
+        button = PushButton(text=text, enabled=when(), tooltip=tooltip)
+        button.changed.connect(callback)
+        self._actions.append((button, when))
+        return button
+
+    def arrange(self, controls, after=()):
+        """Lay out the pickers, ``controls``, Cancel, progress, status, ``after``.
+
+        Parameters
+        ----------
+        controls : sequence of magicgui widgets
+            The widget's parameters and action buttons, in order.
+        after : sequence of magicgui widgets, optional
+            What comes below the status line.
+        """
+        pickers = [self._image] + ([self._region] if self._region is not None else [])
+        self.extend([*pickers, *controls, self._cancel, self._progress, self._status, *after])
+
+    def refresh_actions(self):
+        """Enable the action buttons that may be enabled now (no job running)."""
+        busy = self._job is not None and not self._job.done
+        for button, when in self._actions:
+            button.enabled = not busy and bool(when())
+
+    # --- input ----------------------------------------------------------------------
+
+    def input_array(self, *, region=True, ndims=(2,), hint=None):
+        """The picked layer's data (a copy), cropped to the rectangle if any.
+
+        Parameters
+        ----------
+        region : bool, optional
+            Crop to the rectangle picker's first shape (when the widget has
+            one and it is set).
+        ndims : tuple of int, optional
+            The accepted numbers of non-colour axes.
+        hint : str, optional
+            What to do when the layer has another number of axes.
+
+        Returns
+        -------
+        data : ndarray
+        channel_axis : int or None
+
+        Raises
+        ------
+        ValueError
+            No usable layer (see :func:`~car_napari._widgets._layers.layer_array`).
+        """
+        shapes = self._region.value if region and self._region is not None else None
+        options = {} if hint is None else {"hint": hint}
+        return layer_array(self._image.value, shapes, ndims=ndims, **options)
+
+    # --- running --------------------------------------------------------------------
+
+    def start(self, *_):
+        """Start the widget's job on the picked layer, in a worker thread.
+
+        Returns
+        -------
+        Job or None
+            The running job; None when the input or a control is unusable
+            (an error notification says why, and the viewer is unchanged).
+        """
+        return self.launch(self._start)
+
+    def _start(self):
+        raise NotImplementedError("a widget defines _start() to start its job")
+
+    def launch(self, begin):
+        """Call ``begin()``; its ValueError or OSError becomes a notification.
+
+        Parameters
+        ----------
+        begin : callable
+            Reads the input and starts a job (or acts at once).
+
+        Returns
+        -------
+        object
+            What ``begin()`` returns (the running job), or None when it
+            raised (the error notification shown).
+        """
+        try:
+            return begin()
+        except (ValueError, OSError) as exc:
+            self.notify_error(exc)
+            return None
+
+    def run(self, job, *, preview=None, done=None):
+        """Start ``job`` in a worker; returns the :class:`~._jobs.Job`.
+
+        Parameters
+        ----------
+        job : generator
+            An ``iter_<name>(...)`` call (or :func:`~._jobs.call`).
+        preview : callable, optional
+            ``preview(partial)`` shows a record's preview live; it writes to
+            the viewer only through :attr:`record`.
+        done : callable, optional
+            ``done(result)`` shows the result (through :attr:`record`); it
+            may set the status line, which otherwise says "done".
+
+        Returns
+        -------
+        Job
+            The running job.
+        """
+        if self._job is not None and not self._job.done:
+            self._job.cancel()
+        self.record.commit()
+        self._progress.value = 0
+        self._status.value = "starting"
+        self._job = None
+        job_ = Job(
+            job,
+            on_progress=lambda record: self._on_progress(job_, record, preview),
+            on_done=lambda result: self._on_done(result, done),
+            on_error=self._on_error,
+            on_cancel=self._on_cancel,
+            on_finished=lambda finished: self.refresh_actions(),
+        )
+        self._job = job_
+        self._cancel.enabled = True
+        self.refresh_actions()
+        return job_
+
+    def cancel(self, *_):
+        """Stop the running job; the viewer is put back as it was before it."""
+        if self._job is not None:
+            self._job.cancel()
+
+    # A job hands nothing over once cancelled, and starting a job cancels the
+    # previous one: the callbacks below are always the current job's.
+
+    def _on_progress(self, job, record, preview):
+        self._progress.value = int(round(100 * min(max(float(record.fraction), 0.0), 1.0)))
+        self._status.value = f"{record.stage}: {record.message}" if record.message else record.stage
+        if preview is not None and record.preview is not None:
+            try:
+                preview(record.preview)
+            except Exception as exc:  # a failure to display stops the run
+                job.cancel()
+                self._fail(exc)
+
+    def _on_done(self, result, done):
+        self._cancel.enabled = False
+        self._progress.value = 100
+        self._status.value = "done"
+        try:
+            if done is not None:
+                done(result)
+        except Exception as exc:  # a failure applying results is the user's to see
+            self._fail(exc)
+            return
+        self.record.commit()
+
+    def _on_error(self, exc):
+        self._cancel.enabled = False
+        self._fail(exc)
+
+    def _on_cancel(self):
+        self._cancel.enabled = False
+        self.record.undo()
+        self._progress.value = 0
+        self._status.value = "cancelled"
+
+    def _fail(self, exc):
+        self.record.undo()
+        self._progress.value = 0
+        self._status.value = "failed"
+        self.notify_error(exc)
+
+    # --- messages -------------------------------------------------------------------
+
+    def message(self, exc):
+        """The text of ``exc`` in this widget's terms.
+
+        A ValueError (the core's validation) is its message with the core's
+        argument names replaced by the control labels of
+        :attr:`control_labels` (``'n_segments (20) must ...'`` becomes
+        ``'segments (20) must ...'``); anything else is prefixed by its type.
+
+        Parameters
+        ----------
+        exc : Exception
+            The error.
+
+        Returns
+        -------
+        str
+            The message to show.
+        """
+        text = str(exc)
+        if not isinstance(exc, (ValueError, OSError)):
+            return f"{type(exc).__name__}: {text}"
+        for name, label in self.control_labels.items():
+            # an argument name as the subject: "name must", "name (3) must", "name="
+            pattern = rf"(?<![\w'\"]){re.escape(name)}(?=\s*(?:\(|must\b|=|is\b))"
+            text = re.sub(pattern, f"'{label}'", text)
+        return text
+
+    def notify_error(self, exc):
+        """Show ``exc`` as an error notification, in this widget's terms.
+
+        Parameters
+        ----------
+        exc : Exception
+            The error.
+        """
+        show_error(self.message(exc))
+
+
+class ModelWidget(JobWidget):
+    """A :class:`JobWidget` that fits a model and synthesises from it.
+
+    Adds the synthesis controls (height, width, seed) and its Synthesize
+    button, enabled once there is a model. A subclass defines ``_start()``
+    (the fit, which sets :attr:`model`) and ``_synthesis(shape, seed)``
+    (which starts the synthesis job with :meth:`run`).
+
+    Parameters
+    ----------
+    napari_viewer : napari.Viewer
+        The viewer.
+    size : int, optional
+        The default height and width of a synthesis.
+    min_size : int, optional
+        The smallest height and width.
+
+    Attributes
+    ----------
+    model : object or None
+        The fitted (or loaded) model.
+    """
+
+    no_model = "fit a model first."
+
+    def __init__(self, napari_viewer, *, size=256, min_size=1):
+        super().__init__(napari_viewer, region=True)
+        self.model = None
+        self._height = SpinBox(value=size, min=min_size, max=8192, label="height")
+        self._width = SpinBox(value=size, min=min_size, max=8192, label="width")
+        self._seed = SpinBox(value=0, min=0, max=2**31 - 1, label="seed")
+        self._synth = self.action("Synthesize", self.start_synthesis,
+                                  when=lambda: self.model is not None)
+
+    start_fit = JobWidget.start
+
+    def start_synthesis(self, *_):
+        """Synthesise from the model at the chosen size and seed, in a worker.
+
+        Returns
+        -------
+        Job or None
+            The running job; None without a model (an error notification says so).
+        """
+        return self.launch(self._start_synthesis)
+
+    def _start_synthesis(self):
+        if self.model is None:
+            raise ValueError(self.no_model)
+        shape = (int(self._height.value), int(self._width.value))
+        return self._synthesis(shape, int(self._seed.value))
+
+    def _synthesis(self, shape, seed):
+        raise NotImplementedError("a model widget defines _synthesis(shape, seed)")
