@@ -22,6 +22,9 @@ UNSHIPPED_RESOURCES = ("screenshot.png",)
 
 class BuildWithManifest(build_py):
     def run(self):
+        if not getattr(self, "editable_mode", False):
+            # build/ outlives a build: start the package afresh so no deleted module ships
+            shutil.rmtree(Path(self.build_lib) / "car_napari", ignore_errors=True)
         super().run()
         if getattr(self, "editable_mode", False):
             shutil.copyfile(TOP / "napari.yaml", TOP / "car_napari" / "napari.yaml")

@@ -27,10 +27,10 @@ def test_fit_and_synthesize_rgb(widget, qtbot):
     w._max_order.value = 3
     job = w.start_fit()
     qtbot.waitUntil(lambda: w.model is not None, timeout=60000)
+    _wait(qtbot, job)  # the buttons come back when the worker has finished
     assert "order 1" in w._report.value and "Sigma" in w._report.value
     assert set(w.model.scores) == {1, 2, 3}
     assert w._synth.enabled
-    _wait(qtbot, job)
     w._height.value, w._width.value, w._seed.value = 40, 70, 3
     w.start_synthesis()
     qtbot.waitUntil(lambda: "grass CAR sample" in viewer.layers, timeout=60000)

@@ -1,4 +1,4 @@
-"""``python -m car_napari.demo``: napari with the CAR model widget and samples."""
+"""``python -m car_napari._widgets.demo``: napari with the CAR model widget and samples."""
 
 from __future__ import annotations
 
