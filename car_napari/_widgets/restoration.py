@@ -1,22 +1,70 @@
 """Dock widget "Restoration": one degraded image, or a stack of degraded
-versions of one scene, restored live; a kappa slider re-thresholds instantly."""
+versions of one scene, restored live; a kappa slider re-thresholds the
+stored result in a worker."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
-from magicgui.widgets import CheckBox, ComboBox, FloatSlider, SpinBox
+from magicgui.widgets import CheckBox, ComboBox, FloatSlider
 
 from ..restoration import DEFAULT_KAPPA, iter_restore, iter_restore_multichannel
 from ._base import JobWidget
+from ._jobs import Job, call
 
 SINGLE = "single image"
+DEFAULT_ORDER = 1  # the core's default neighbourhood order (restore, restore_multichannel)
+ORDERS = [(f"{k} (default)" if k == DEFAULT_ORDER else str(k), k) for k in range(1, 6)]
+
+
+def _shown(image, rgb):
+    """What a layer shows of a core image: float32 (napari converts float64
+    for the screen anyway: done here, in the worker, not in the viewer's
+    thread), a grey image without its channel axis."""
+    image = np.asarray(image)
+    if not rgb and image.ndim == 3:
+        image = image[..., 0]
+    return image.astype(np.float32)
+
+
+def _for_display(job, rgb, show_changed):
+    """``job`` run for the viewer, in the worker: its records with previews
+    as :func:`_shown`, and its result with what the viewer shows of it:
+    (result, restored, probability, changed pixels as uint8 or None)."""
+    try:
+        while True:
+            try:
+                record = next(job)
+            except StopIteration as stop:
+                result = stop.value
+                break
+            if record.preview is not None:
+                record = replace(record, preview=_shown(record.preview, rgb))
+            yield record
+    finally:
+        job.close()
+    restored, changed = _recut(result, None, rgb, show_changed)
+    return result, restored, result.probability.astype(np.float32), changed
+
+
+def _recut(result, kappa, rgb, show_changed):
+    """The restored image as shown (and the changed pixels as uint8, or
+    None) of ``result`` at ``kappa`` (None: the result's own)."""
+    changed = result.changed(kappa).astype(np.uint8) if show_changed else None
+    return _shown(result.restored(kappa), rgb), changed
 
 
 class RestorationWidget(JobWidget):
     """Restore an image layer by the conditional mean of adaptive CAR models
     (section 14.5, docs/restoration.md), or the sharpest version of a stack
     with the 2.5D model (section 14.6, docs/restoration.md); the restored
-    layer fills in live, and a kappa slider re-thresholds instantly.
+    layer fills in live, and a kappa slider re-thresholds the stored result.
+
+    The restored layer ends on top and selected; the prediction probability
+    is a hidden layer just below it. The "versions" of a stack lie along an
+    axis the viewer's slider steps through (never the image's rows, columns
+    or colours).
 
     Parameters
     ----------
@@ -30,11 +78,16 @@ class RestorationWidget(JobWidget):
         super().__init__(napari_viewer)
         self.result = None  # the last RestorationResult
         self.updates = 0
-        self._axis = ComboBox(value=SINGLE, choices=[SINGLE, "axis 0", "axis 1", "axis 2"],
-                              label="versions",
-                              tooltip="a stack: the axis holding the degraded versions")
-        self._order = SpinBox(value=0, min=0, max=5, label="order",
-                              tooltip="causal neighbourhood order; 0: the default (1)")
+        self._recut_job = None  # the running re-threshold (a worker), if any
+        self._wanted = None  # the latest (kappa, show changed) asked for while one runs
+        self._axis = ComboBox(value=SINGLE, choices=self._axis_choices, label="versions",
+                              tooltip="a stack: the axis holding the degraded versions, one "
+                                      "the viewer's slider steps through (not the image's "
+                                      "rows, columns or colours)")
+        self._order = ComboBox(value=DEFAULT_ORDER, choices=ORDERS, label="order",
+                               tooltip="order of the causal neighbourhood: 1 (the default) "
+                                       "uses the nearest neighbours, higher orders reach "
+                                       "further (slower)")
         self._keep_edges = CheckBox(value=True, text="keep edges (14.40)")
         self._run = self.action("Restore", self.start)
         self._kappa = FloatSlider(value=0.0, min=0.0, max=0.99, step=0.01, label="kappa",
@@ -45,22 +98,68 @@ class RestorationWidget(JobWidget):
         self.arrange([self._axis, self._order, self._keep_edges, self._run],
                      after=[self._kappa, self._show_changed])
         self._image.changed.connect(self._guess_axis)
+        dims = napari_viewer.dims.events
+        dims.order.connect(self._update_axes)
+        dims.ndim.connect(self._update_axes)
         self._kappa.changed.connect(self._rethreshold)
         self._show_changed.changed.connect(self._rethreshold)
         self._guess_axis()
 
     # --- parameters -------------------------------------------------------------
 
-    def _guess_axis(self, *_):
+    def _stack_axes(self, layer):
+        """The axes of ``layer`` that may hold the versions: with three
+        non-colour axes, those the viewer does not show as the image plane
+        (its slider steps through them); none otherwise."""
+        spatial = layer.ndim  # napari's count leaves out the colour axis
+        if spatial != 3:
+            return []
+        dims = self._viewer.dims
+        shift = dims.ndim - spatial  # a layer's axes are the viewer's last ones
+        plane = {axis - shift for axis in dims.order[-2:]}
+        return [k for k in range(spatial) if k not in plane]
+
+    def _axis_choices(self, *_):
+        """The "versions" choices: a single image, or a stack axis of the
+        picked layer (napari resets them when the layers change)."""
         layer = self._image.value
-        if layer is None:
-            return
-        ndim = layer.data.ndim - (1 if getattr(layer, "rgb", False) else 0)
-        self._axis.value = "axis 0" if ndim == 3 else SINGLE
+        axes = [] if layer is None else self._stack_axes(layer)
+        return [SINGLE] + [f"axis {k}" for k in axes]
+
+    def _update_axes(self, *_, guess=False):
+        """Offer the picked layer's stack axes; ``guess``: pick one if any."""
+        current = self._axis.value
+        self._axis.reset_choices()
+        choices = list(self._axis.choices)
+        if guess or current not in choices:
+            self._axis.value = choices[-1] if len(choices) == 2 else (
+                current if current in choices else SINGLE)
+
+    def _guess_axis(self, *_):
+        self._update_axes(guess=True)
 
     def _stack_axis(self):
         value = self._axis.value
         return None if value == SINGLE else int(value.split()[-1])
+
+    def _check_axis(self, axis):
+        """Raise a ValueError when ``axis`` of the picked layer (three
+        non-colour axes) is not one that may hold the versions."""
+        layer = self._image.value
+        axes = self._stack_axes(layer)
+        if axis in axes:
+            return
+        if axis < layer.ndim:
+            what = "a spatial axis: the viewer shows it as the image's rows or columns"
+        elif axis == layer.ndim and getattr(layer, "rgb", False):
+            what = "its colour axis"
+        else:
+            what = "not an axis of it"
+        options = " or ".join(f"'axis {k}'" for k in axes) or "none (change the view)"
+        raise ValueError(
+            f"'versions' is axis {axis}, but axis {axis} of layer {layer.name!r} (shape "
+            f"{tuple(layer.data.shape)}) is {what}. The versions must lie along an axis the "
+            f"viewer's slider steps through: choose {options}, or '{SINGLE}'.")
 
     # --- running ----------------------------------------------------------------
 
@@ -71,24 +170,37 @@ class RestorationWidget(JobWidget):
             data, channel_axis = self.input_array(
                 hint="choose the axis holding the degraded versions (a stack), or a 2-D image.")
         else:
+            layer = self._image.value
+            if layer is not None and layer.ndim == 3:
+                self._check_axis(stack_axis)  # before copying the data or any work
             data, channel_axis = self.input_array(
                 ndims=(3,), hint=f"it is not a stack with versions along axis {stack_axis}; "
                                  f"choose '{SINGLE}' or another axis.")
         options = dict(keep_edges=bool(self._keep_edges.value), channel_axis=channel_axis,
-                       return_result=True)
-        if self._order.value:
-            options["neighbourhood"] = int(self._order.value)
+                       return_result=True, neighbourhood=int(self._order.value))
         if stack_axis is None:
             job = iter_restore(data, **options)
         else:
             job = iter_restore_multichannel(data, axis=stack_axis, kappa=DEFAULT_KAPPA,
                                             **options)
+        self._stop_recut()
         self._source = self._image.value
         self._out = self._names(self._source.name)
         self._rgb = channel_axis is not None
         self.updates = 0
         self._kappa.enabled = self._show_changed.enabled = False
-        return self.run(job, preview=self._show_running, done=self._finished)
+        return self.run(_for_display(job, self._rgb, bool(self._show_changed.value)),
+                        preview=self._show_running, done=self._finished)
+
+    def _running(self):
+        """A run is under way (a cancelled one hands nothing over: it is not)."""
+        return self._job is not None and not (self._job.done or self._job.cancelled)
+
+    def refresh_actions(self):
+        """Enable the buttons, and the kappa controls when idle with a result."""
+        super().refresh_actions()
+        idle = not self._running()
+        self._kappa.enabled = self._show_changed.enabled = idle and self.result is not None
 
     # --- layers -----------------------------------------------------------------
 
@@ -103,47 +215,92 @@ class RestorationWidget(JobWidget):
         return self._viewer.add_image(data, **kwargs)
 
     def _add_probability(self, data, name):
-        return self._viewer.add_image(data, name=name, colormap="viridis", opacity=0.5,
-                                      contrast_limits=(0.0, 1.0), blending="translucent")
+        # hidden: the restored image is what the user sees first
+        return self._viewer.add_image(data, name=name, colormap="viridis", visible=False,
+                                      contrast_limits=(0.0, 1.0))
 
-    @staticmethod
-    def _display(image, rgb):
-        """What the layer shows: a grey image without its channel axis."""
-        image = np.asarray(image)
-        return image[..., 0] if not rgb and image.ndim == 3 else image
+    def _add_changed(self, data, name):
+        return self._viewer.add_labels(data, name=name, opacity=0.5)
 
     def _show_running(self, restored):
-        self.record.put(self._out[0], self._display(restored, self._rgb), self._add_restored)
+        # one layer's data replaced by the preview (float32 from the worker): no copy
+        self.record.put(self._out[0], restored, self._add_restored)
         self.updates += 1
 
-    def _finished(self, result):
-        restored_name, probability_name, _ = self._out
-        self.record.put(restored_name, self._display(result.restored(), self._rgb),
-                        self._add_restored)
-        self.record.put(probability_name, result.probability, self._add_probability)
+    def _finished(self, outcome):
+        result, restored, probability, changed = outcome
+        restored_name, probability_name, changed_name = self._out
+        layers = self._viewer.layers
+        shown = self.record.put(restored_name, restored, self._add_restored)
+        new = probability_name not in layers
+        probability = self.record.put(probability_name, probability, self._add_probability)
+        if new and shown in layers:  # just below the restored layer, which stays on top
+            layers.move(layers.index(probability), layers.index(shown))
         self.result = result
-        self._shown = self._out, self._rgb  # what the kappa slider re-thresholds
+        self._recut_target = self._out, self._rgb  # what the kappa slider re-thresholds
         with self._kappa.changed.blocked():
             self._kappa.value = result.kappa
         self._kappa.enabled = self._show_changed.enabled = True
-        self._rethreshold()
+        if changed is not None:
+            self.record.put(changed_name, changed, self._add_changed)
+        elif changed_name in layers:
+            self.record.remove(changed_name)
+        if shown in layers:
+            layers.selection.active = shown
         ref = "" if result.reference is None else f"reference: version {result.reference}; "
-        self._status.value = f"{ref}noise {np.mean(result.noise):.3g}"
+        self._status.value = (f"{ref}noise {np.mean(result.noise):.3g}; prediction "
+                              f"probability: hidden layer below")
+        if float(self._kappa.value) != result.kappa:  # the slider rounded it
+            self._rethreshold()
+
+    # --- re-thresholding ----------------------------------------------------------
 
     def _rethreshold(self, *_):
-        """New kappa or toggle: recompute from the stored result, no worker."""
+        """New kappa or toggle: re-cut the stored result in a worker (the
+        latest request wins; no new restoration)."""
         if self.result is None:
             return
-        (restored_name, _, changed_name), rgb = self._shown
-        kappa = float(self._kappa.value)
+        self._wanted = float(self._kappa.value), bool(self._show_changed.value)
+        if self._recut_job is None:
+            self._next_recut()
+
+    def _next_recut(self):
+        if self._wanted is None:
+            self._recut_job = None
+            return
+        (kappa, show_changed), self._wanted = self._wanted, None
+        result, shown = self.result, self._recut_target
+        self._recut_job = Job(
+            call(_recut, result, kappa, shown[1], show_changed, stage="re-threshold"),
+            on_progress=lambda record: None,
+            on_done=lambda cut: self._apply_recut(cut, result, shown),
+            on_error=self.notify_error,
+            on_cancel=lambda: None,
+            on_finished=self._recut_finished,
+        )
+
+    def _recut_finished(self, job):
+        if job is self._recut_job:
+            self._next_recut()
+
+    def _stop_recut(self):
+        """A new run: no pending or running re-cut writes into the viewer."""
+        self._wanted = None
+        if self._recut_job is not None:
+            self._recut_job.cancel()  # its end starts nothing: nothing is wanted
+
+    def _apply_recut(self, cut, result, shown):
+        if result is not self.result or self._running():
+            return  # a newer run owns the layers
+        restored, changed = cut
+        (restored_name, _, changed_name), _ = shown
         layers = self._viewer.layers
         if restored_name in layers:
-            layers[restored_name].data = self._display(self.result.restored(kappa), rgb)
-        if self._show_changed.value:
-            changed = self.result.changed(kappa).astype(np.uint8)
+            layers[restored_name].data = restored
+        if changed is None:
             if changed_name in layers:
-                layers[changed_name].data = changed
-            else:
-                self._viewer.add_labels(changed, name=changed_name, opacity=0.5)
+                layers.remove(changed_name)
         elif changed_name in layers:
-            layers.remove(changed_name)
+            layers[changed_name].data = changed
+        else:
+            self._add_changed(changed, changed_name)

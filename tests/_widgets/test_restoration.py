@@ -1,9 +1,12 @@
 """The "Restoration" widget in a real napari viewer."""
 
+import time
+
 import numpy as np
 import pytest
 from skimage import data as skdata
 
+from car_napari._widgets import restoration as restoration_widget
 from car_napari._widgets.restoration import RestorationWidget
 from car_napari.io.sample_data import degraded_stack
 
@@ -19,6 +22,15 @@ def burst():
     return stack[:, :128, :128], meta
 
 
+def noisy_camera(size=128):
+    rng = np.random.default_rng(0)
+    return skdata.camera()[:size, :size] / 255.0 + rng.normal(0, 0.05, (size, size))
+
+
+def names(viewer):
+    return [layer.name for layer in viewer.layers]
+
+
 def test_stack_restores_live_and_kappa_rethresholds(widget, qtbot, burst):
     viewer, w = widget
     stack, meta = burst
@@ -27,35 +39,45 @@ def test_stack_restores_live_and_kappa_rethresholds(widget, qtbot, burst):
     assert w._axis.value == "axis 0"  # guessed from the layer's shape
     job = w.start()
     qtbot.waitUntil(lambda: job.done, timeout=180000)
-    assert w.updates >= 2  # the restored layer filled in before the end
+    assert w.updates >= 1  # the restored layer filled in before the end
     restored = viewer.layers["degraded burst restored"]
     probability = viewer.layers["degraded burst prediction probability"]
     assert restored.data.shape == stack.shape[1:] and restored.rgb
     assert probability.data.shape == stack.shape[1:3]
     assert 0 <= probability.data.min() and probability.data.max() <= 1
     assert w.result.reference is not None and "reference" in w._status.value
+    # the layer shows the result as float32 (what napari puts on the screen)
+    assert restored.data.dtype == np.float32 and probability.data.dtype == np.float32
+    np.testing.assert_array_equal(restored.data, w.result.restored(float(w._kappa.value))
+                                  .astype(np.float32))
     np.testing.assert_array_equal(layer.data, burst[0])  # input untouched
-    # kappa: instant re-threshold, same worker, restored changes
+    # kappa: a re-threshold of the stored result in a worker, no new run;
+    # moves in quick succession: the latest wins
     before = restored.data.copy()
-    w._kappa.value = 0.6
-    assert w._job is job
+    for kappa in (0.2, 0.4, 0.6):
+        w._kappa.value = kappa
+    assert w._job is job and w._recut_job is not None
+    qtbot.waitUntil(lambda: w._recut_job is None, timeout=30000)
     after = viewer.layers["degraded burst restored"].data
     assert not np.array_equal(before, after)
-    observed = w.result.observed
+    np.testing.assert_array_equal(after, w.result.restored(0.6).astype(np.float32))
+    observed = w.result.observed.astype(np.float32)
     kept = w.result.probability <= 0.6
     np.testing.assert_array_equal(after[kept], observed[kept])
     # the changed-pixel toggle shows a labels layer and hides it again
     w._show_changed.value = True
+    qtbot.waitUntil(lambda: w._recut_job is None, timeout=30000)
     changed = viewer.layers["degraded burst changed pixels"].data
     assert changed.shape == stack.shape[1:3] and 0 < changed.mean() < 1
+    np.testing.assert_array_equal(changed, w.result.changed(0.6))
     w._show_changed.value = False
+    qtbot.waitUntil(lambda: w._recut_job is None, timeout=30000)
     assert "degraded burst changed pixels" not in viewer.layers
 
 
 def test_single_image_and_cancel(widget, qtbot):
     viewer, w = widget
-    rng = np.random.default_rng(0)
-    noisy = skdata.camera()[:128, :128] / 255.0 + rng.normal(0, 0.05, (128, 128))
+    noisy = noisy_camera()
     layer = viewer.add_image(noisy, name="camera")
     w._image.value = layer
     assert w._axis.value == "single image"
@@ -63,14 +85,157 @@ def test_single_image_and_cancel(widget, qtbot):
     qtbot.waitUntil(lambda: job.done, timeout=120000)
     out = viewer.layers["camera restored"].data
     assert out.shape == noisy.shape and np.abs(out - noisy).std() > 0.01
-    names = [lay.name for lay in viewer.layers]
+    before = names(viewer)
     kept = out.copy()
+    job = w.start()
+    assert not w._kappa.enabled  # no re-threshold while a run writes the layers
+    w.cancel()
+    qtbot.waitUntil(lambda: job.done, timeout=120000)
+    assert names(viewer) == before
+    np.testing.assert_array_equal(viewer.layers["camera restored"].data, kept)
+    np.testing.assert_array_equal(layer.data, noisy)
+    assert w._kappa.enabled and w._show_changed.enabled  # the kept result re-thresholds
+    # with the changed pixels shown: a cancel keeps the old ones, a run updates them
+    w._show_changed.value = True
+    qtbot.waitUntil(lambda: w._recut_job is None, timeout=30000)
+    changed = viewer.layers["camera changed pixels"]
+    old = changed.data.copy()
+    before = names(viewer)
     job = w.start()
     w.cancel()
     qtbot.waitUntil(lambda: job.done, timeout=120000)
-    assert [lay.name for lay in viewer.layers] == names
-    np.testing.assert_array_equal(viewer.layers["camera restored"].data, kept)
-    np.testing.assert_array_equal(layer.data, noisy)
+    assert names(viewer) == before
+    np.testing.assert_array_equal(changed.data, old)
+    w._order.value = 2
+    job = w.start()
+    qtbot.waitUntil(lambda: job.done, timeout=120000)
+    assert names(viewer) == before
+    np.testing.assert_array_equal(changed.data, w.result.changed(float(w._kappa.value)))
+    assert not np.array_equal(changed.data, old)
+
+
+def test_restored_image_is_what_the_user_sees_first(widget, qtbot):
+    """Defect a: the probability layer does not hide the restored image."""
+    viewer, w = widget
+    layer = viewer.add_image(noisy_camera(64), name="camera")
+    w._image.value = layer
+    job = w.start()
+    qtbot.waitUntil(lambda: job.done, timeout=120000)
+    assert names(viewer) == ["camera", "camera prediction probability", "camera restored"]
+    restored = viewer.layers["camera restored"]
+    probability = viewer.layers["camera prediction probability"]
+    assert restored.visible and restored.opacity == 1.0  # on top, opaque, shown
+    assert not probability.visible  # there to look at, hidden below
+    assert viewer.layers.selection.active is restored
+    assert "probability: hidden" in w._status.value
+    # a second run keeps the arrangement the user made of the layers
+    probability.visible = True
+    job = w.start()
+    qtbot.waitUntil(lambda: job.done, timeout=120000)
+    assert names(viewer) == ["camera", "camera prediction probability", "camera restored"]
+    assert probability.visible and viewer.layers.selection.active is restored
+
+
+def test_versions_must_lie_along_a_stack_axis(widget, qtbot, last_notification):
+    """Defect b: a spatial or colour axis cannot be the versions axis."""
+    viewer, w = widget
+    rng = np.random.default_rng(1)
+    burst = rng.random((4, 32, 40, 3))
+    layer = viewer.add_image(burst, name="burst", rgb=True)
+    w._image.value = layer
+    # only the axis the viewer's slider steps through is offered
+    assert list(w._axis.choices) == ["single image", "axis 0"]
+    assert w._axis.value == "axis 0"
+    for axis in ("axis 1", "axis 2", "axis 3"):
+        with pytest.raises(ValueError):
+            w._axis.value = axis
+    # the user rolls the view: the choice follows the slider's axis
+    viewer.dims.order = (1, 0, 2)
+    assert list(w._axis.choices) == ["single image", "axis 1"]
+    assert w._axis.value == "axis 1"
+    viewer.dims.order = (0, 1, 2)
+    assert w._axis.value == "axis 0"
+    # a stale choice (the view changed behind the widget's back) is refused at once
+    with viewer.dims.events.order.blocker():
+        viewer.dims.order = (2, 0, 1)  # axis 0 is now shown as the image's rows
+    assert w._axis.value == "axis 0"
+    t0 = time.perf_counter()
+    assert w.start() is None
+    assert time.perf_counter() - t0 < 1.0
+    message = last_notification()
+    assert "'versions' is axis 0" in message and "spatial axis" in message
+    assert "'axis 2'" in message
+    assert names(viewer) == ["burst"] and w._job is None
+
+
+def test_order_says_what_its_default_is(widget, qtbot, monkeypatch):
+    """Defect f (restoration): the order control says which value is the default."""
+    viewer, w = widget
+    assert w._order.value == 1 and w._order.native.currentText() == "1 (default)"
+    labels = [w._order.native.itemText(k) for k in range(w._order.native.count())]
+    assert labels == ["1 (default)", "2", "3", "4", "5"]
+    assert "default" in w._order.tooltip
+    asked = []
+
+    def spy(image, **options):
+        asked.append(options["neighbourhood"])
+        return restoration_widget_iter_restore(image, **options)
+
+    restoration_widget_iter_restore = restoration_widget.iter_restore
+    monkeypatch.setattr(restoration_widget, "iter_restore", spy)
+    w._image.value = viewer.add_image(noisy_camera(48), name="camera")
+    w._order.value = 2
+    assert w._order.native.currentText() == "2"
+    job = w.start()
+    qtbot.waitUntil(lambda: job.done, timeout=120000)
+    assert asked == [2] and "camera restored" in viewer.layers
+
+
+def test_cancel_on_a_large_image_is_prompt(widget, qtbot):
+    """Cancel ends the worker within about a second on a 2048 x 2048 RGB
+    image (the strips yield between them), and leaves the viewer as it was."""
+    viewer, w = widget
+    rng = np.random.default_rng(2)
+    image = rng.integers(0, 256, (2048, 2048, 3), dtype=np.uint8)
+    layer = viewer.add_image(image, name="large", rgb=True)
+    w._image.value = layer
+    before = names(viewer)
+    # once during the local models (the longest stretch without a record),
+    # once while the restored layer fills in
+    for ready in (lambda: w._status.value != "starting", lambda: w.updates >= 1):
+        job = w.start()
+        qtbot.waitUntil(lambda job=job, ready=ready: job.done or ready(), timeout=120000)
+        assert not job.done
+        t0 = time.perf_counter()
+        w._cancel.native.click()
+        qtbot.waitUntil(lambda job=job: job.done, timeout=10000)
+        latency = time.perf_counter() - t0
+        assert latency < 3.0, f"the worker ran on {latency:.2f} s after Cancel"
+        assert names(viewer) == before
+        assert w._run.enabled and not w._cancel.enabled and w._status.value == "cancelled"
+    np.testing.assert_array_equal(layer.data, image)
+
+
+def test_cancel_of_a_burst(widget, qtbot):
+    """Cancel ends a burst's worker promptly too (the 2.5D scans yield
+    between directions), and leaves the viewer as it was."""
+    viewer, w = widget
+    rng = np.random.default_rng(3)
+    scene = np.linspace(0.1, 0.9, 512)[:, None, None] * np.ones((512, 512, 3))
+    stack = np.clip(scene + rng.normal(0, 0.05, (4, 512, 512, 3)), 0, 1).astype(np.float32)
+    w._image.value = viewer.add_image(stack, name="burst", rgb=True)
+    assert w._axis.value == "axis 0"
+    before = names(viewer)
+    job = w.start()
+    qtbot.waitUntil(lambda: job.done or w._status.value.startswith("directions"),
+                    timeout=120000)
+    assert not job.done
+    t0 = time.perf_counter()
+    w._cancel.native.click()
+    qtbot.waitUntil(lambda: job.done, timeout=10000)
+    latency = time.perf_counter() - t0
+    assert latency < 3.0, f"the worker ran on {latency:.2f} s after Cancel"
+    assert names(viewer) == before and w._run.enabled and w._status.value == "cancelled"
 
 
 def test_bad_input_is_a_notification(widget, qtbot, last_notification):
@@ -86,4 +251,4 @@ def test_bad_input_is_a_notification(widget, qtbot, last_notification):
     job = w.start()
     qtbot.waitUntil(lambda: job.done, timeout=60000)
     assert "constant" in last_notification()
-    assert [lay.name for lay in viewer.layers] == ["flat stack"]
+    assert names(viewer) == ["flat stack"]
