@@ -9,6 +9,7 @@ imports neither Qt nor napari; the napari dock widgets live in
 """
 
 from ._progress import Progress, drain
+from ._threads import limited_blas
 from .inpainting import detect_scratches, inpaint, iter_detect_scratches, iter_inpaint
 from .mammography import (
     MammogramROIs,
@@ -122,4 +123,5 @@ __all__ = [
     # the job protocol
     "Progress",
     "drain",
+    "limited_blas",
 ]

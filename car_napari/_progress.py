@@ -9,14 +9,18 @@ Cancel) stops the work at the next yield: kernels run in chunks (rows, tiles,
 EM iterations) with a yield between them.
 
 Generators that run another one as a stage use :func:`stage`, which maps
-the inner fractions into a part of the outer range. These helpers are the
-only code that steps a generator by hand.
+the inner fractions into a part of the outer range. These helpers (and the
+widgets' job runner, which relays the records to a napari worker) are the
+only code that steps a generator by hand. Every job runs with BLAS limited
+to one thread (:mod:`car_napari._threads`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from typing import Any
+
+from ._threads import limited_blas
 
 __all__ = ["Progress", "drain", "stage"]
 
@@ -59,6 +63,10 @@ class Progress:
 def drain(job, on_progress=None):
     """Run a job to its end and return its result.
 
+    The job runs with the BLAS libraries limited to one thread
+    (:func:`car_napari._threads.limited_blas`: many small matrix products
+    run faster so, and do not fight a busy machine's other processes).
+
     Parameters
     ----------
     job : generator
@@ -81,13 +89,14 @@ def drain(job, on_progress=None):
     >>> restored.shape, stages[0]
     ((64, 64), 'start')
     """
-    while True:
-        try:
-            record = next(job)
-        except StopIteration as stop:
-            return stop.value
-        if on_progress is not None:
-            on_progress(record)
+    with limited_blas():
+        while True:
+            try:
+                record = next(job)
+            except StopIteration as stop:
+                return stop.value
+            if on_progress is not None:
+                on_progress(record)
 
 
 def stage(job, start, stop, *, name=None, prefix=""):

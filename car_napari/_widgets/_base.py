@@ -133,8 +133,12 @@ class JobWidget(Container):
         self.extend([*pickers, *controls, self._cancel, self._progress, self._status, *after])
 
     def refresh_actions(self):
-        """Enable the action buttons that may be enabled now (no job running)."""
-        busy = self._job is not None and not self._job.done
+        """Enable the action buttons that may be enabled now (no job running).
+
+        A cancelled job counts as ended: its worker stops at the core's next
+        record and hands nothing over.
+        """
+        busy = self._job is not None and not (self._job.done or self._job.cancelled)
         for button, when in self._actions:
             button.enabled = not busy and bool(when())
 
@@ -203,7 +207,7 @@ class JobWidget(Container):
             self.notify_error(exc)
             return None
 
-    def run(self, job, *, preview=None, done=None):
+    def run(self, job, *, preview=None, done=None, collect=None):
         """Start ``job`` in a worker; returns the :class:`~._jobs.Job`.
 
         Parameters
@@ -212,7 +216,14 @@ class JobWidget(Container):
             An ``iter_<name>(...)`` call (or :func:`~._jobs.call`).
         preview : callable, optional
             ``preview(partial)`` shows a record's preview live; it writes to
-            the viewer only through :attr:`record`.
+            the viewer only through :attr:`record`. Previews arriving faster
+            than a few a second are skipped but for the latest
+            (:data:`~._jobs.PREVIEW_INTERVAL`); the last one is shown before
+            the result.
+        collect : callable, optional
+            ``collect(partial)`` is called with every preview, at once, when
+            previews are pieces of the result (a clip's frames): it keeps
+            them (no layer update) for the next ``preview`` to show.
         done : callable, optional
             ``done(result)`` shows the result (through :attr:`record`); it
             may set the status line, which otherwise says "done".
@@ -230,7 +241,11 @@ class JobWidget(Container):
         self._job = None
         job_ = Job(
             job,
-            on_progress=lambda record: self._on_progress(job_, record, preview),
+            on_progress=self._on_progress,
+            on_preview=None if preview is None else (
+                lambda record: self._on_preview(job_, record.preview, preview)),
+            on_collect=None if collect is None else (
+                lambda record: self._on_preview(job_, record.preview, collect)),
             on_done=lambda result: self._on_done(result, done),
             on_error=self._on_error,
             on_cancel=self._on_cancel,
@@ -242,22 +257,27 @@ class JobWidget(Container):
         return job_
 
     def cancel(self, *_):
-        """Stop the running job; the viewer is put back as it was before it."""
+        """Stop the running job; the viewer is put back as it was before it.
+
+        The action buttons come back at once; the worker stops at the core's
+        next record and anything it still produces is ignored.
+        """
         if self._job is not None:
             self._job.cancel()
 
     # A job hands nothing over once cancelled, and starting a job cancels the
     # previous one: the callbacks below are always the current job's.
 
-    def _on_progress(self, job, record, preview):
+    def _on_progress(self, record):
         self._progress.value = int(round(100 * min(max(float(record.fraction), 0.0), 1.0)))
         self._status.value = f"{record.stage}: {record.message}" if record.message else record.stage
-        if preview is not None and record.preview is not None:
-            try:
-                preview(record.preview)
-            except Exception as exc:  # a failure to display stops the run
-                job.cancel()
-                self._fail(exc)
+
+    def _on_preview(self, job, partial, show):
+        try:
+            show(partial)
+        except Exception as exc:  # a failure to display stops the run
+            job.cancel()
+            self._fail(exc)
 
     def _on_done(self, result, done):
         self._cancel.enabled = False
@@ -279,7 +299,8 @@ class JobWidget(Container):
         self._cancel.enabled = False
         self.record.undo()
         self._progress.value = 0
-        self._status.value = "cancelled"
+        self._status.value = "cancelled"  # until the next run says "starting"
+        self.refresh_actions()
 
     def _fail(self, exc):
         self.record.undo()

@@ -2,16 +2,31 @@
 
 The core's long computations are generators ``iter_<name>(...)`` that yield
 :class:`car_napari._progress.Progress` records and return their result; a
-:class:`Job` drives one in a worker and hands the records, the result or the
-error to the widget, in the main thread. A cancelled job hands over nothing
-more. Plain functions (a synthesis) run through :func:`call`.
+:class:`Job` drives one in a worker (with BLAS limited to one thread, as
+:func:`car_napari._progress.drain` runs it) and hands the records, the result
+or the error to the widget, in the main thread. A cancelled job hands over
+nothing more, and its worker stops at the core's next record. Plain functions
+(a synthesis) run through :func:`call`.
+
+The main thread does little per record: the progress records are handed
+over at most every :data:`STATUS_INTERVAL` seconds and the previews (a layer
+update each) at most every :data:`PREVIEW_INTERVAL` seconds, the latest one
+each time; the last preview is always handed over before the result.
 """
 
 from __future__ import annotations
 
+import math
+import time
+
 from napari.qt.threading import create_worker
+from qtpy.QtCore import Qt, QTimer
 
 from .._progress import Progress
+from .._threads import limited_blas
+
+STATUS_INTERVAL = 0.05  # s: the progress bar and status line, at most 20 times a second
+PREVIEW_INTERVAL = 0.15  # s from the end of one preview (a layer update) to the next
 
 
 class _Failed(Exception):
@@ -19,11 +34,27 @@ class _Failed(Exception):
     in a generator for a deleted worker and swallows it."""
 
 
-def _run(job):
-    try:
-        return (yield from job)
-    except RuntimeError as exc:
-        raise _Failed(exc) from exc
+def _run(job, cancelled):
+    """The worker's generator: ``job``'s records, with BLAS limited, until
+    ``cancelled()``; the job is closed in the worker thread when it stops."""
+    with limited_blas():
+        try:
+            while not cancelled():  # once cancelled, the worker hands nothing over
+                try:
+                    record = next(job)
+                except StopIteration as stop:
+                    return stop.value
+                if not cancelled():
+                    yield record
+            return None
+        except RuntimeError as exc:
+            raise _Failed(exc) from exc
+        finally:
+            job.close()
+
+
+def _relay(runner):
+    return (yield from runner)
 
 
 def call(function, *args, stage="running", **kwargs):
@@ -63,11 +94,17 @@ def call(function, *args, stage="running", **kwargs):
 class Job:
     """One core generator running in a napari worker thread.
 
-    The callbacks run in the main thread: ``on_progress(record)`` for every
-    :class:`Progress` record, ``on_done(result)`` with the generator's return
-    value, ``on_error(exc)`` when it raises, ``on_cancel()`` when
-    :meth:`cancel` stops it, and ``on_finished(job)`` at the end, whatever
-    the outcome. After a cancel no record, result or error is handed over.
+    The callbacks run in the main thread. ``on_progress(record)`` gets the
+    latest :class:`Progress` record, at most every :data:`STATUS_INTERVAL`
+    seconds (the first one at once); ``on_preview(record)`` the latest
+    record with a preview, at most every :data:`PREVIEW_INTERVAL` seconds
+    after the previous call returned, and the last one before the result;
+    ``on_collect(record)``, when given, gets every record with a preview, at
+    once (cheap bookkeeping only, such as keeping a clip's restored frames
+    for the next preview); ``on_done(result)`` gets the generator's return
+    value, ``on_error(exc)`` what it raised, ``on_cancel()`` is called by
+    :meth:`cancel`, and ``on_finished(job)`` when the worker has stopped,
+    whatever the outcome. After a cancel nothing more is handed over.
 
     Parameters
     ----------
@@ -76,6 +113,10 @@ class Job:
         (an ``iter_<name>(...)`` call, not yet started).
     on_progress, on_done, on_error, on_cancel, on_finished : callable
         The callbacks.
+    on_preview : callable, optional
+        The preview callback; without it previews are not handed over.
+    on_collect : callable, optional
+        Called with every record that has a preview (no layer update in it).
 
     Attributes
     ----------
@@ -90,15 +131,28 @@ class Job:
     'Job'
     """
 
-    def __init__(self, job, *, on_progress, on_done, on_error, on_cancel, on_finished):
+    def __init__(self, job, *, on_progress, on_done, on_error, on_cancel, on_finished,
+                 on_preview=None, on_collect=None):
         self.cancelled = False
         self.done = False
         self._settled = False  # a result or an error was handed over
-        self._gen = job
         self._callbacks = on_progress, on_done, on_error, on_cancel, on_finished
+        self._on_preview = on_preview
+        self._on_collect = on_collect
+        # the latest records not yet handed over, and when the last ones were
+        self._record = self._preview = None
+        self._record_at = self._preview_at = -math.inf
+        self._timer = QTimer()
+        self._timer.setSingleShot(True)
+        self._timer.setTimerType(Qt.TimerType.PreciseTimer)
+        self._timer.timeout.connect(self._hand_over)
+        # The worker's generator; closed at the end in case the worker was
+        # stopped otherwise (that closes the job and lifts the BLAS limit).
+        self._runner = _run(job, lambda: self.cancelled)
         # Errors are the widget's to show (one notification, no traceback):
         # nothing re-raised in the main thread, no second message from napari.
-        self.worker = create_worker(_run, job, _start_thread=False, _ignore_errors=True)
+        self.worker = create_worker(_relay, self._runner, _start_thread=False,
+                                    _ignore_errors=True)
         try:
             self.worker.errored.disconnect(self.worker._relay_error)
         except (AttributeError, TypeError, RuntimeError):
@@ -109,32 +163,87 @@ class Job:
         self.worker.finished.connect(self._finished)
         self.worker.start()
 
+    @property
+    def _closed(self):
+        return self.cancelled or self._settled
+
     def cancel(self):
         """Stop the job at its next record; nothing more is handed over.
 
-        Does nothing when the job has already ended or been handed over.
+        ``on_cancel()`` is called at once (the worker ends at the core's next
+        record). Does nothing when the job has already ended or been handed
+        over.
         """
-        if self.cancelled or self._settled or self.done:
+        if self._closed or self.done:
             return
+        # The worker's generator sees it at the job's next record and closes the
+        # job there, in the worker thread (worker.quit() would leave the job
+        # suspended, to be closed here, in the main thread).
         self.cancelled = True
-        self.worker.quit()
+        self._drop_pending()
         self._callbacks[3]()
 
+    def _drop_pending(self):
+        self._timer.stop()
+        self._record = self._preview = None
+
     def _yielded(self, record):
-        if not (self.cancelled or self._settled):
-            self._callbacks[0](record)
+        if self._closed:
+            return
+        self._record = record
+        if record.preview is not None:
+            if self._on_collect is not None:
+                self._on_collect(record)
+            if self._on_preview is not None and not self._closed:
+                self._preview = record
+        self._hand_over()
+
+    def _hand_over(self):
+        """Hand over the pending records that are due; wait for the others."""
+        waits = []
+        if self._record is not None and not self._closed:
+            due = self._record_at + STATUS_INTERVAL - time.monotonic()
+            if due <= 0:
+                record, self._record = self._record, None
+                self._record_at = time.monotonic()
+                self._callbacks[0](record)
+            else:
+                waits.append(due)
+        if self._preview is not None and not self._closed:
+            due = self._preview_at + PREVIEW_INTERVAL - time.monotonic()
+            if due <= 0:
+                self._deliver_preview()
+            else:
+                waits.append(due)
+        if waits and not self._closed:
+            self._timer.start(max(1, math.ceil(1000 * min(waits))))
+
+    def _deliver_preview(self):
+        record, self._preview = self._preview, None
+        self._on_preview(record)
+        self._preview_at = time.monotonic()  # the next one an interval after this one's end
 
     def _returned(self, result):
-        if not (self.cancelled or self._settled):
-            self._settled = True
-            self._callbacks[1](result)
+        if self._closed:
+            return
+        self._timer.stop()
+        self._record = None  # the result says more than the last status
+        if self._preview is not None:
+            self._deliver_preview()  # the last preview, before the result
+            if self._closed:  # showing it failed (the widget cancelled)
+                return
+        self._settled = True
+        self._callbacks[1](result)
 
     def _errored(self, exc):
-        if not (self.cancelled or self._settled):
-            self._settled = True
-            self._callbacks[2](exc.__cause__ if isinstance(exc, _Failed) else exc)
+        if self._closed:
+            return
+        self._drop_pending()
+        self._settled = True
+        self._callbacks[2](exc.__cause__ if isinstance(exc, _Failed) else exc)
 
     def _finished(self):
         self.done = True
-        self._gen.close()  # a stopped generator runs its clean-up; the thread is done
+        self._drop_pending()
+        self._runner.close()  # a stopped generator runs its clean-up; the thread is done
         self._callbacks[4](self)

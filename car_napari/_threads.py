@@ -1,0 +1,158 @@
+"""Thread use sized to the machine: BLAS limited to one thread while a job runs.
+
+The core runs many small or tall-and-thin matrix products (the CAR
+statistics, the Gaussian mixture's EM, the feature projections). A team of
+BLAS threads on such a product spends its time waiting for its slowest
+member, and when another process keeps the cores busy that member is often
+descheduled: a job then runs 10 to 20 times slower than with one BLAS
+thread. So every job runs with BLAS limited (:func:`limited_blas`, entered
+by :func:`car_napari._progress.drain` and by the widgets' job runner); the
+job's own work runs in its one thread (the Numba kernels are serial and
+release the GIL, which keeps the napari viewer responsive).
+
+The limit is ``CAR_NAPARI_BLAS_THREADS`` when that is set (a number of
+threads, at most the CPUs this process may use; ``0`` or ``off``: no limit),
+else one thread. No code of car-napari sets Numba's thread count: its
+kernels are serial (no ``parallel=True``), so Numba starts no thread pool.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import threading
+
+from threadpoolctl import OpenBLASController, threadpool_limits
+
+__all__ = ["blas_threads", "limited_blas", "usable_cpus"]
+
+ENV = "CAR_NAPARI_BLAS_THREADS"
+
+_lock = threading.Lock()
+_depth = 0  # the jobs inside limited_blas(), in every thread
+_limiter = None  # threadpoolctl's record of the limits before the outermost entry
+_limit = None  # the limit in force (None: none)
+
+
+def _release_blas_control():
+    """Let any thread set OpenBLAS's limits next: threadpoolctl (3.8) lets only
+    the first thread that set them set them again, and ours are set and put
+    back in whichever thread starts and ends the jobs."""
+    release = getattr(OpenBLASController, "clear_controlling_thread", None)
+    if release is not None:
+        release(force=True)
+
+
+def usable_cpus():
+    """The number of CPUs this process may run on.
+
+    Returns
+    -------
+    int
+        The CPUs of the process's affinity mask where the system has one
+        (Linux: a container or ``taskset`` may allow fewer than the machine
+        has), else ``os.cpu_count()``; at least 1.
+
+    Examples
+    --------
+    >>> usable_cpus() >= 1
+    True
+    """
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
+
+
+def blas_threads():
+    """The BLAS thread limit a job runs with.
+
+    Returns
+    -------
+    int or None
+        ``CAR_NAPARI_BLAS_THREADS`` when set (clipped to
+        :func:`usable_cpus`; None for ``0``, ``off`` or ``none``: no limit),
+        else 1.
+
+    Raises
+    ------
+    ValueError
+        ``CAR_NAPARI_BLAS_THREADS`` is neither a number nor ``off``.
+
+    Examples
+    --------
+    >>> threads = blas_threads()  # 1 unless CAR_NAPARI_BLAS_THREADS says otherwise
+    >>> threads is None or 1 <= threads <= usable_cpus()
+    True
+    """
+    value = os.environ.get(ENV, "").strip().lower()
+    if not value:
+        return 1
+    if value in ("0", "off", "none"):
+        return None
+    try:
+        threads = int(value)
+    except ValueError:
+        raise ValueError(f"{ENV} must be a number of threads or 'off'; got {value!r}.") from None
+    if threads < 0:
+        raise ValueError(f"{ENV} must be a number of threads or 'off'; got {value!r}.")
+    return min(threads, usable_cpus()) if threads else None
+
+
+@contextlib.contextmanager
+def limited_blas(threads=None):
+    """Limit the BLAS libraries' threads while a job runs.
+
+    Every job (``car.<name>(...)``, a widget's or the command line's run)
+    runs inside it; use it too when a script steps an ``iter_<name>``
+    generator itself. The limit is process-wide (BLAS has one thread pool):
+    the first entry, in any thread, sets it and the last exit puts back the
+    limits found before, so jobs may nest and run in several threads at once.
+    Entering it inside a job costs a lock and a counter.
+
+    Parameters
+    ----------
+    threads : int, optional
+        The BLAS thread limit (at most :func:`usable_cpus`); default
+        :func:`blas_threads`: ``CAR_NAPARI_BLAS_THREADS``, else 1. Only the
+        outermost entry's limit applies.
+
+    Yields
+    ------
+    limit : int or None
+        The limit in force (None: none, ``CAR_NAPARI_BLAS_THREADS=off``).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import car_napari as car
+    >>> with limited_blas() as limit:  # car.limited_blas
+    ...     job = car.iter_restore(np.random.default_rng(0).random((32, 32)))
+    ...     for record in job:
+    ...         pass
+    >>> limit is None or limit >= 1
+    True
+    """
+    global _depth, _limiter, _limit
+    with _lock:
+        if _depth == 0:
+            limit = blas_threads() if threads is None else max(1, min(int(threads), usable_cpus()))
+            _limiter = None
+            if limit is not None:
+                _release_blas_control()
+                _limiter = threadpool_limits(limits=limit, user_api="blas")
+                _release_blas_control()
+            _limit = limit
+        _depth += 1
+        limit = _limit
+    try:
+        yield limit
+    finally:
+        with _lock:
+            _depth -= 1
+            if _depth == 0:
+                if _limiter is not None:
+                    _release_blas_control()
+                    _limiter.restore_original_limits()
+                    _release_blas_control()
+                _limiter = _limit = None

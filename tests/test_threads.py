@@ -1,0 +1,114 @@
+"""Thread use: every job runs with BLAS limited (``drain``, nested, in several threads at
+once), the limits found before come back, and ``CAR_NAPARI_BLAS_THREADS`` overrides."""
+
+import os
+import threading
+
+import numpy as np
+import pytest
+from threadpoolctl import threadpool_info, threadpool_limits
+
+import car_napari as car
+from car_napari._progress import Progress, drain
+from car_napari._threads import blas_threads, limited_blas, usable_cpus
+
+
+def _blas():
+    """The thread counts of the BLAS libraries loaded (numpy's at least)."""
+    return [lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"]
+
+
+def _probe(seen, inner=None):
+    """A job that notes the BLAS thread counts it runs with (and runs ``inner`` as a stage)."""
+    seen.append(_blas())
+    yield Progress("probe", 0.5)
+    if inner is not None:
+        drain(inner)  # a plain core function called inside a job
+    seen.append(_blas())
+    return len(seen)
+
+
+@pytest.fixture
+def two_threads(monkeypatch):
+    """BLAS at two threads around the test, so that a limit to one shows."""
+    monkeypatch.delenv("CAR_NAPARI_BLAS_THREADS", raising=False)
+    with threadpool_limits(limits=2, user_api="blas"):
+        yield _blas()
+
+
+def test_drain_limits_blas_and_puts_the_limits_back(two_threads):
+    seen = []
+    assert drain(_probe(seen, inner=_probe(seen))) == 4
+    assert seen and all(counts and set(counts) == {1} for counts in seen)
+    assert _blas() == two_threads
+    with pytest.raises(ZeroDivisionError):
+        with limited_blas():
+            raise ZeroDivisionError("a job that fails")
+    assert _blas() == two_threads
+
+
+def test_the_limit_holds_until_the_last_job_in_any_thread_ends(two_threads):
+    entered, release, seen = threading.Event(), threading.Event(), []
+
+    def other():
+        with limited_blas():
+            entered.set()
+            release.wait(30)
+            seen.append(_blas())
+
+    thread = threading.Thread(target=other)
+    thread.start()
+    assert entered.wait(30)
+    with limited_blas() as limit:  # a second job starts and ends while the first runs
+        assert limit == 1
+    seen.append(_blas())
+    release.set()
+    thread.join(30)
+    assert seen == [[1] * len(two_threads)] * 2
+    assert _blas() == two_threads
+
+
+def test_the_environment_overrides_the_limit(two_threads, monkeypatch):
+    monkeypatch.setenv("CAR_NAPARI_BLAS_THREADS", "off")
+    assert blas_threads() is None
+    with limited_blas() as limit:
+        assert limit is None and _blas() == two_threads
+    monkeypatch.setenv("CAR_NAPARI_BLAS_THREADS", "64")
+    assert blas_threads() == usable_cpus()
+    monkeypatch.setenv("CAR_NAPARI_BLAS_THREADS", "many")
+    with pytest.raises(ValueError, match="CAR_NAPARI_BLAS_THREADS"):
+        blas_threads()
+    monkeypatch.delenv("CAR_NAPARI_BLAS_THREADS")
+    assert blas_threads() == 1
+
+
+def test_usable_cpus_is_the_affinity():
+    expected = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None
+    assert usable_cpus() == (expected or os.cpu_count() or 1)
+
+
+def test_a_core_job_runs_limited(two_threads):
+    # the command line's way: a core job drained with a progress callback
+    seen = []
+    car.drain(car.iter_restore(np.random.default_rng(0).random((32, 32))),
+              lambda record: seen.append(_blas()))
+    assert seen and all(set(counts) == {1} for counts in seen)
+    assert _blas() == two_threads
+
+
+def test_jobs_in_one_thread_after_another_are_each_limited(two_threads):
+    # threadpoolctl lets only the thread that set OpenBLAS's limits set them again: a job
+    # started in a fresh thread (a napari worker) after one in another thread is limited too
+    seen = []
+
+    def job():
+        probe = []
+        drain(_probe(probe))
+        seen.append(probe)
+
+    for _ in range(3):
+        thread = threading.Thread(target=job)
+        thread.start()
+        thread.join(30)
+    assert len(seen) == 3 and all(set(counts) == {1} for probe in seen for counts in probe)
+    assert _blas() == two_threads
