@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from magicgui.widgets import Label, SpinBox, TextEdit
 
-from ..model import iter_fit_car, synthesize
+from ..model import iter_fit_car, spectral_radius, synthesize
 from ._base import ModelWidget
 from ._jobs import call
 from ._layers import value_range
@@ -86,6 +86,12 @@ class CARModelWidget(ModelWidget):
         self._status.value = f"order {model.order} chosen"
 
     def _synthesis(self, shape, seed):
+        radius = spectral_radius(self.model)
+        if not radius < 1.0:
+            raise ValueError(
+                f"the fitted model is unstable (spectral radius {radius:.4g} >= 1): its "
+                "samples would grow without bound. Fit again with a lower 'max order', or "
+                "on a more uniform region (draw a rectangle).")
         return self.run(call(synthesize, self.model, shape, seed=seed, stage="synthesis"),
                         done=self._add_sample)
 

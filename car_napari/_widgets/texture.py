@@ -3,7 +3,9 @@ which any amount of it is synthesised (section 14.8, docs/texture.md)."""
 
 from __future__ import annotations
 
-from magicgui.widgets import CheckBox, ComboBox, FileEdit, Label, SpinBox
+from pathlib import Path
+
+from magicgui.widgets import CheckBox, ComboBox, Label, SpinBox
 from napari.utils.notifications import show_info
 
 from ..texture import (
@@ -19,6 +21,57 @@ from ._jobs import call
 
 SINGLE, BTF, DYNAMIC = "single texture", "BTF: stack of illuminations", "dynamic: frames"
 NOT_A_STACK = "it is not a stack (images along the first axis); choose 'single texture'."
+MODEL_FILTER = "Texture model (*.npz)"
+
+
+def ask_save_path(parent, start):
+    """Ask for the file to save a model to (a save dialog).
+
+    Parameters
+    ----------
+    parent : QWidget or None
+        The dialog's parent.
+    start : str
+        The proposed path.
+
+    Returns
+    -------
+    str or None
+        The chosen path; None when the user closed the dialog.
+    """
+    from qtpy.QtWidgets import QFileDialog
+
+    path, _ = QFileDialog.getSaveFileName(parent, "Save texture model", start, MODEL_FILTER)
+    return path or None
+
+
+def ask_open_path(parent, start):
+    """Ask for a model file to load (an open dialog).
+
+    Parameters
+    ----------
+    parent : QWidget or None
+        The dialog's parent.
+    start : str
+        The folder to start in.
+
+    Returns
+    -------
+    str or None
+        The chosen file; None when the user closed the dialog.
+    """
+    from qtpy.QtWidgets import QFileDialog
+
+    path, _ = QFileDialog.getOpenFileName(parent, "Load texture model", start, MODEL_FILTER)
+    return path or None
+
+
+def _fallback_notes(model):
+    """What the fit did with unstable fitted models (a sentence each)."""
+    if isinstance(model, BTFModel):
+        return tuple(f"subspace {k + 1}, {note}" for k, m in enumerate(model.models)
+                     for note in m.fallbacks)
+    return tuple(getattr(model, "fallbacks", ()))
 
 
 class TextureSynthesisWidget(ModelWidget):
@@ -51,14 +104,16 @@ class TextureSynthesisWidget(ModelWidget):
         self._fit = self.action("Fit", self.start_fit)
         self._model_info = Label(value="no model")
         self._tileable = CheckBox(value=False, text="tileable (wraps seamlessly)")
-        self._path = FileEdit(mode="w", filter="*.npz", label="model file")
-        self._save = self.action("Save model", lambda *_: self.save_model(self._path.value),
-                                 when=lambda: isinstance(self.model, TextureModel))
-        self._load = self.action("Load model", lambda *_: self.load_model(self._path.value))
+        self._folder = Path.cwd()  # where the model dialogs start
+        self._save = self.action("Save model...", self.save_model_as,
+                                 when=lambda: isinstance(self.model, TextureModel),
+                                 tooltip="write the single-texture model to an .npz file")
+        self._load = self.action("Load model...", self.load_model_from,
+                                 tooltip="read a model saved by 'Save model...'")
         self.arrange([self._mode, self._levels, self._subspaces, self._fit, self._model_info,
                       self._height, self._width, self._frames, self._seed, self._tileable,
                       self._synth],
-                     after=[self._path, self._save, self._load])
+                     after=[self._save, self._load])
         self._image.changed.connect(self._guess_mode)
 
     def _guess_mode(self, *_):
@@ -99,18 +154,24 @@ class TextureSynthesisWidget(ModelWidget):
 
     def _describe(self):
         model = self.model
+        notes = _fallback_notes(model)
         if not isinstance(model, TextureModel):
             kind = ("BTF, " + f"{len(model.models)} subspaces"
                     if isinstance(model, BTFModel) else "dynamic 3.5D")
-            self._model_info.value = (f"{kind}, {model.nbytes} bytes, "
-                                      f"{model.compression_ratio(self._input_shape):.0f}:1")
-            return
-        text = f"orders {list(model.orders)} per band, {model.nbytes} bytes"
-        if self._input_shape is not None:
-            text += f", {model.compression_ratio(self._input_shape):.0f}:1"
-        if model.fallbacks:
-            text += f"; {len(model.fallbacks)} unstable band(s) refitted lower"
+            text = (f"{kind}, {model.nbytes} bytes, "
+                    f"{model.compression_ratio(self._input_shape):.0f}:1")
+        else:
+            text = f"orders {list(model.orders)} per band, {model.nbytes} bytes"
+            if self._input_shape is not None:
+                text += f", {model.compression_ratio(self._input_shape):.0f}:1"
+        if notes:
+            what = "band(s)" if isinstance(model, TextureModel) else "model(s)"
+            text += f"; {len(notes)} unstable {what} made stable"
         self._model_info.value = text
+        self._model_info.tooltip = "\n".join(notes) if notes else None
+        if notes:  # the synthesis would have failed: say what was done instead
+            show_info("The fitted model was unstable (its synthesis would grow without "
+                      "bound), so the fit made it stable: " + "; ".join(notes) + ".")
 
     def _synthesis(self, shape, seed):
         model = self.model
@@ -134,22 +195,75 @@ class TextureSynthesisWidget(ModelWidget):
             self.record.replace(name, lambda name: self._viewer.add_image(synthesis, name=name,
                                                                           rgb=rgb))
 
+    def save_model_as(self, *_):
+        """Ask for a file name (a save dialog) and write the model there.
+
+        Returns
+        -------
+        pathlib.Path or None
+            The file written; None when the dialog was closed or the model
+            could not be written (an error notification says why).
+        """
+        if self.model is None:
+            return self.save_model(None)  # says there is nothing to save
+        start = self._folder / f"{self._source_name}.npz"
+        path = ask_save_path(self.native, str(start))
+        if path is None:
+            return None
+        return self.save_model(path)
+
+    def load_model_from(self, *_):
+        """Ask for a model file (an open dialog) and load it.
+
+        Returns
+        -------
+        TextureModel or None
+            The model loaded; None when the dialog was closed or the file is
+            not a model (an error notification says why).
+        """
+        path = ask_open_path(self.native, str(self._folder))
+        if path is None:
+            return None
+        return self.load_model(path)
+
     @guarded
     def save_model(self, path):
         """Write the texture model to ``path`` (an ``.npz`` file).
 
+        ``.npz`` is added to a name without it; a folder (or no name) is
+        refused with a notification.
+
         Parameters
         ----------
         path : str or Path
-            Where to write it.
+            The file to write.
+
+        Returns
+        -------
+        pathlib.Path or None
+            The file written; None when nothing was written (an error
+            notification says why).
         """
         if self.model is None:
             raise ValueError("there is no model to save: fit one first.")
+        if not isinstance(self.model, TextureModel):
+            raise ValueError("only a single-texture model can be saved; this one is a "
+                             "BTF or dynamic model.")
+        if path is None or not str(path).strip():
+            raise ValueError("choose a file name to save the model to.")
+        target = Path(path).expanduser()
+        if target.is_dir() or str(path).endswith(("/", "\\")):
+            raise ValueError(f"{target} is a folder: choose a file name for the model "
+                             "(an .npz file).")
+        if not target.name.endswith(".npz"):
+            target = target.with_name(target.name + ".npz")  # what numpy would write
         try:
-            self.model.save(str(path))
+            self.model.save(str(target))
         except OSError as exc:
-            raise OSError(f"cannot write {path}: {exc}") from exc
-        show_info(f"model saved to {path} ({self.model.nbytes} bytes of parameters)")
+            raise OSError(f"cannot write {target}: {exc}") from exc
+        self._folder = target.parent
+        show_info(f"model saved to {target} ({self.model.nbytes} bytes of parameters)")
+        return target
 
     @guarded
     def load_model(self, path):
@@ -159,8 +273,16 @@ class TextureSynthesisWidget(ModelWidget):
         ----------
         path : str or Path
             The ``.npz`` file.
+
+        Returns
+        -------
+        TextureModel or None
+            The model; None when the file is not one (an error notification
+            says why).
         """
         model = TextureModel.load(str(path))
+        self._folder = Path(path).expanduser().parent
         self._input_shape = None
         self._source_name = "texture model"
         self._set_model(model)
+        return model

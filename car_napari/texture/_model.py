@@ -33,9 +33,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import ndimage as ndi
 
-from .._progress import Progress, drain
+from .._progress import Progress, drain, stage
 from .._validation import as_channel_last_float, check_not_constant, output_shape, summarize
-from ..model.estimation import CARModel, fit_car
+from ..model.estimation import CARModel, iter_fit_car
 from ..model.neighbourhood import as_offsets
 from ..model.synthesis import spectral_radius, synthesize
 
@@ -53,26 +53,103 @@ _MAX_ORDER = 5  # largest candidate order for neighbourhood='auto'
 _SHRINK_RADIUS = 0.99  # last-resort target when even order 1 is unstable
 _BAND_QUANTILES = 32  # stored quantiles per band and channel (histogram matching)
 _OUT_QUANTILES = 64  # stored quantiles of the input per channel
+_CHUNK_PIXELS = 1 << 19  # pixels per block of a long pass (a record between blocks)
+_BLUR_HALO = 8  # rows beyond a block that its blur reads (the kernel reaches 4)
+_HIST_BINS = 1 << 16  # bins of the first pass of the exact quantiles
+# relative cost per pixel of the parts of a fit (progress fractions), measured
+_SHARE_READ, _SHARE_QUANTILES, _SHARE_PYRAMID, _SHARE_FIT = 0.3, 1.0, 0.5, 20.0
+
+
+def _plane_shape(image, channel_axis):
+    """(height, width) of a 2-D image or of a 3-D one with a valid
+    ``channel_axis``; None for any other layout (the reading says why)."""
+    shape = np.shape(image) if image is not None else ()
+    if len(shape) == 2:
+        return tuple(int(n) for n in shape)
+    if len(shape) == 3 and isinstance(channel_axis, (int, np.integer)) \
+            and not isinstance(channel_axis, (bool, np.bool_)) and -3 <= channel_axis < 3:
+        return tuple(int(n) for axis, n in enumerate(shape) if axis != channel_axis % 3)
+    return None
+
+
+def _iter_float_image(image, channel_axis):
+    """``as_channel_last_float(image, channel_axis=channel_axis)`` and the
+    image's :func:`summarize`, as a job: the conversion runs by blocks of
+    rows with a record (stage ``"reading"``) after each.
+
+    The layout, dtype and channel checks run on one row first, so their
+    errors come before the first record, with the same messages; a
+    non-finite value is reported as the whole-image check reports it.
+    """
+    plane = _plane_shape(image, channel_axis)
+    arr = np.asarray(image) if plane is not None else None
+    if arr is None or arr.size == 0 or arr.dtype == object or arr.dtype.kind not in "biuf":
+        return as_channel_last_float(image, channel_axis=channel_axis, with_summary=True)
+    if arr.ndim == 2:
+        view = arr[..., np.newaxis]
+    else:
+        # the checks and messages of the whole image, on its first row
+        row_axis = [axis for axis in range(3) if axis != channel_axis % 3][0]
+        as_channel_last_float(np.take(arr, [0], axis=row_axis), channel_axis=channel_axis)
+        view = np.moveaxis(arr, channel_axis, -1)
+    h, w = plane
+    data = np.empty(view.shape, np.float64)
+    for a, b in _row_chunks(h, w):
+        try:
+            data[a:b] = as_channel_last_float(view[a:b], channel_axis=-1, copy=False)
+        except ValueError:  # non-finite values: the message of the whole image
+            as_channel_last_float(image, channel_axis=channel_axis)
+            raise
+        yield Progress("reading", b / h, f"rows {b}/{h}")
+    return data, summarize(data)
+
+
+def _row_chunks(n_rows, width, pixels=None):
+    """``(start, stop)`` row ranges of about ``pixels`` pixels each (at least
+    one row): the pieces a long pass over an image is cut into, with a
+    record between them."""
+    step = max(1, (pixels or _CHUNK_PIXELS) // max(int(width), 1))
+    return [(a, min(a + step, n_rows)) for a in range(0, n_rows, step)]
 
 
 def _reduce(image):
     """One pyramid step down: blur, then average 2 x 2 blocks (odd sides are
     padded by reflection so a size ``n`` level gives ``ceil(n / 2)``)."""
-    blurred = ndi.gaussian_filter(image, sigma=(_BLUR_SIGMA, _BLUR_SIGMA, 0), mode="reflect")
-    h, w = blurred.shape[:2]
-    blurred = np.pad(blurred, ((0, h % 2), (0, w % 2), (0, 0)), mode="symmetric")
-    return 0.25 * (
-        blurred[0::2, 0::2] + blurred[1::2, 0::2] + blurred[0::2, 1::2] + blurred[1::2, 1::2]
-    )
+    return drain(_iter_reduce(image))
 
 
-def _cubic_axis(image, n_out, axis, wrap):
+def _iter_reduce(image):
+    """:func:`_reduce` as a job, by blocks of output rows (a record after
+    each, fractions of the rows), then the reduced image. Each block blurs
+    its rows with a halo of :data:`_BLUR_HALO` rows: the same numbers as
+    blurring the whole image."""
+    h, w, d = image.shape
+    out = np.empty(((h + 1) // 2, (w + 1) // 2, d))
+    chunks = _row_chunks(out.shape[0], 4 * w)
+    for a, b in chunks:
+        r0, r1 = 2 * a, min(2 * b, h)
+        s0, s1 = max(r0 - _BLUR_HALO, 0), min(r1 + _BLUR_HALO, h)
+        blurred = ndi.gaussian_filter(image[s0:s1], sigma=(_BLUR_SIGMA, _BLUR_SIGMA, 0),
+                                      mode="reflect")[r0 - s0 : r1 - s0]
+        blurred = np.pad(blurred, ((0, 2 * (b - a) - (r1 - r0)), (0, w % 2), (0, 0)),
+                         mode="symmetric")
+        out[a:b] = 0.25 * (
+            blurred[0::2, 0::2] + blurred[1::2, 0::2] + blurred[0::2, 1::2] + blurred[1::2, 1::2]
+        )
+        yield Progress("pyramid", b / out.shape[0], f"rows {b}/{out.shape[0]}")
+    return out
+
+
+def _cubic_axis(image, n_out, axis, wrap, rows=None):
     """Resample one axis to ``n_out`` samples by Keys cubic convolution
     (a = -0.5), pixel extents aligned: output pixel ``i`` sits at input
     coordinate ``(i + 0.5) * n_in / n_out - 0.5``. Borders are half-sample
-    symmetric, or periodic with ``wrap``."""
+    symmetric, or periodic with ``wrap``. ``rows`` (a slice) computes only
+    those output samples."""
     n_in = image.shape[axis]
     x = (np.arange(n_out) + 0.5) * (n_in / n_out) - 0.5
+    if rows is not None:
+        x = x[rows]
     base = np.floor(x).astype(np.int64)
     t = x - base
     out = 0.0
@@ -90,9 +167,16 @@ def _cubic_axis(image, n_out, axis, wrap):
             idx = np.where(idx >= n_in, 2 * n_in - idx - 1, idx)
             idx = np.clip(idx, 0, n_in - 1)
         shape = [1] * image.ndim
-        shape[axis] = n_out
+        shape[axis] = x.size
         out = out + weight.reshape(shape) * np.take(image, idx, axis=axis)
     return out
+
+
+def _expand_rows(image, shape, rows, wrap=False):
+    """Rows ``rows`` (a slice) of ``_expand(image, shape, wrap=wrap)``, the
+    same numbers, computed from the input rows they need."""
+    out = _cubic_axis(image, int(shape[0]), 0, wrap, rows=rows)
+    return _cubic_axis(out, int(shape[1]), 1, wrap)
 
 
 def _expand(image, shape, *, wrap=False):
@@ -102,10 +186,14 @@ def _expand(image, shape, *, wrap=False):
     :func:`_reduce` (a coarse pixel's centre is the centre of its block).
     With ``wrap`` the image is one period of a torus, so a periodic coarse
     level expands to a periodic fine level at any size. (Separable Keys cubic
-    convolution: ten times faster than a spline zoom, same role.)
+    convolution: ten times faster than a spline zoom, same role.) Computed
+    by blocks of rows (less memory; the same numbers).
     """
-    out = _cubic_axis(image, int(shape[0]), 0, wrap)
-    return _cubic_axis(out, int(shape[1]), 1, wrap)
+    h2, w2 = int(shape[0]), int(shape[1])
+    out = np.empty((h2, w2, image.shape[2]))
+    for a, b in _row_chunks(h2, w2):
+        out[a:b] = _expand_rows(image, (h2, w2), slice(a, b), wrap)
+    return out
 
 
 def _level_shapes(shape, levels):
@@ -118,11 +206,39 @@ def _level_shapes(shape, levels):
 
 def _pyramid(image, levels):
     """Bands of the pyramid of a channel-last (H, W, d) float image."""
+    return drain(_iter_pyramid(image, levels))
+
+
+def _iter_pyramid(image, levels, *, overwrite=False):
+    """:func:`_pyramid` as a job (stage ``"pyramid"``): a record after every
+    block of rows of every reduce and every band, fractions by pixels; then
+    the bands. With ``overwrite`` the finest band is written into ``image``
+    (and every band into its Gaussian level): the pyramid then takes a
+    third of the image's memory more, not twice it."""
+    shapes = _level_shapes(image.shape[:2], levels)
+    pixels = np.array([h * w for h, w in shapes], float)
+    # reducing level k and forming band k each cost about level k's pixels
+    total = max(2.0 * pixels[:-1].sum(), 1.0)
+    done = 0.0
     gauss = [image]
-    for _ in range(levels - 1):
-        gauss.append(_reduce(gauss[-1]))
-    bands = [g - _expand(g_next, g.shape[:2])
-             for g, g_next in zip(gauss[:-1], gauss[1:], strict=True)]
+    for k in range(levels - 1):
+        start, share = done / total, pixels[k] / total
+        gauss.append((yield from stage(_iter_reduce(gauss[-1]), start, start + share,
+                                       prefix=f"level {k + 2}/{levels}, ")))
+        done += pixels[k]
+    bands = []
+    for k in range(levels - 1):
+        g = gauss[k]
+        gauss[k] = None  # the bands replace the Gaussian levels one by one
+        band = g if overwrite else np.empty_like(g)
+        h, w = g.shape[:2]
+        for a, b in _row_chunks(h, w):
+            band[a:b] = g[a:b] - _expand_rows(gauss[k + 1], (h, w), slice(a, b))
+            fraction = (done + pixels[k] * b / h) / total
+            yield Progress("pyramid", fraction, f"band {k + 1}/{levels}, rows {b}/{h}")
+        done += pixels[k]
+        bands.append(band)
+        del g, band
     bands.append(gauss[-1])
     return bands
 
@@ -263,47 +379,67 @@ def _fallback_orders(first):
     return list(range(top - 1, 0, -1))
 
 
-def _shrunk(model, target=_SHRINK_RADIUS):
-    """Copy of ``model`` with ``gamma`` scaled down until its spectral radius is
-    ``target``: the last resort when even order 1 is unstable. The noise
-    covariance is raised so the field keeps about the same variance."""
+def _iter_scale(radius, target=_SHRINK_RADIUS, steps=40):
+    """The largest factor ``c`` in [0, 1] (by ``steps`` bisection steps) for
+    which ``radius(c) < target``: how far to scale a ``gamma`` down. A job: a
+    record every few steps (each costs a stability test), then ``c``."""
     lo, hi = 0.0, 1.0
-    trial = CARModel(**{**model.__dict__})
-    for _ in range(40):  # bisection on the scale factor
+    for step in range(steps):
+        if step % 4 == 0:
+            yield Progress("stabilising", step / steps, f"gamma scale, step {step + 1}/{steps}")
         mid = 0.5 * (lo + hi)
-        trial.gamma = model.gamma * mid
-        if spectral_radius(trial) < target:
+        if radius(mid) < target:
             lo = mid
         else:
             hi = mid
-    trial.gamma = model.gamma * lo
+    return lo
+
+
+def _iter_shrunk(model, target=_SHRINK_RADIUS):
+    """Copy of ``model`` with ``gamma`` scaled down until its spectral radius is
+    ``target``: the last resort when even order 1 is unstable. A job (see
+    :func:`_iter_scale`); returns ``(model, scale)``."""
+    trial = CARModel(**{**model.__dict__})
+
+    def radius(scale):
+        trial.gamma = model.gamma * scale
+        return spectral_radius(trial)
+
+    scale = yield from _iter_scale(radius, target)
+    trial.gamma = model.gamma * scale
     trial.factors = None  # the per-factor models no longer match gamma
-    return trial, lo
+    return trial, scale
 
 
-def _fit_level(band, neighbourhood, model):
-    """Fit one sub-band; fall back to lower orders while the model is unstable.
+def _iter_stable_fit(band, neighbourhood, *, model="3d", orders=range(1, _MAX_ORDER + 1),
+                     what="the fitted model"):
+    """Fit ``band`` (channel-last) by :func:`~car_napari.model.iter_fit_car`
+    and fall back to lower orders while the model is unstable; as a job.
 
-    Returns ``(CARModel, note)`` where ``note`` is None when the first fit was
-    stable, else a sentence saying what was done.
+    The first fit's records cover [0, 1]; a fallback's refits repeat the last
+    fraction (their records keep a cancel prompt). Returns ``(CARModel,
+    note)`` where ``note`` is None when the first fit was stable, else a
+    sentence saying what was done.
     """
-    orders = range(1, _MAX_ORDER + 1)
-    first = fit_car(band, neighbourhood, model=model, orders=orders, channel_axis=-1)
+    first = yield from iter_fit_car(band, neighbourhood, model=model, orders=orders,
+                                    channel_axis=-1)
     radius = spectral_radius(first)
     if radius < 1.0:
         return first, None
     label = first.order if first.order is not None else f"{first.eta} offsets"
     for order in _fallback_orders(first):
-        trial = fit_car(band, order, model=model, channel_axis=-1)
+        trial = yield from stage(iter_fit_car(band, order, model=model, channel_axis=-1),
+                                 1.0, 1.0, prefix=f"unstable, refitting order {order}: ")
         if spectral_radius(trial) < 1.0:
             return trial, (
-                f"the fitted model (order {label}) was unstable (spectral radius "
+                f"{what} (order {label}) was unstable (spectral radius "
                 f"{radius:.4g}); used order {order} instead"
             )
-    lowest = fit_car(band, 1, model=model, channel_axis=-1)
-    shrunk, scale = _shrunk(lowest)
+    lowest = yield from stage(iter_fit_car(band, 1, model=model, channel_axis=-1), 1.0, 1.0,
+                              prefix="unstable, refitting order 1: ")
+    shrunk, scale = yield from stage(_iter_shrunk(lowest), 1.0, 1.0)
     return shrunk, (
-        f"the fitted model (order {label}) was unstable (spectral radius {radius:.4g}) "
+        f"{what} (order {label}) was unstable (spectral radius {radius:.4g}) "
         f"and so was every lower order; used order 1 with gamma scaled by {scale:.4g} "
         f"(spectral radius {_SHRINK_RADIUS})"
     )
@@ -342,8 +478,92 @@ def _probabilities(n):
 
 
 def _quantiles(values, n):
-    """(n, d) quantiles of each channel of (h, w, d) ``values``, float32-exact."""
-    return _f32(np.quantile(values.reshape(-1, values.shape[2]), _probabilities(n), axis=0))
+    """(n, d) quantiles of each channel of (h, w, d) ``values``, float32-exact
+    (``numpy.quantile`` at :func:`_probabilities`, by blocks of rows)."""
+    return drain(_iter_quantiles(values, n))[0]
+
+
+def _iter_quantiles(values, n, *, stage_name="quantiles"):
+    """:func:`_quantiles` as a job, by blocks of rows: the same numbers.
+
+    Three passes, a record after every block: the channels' minima and
+    maxima; a histogram of :data:`_HIST_BINS` bins per channel, which tells
+    in which bin every needed order statistic lies; the values of those bins
+    only, whose partition gives the order statistics exactly. They are
+    interpolated as ``numpy.quantile`` does (its default 'linear' method).
+
+    Returns ``(quantiles, minimum, maximum)``: (n, d) float32-exact
+    quantiles and the (d,) exact extremes.
+    """
+    h, w, d = values.shape
+    chunks = _row_chunks(h, w)
+    steps, step = 3 * len(chunks) + d, 0
+    lo, hi = np.full(d, np.inf), np.full(d, -np.inf)
+    for a, b in chunks:
+        block = values[a:b]
+        lo = np.minimum(lo, block.min(axis=(0, 1)))
+        hi = np.maximum(hi, block.max(axis=(0, 1)))
+        step += 1
+        yield Progress(stage_name, step / steps, "range")
+    scale = np.where(hi > lo, _HIST_BINS / np.where(hi > lo, hi - lo, 1.0), 0.0)
+
+    def bins_of(block, c):
+        index = ((block[..., c] - lo[c]) * scale[c]).astype(np.int64).ravel()
+        return np.minimum(index, _HIST_BINS - 1)
+
+    counts = np.zeros((d, _HIST_BINS), np.int64)
+    for a, b in chunks:
+        block = values[a:b]
+        for c in range(d):
+            counts[c] += np.bincount(bins_of(block, c), minlength=_HIST_BINS)
+        step += 1
+        yield Progress(stage_name, step / steps, "histogram")
+    # numpy.quantile's 'linear' method: the order statistics either side of
+    # the virtual index (n - 1) p, interpolated (numpy's _lerp)
+    size = h * w
+    virtual = (size - 1) * _probabilities(n)
+    previous = np.floor(virtual)
+    following = previous + 1
+    above = virtual >= size - 1
+    previous[above] = following[above] = size - 1
+    gamma = virtual - previous
+    previous, following = previous.astype(np.int64), following.astype(np.int64)
+    ranks = np.unique(np.r_[previous, following])
+    cumulative = np.zeros((d, _HIST_BINS + 1), np.int64)
+    np.cumsum(counts, axis=1, out=cumulative[:, 1:])
+    wanted = [np.unique(np.searchsorted(cumulative[c], ranks, side="right") - 1)
+              for c in range(d)]
+    picked = [[] for _ in range(d)]
+    for a, b in chunks:
+        block = values[a:b]
+        for c in range(d):
+            mask = np.zeros(_HIST_BINS, bool)
+            mask[wanted[c]] = True
+            picked[c].append(block[..., c].ravel()[mask[bins_of(block, c)]])
+        step += 1
+        yield Progress(stage_name, step / steps, "order statistics")
+    out = np.empty((n, d))
+    for c in range(d):
+        chosen = np.concatenate(picked[c])
+        picked[c] = None
+        # the rank of an order statistic within the picked values: its rank
+        # less the values of the bins below its own that were not picked
+        kept = np.zeros(_HIST_BINS + 1, np.int64)
+        kept[wanted[c] + 1] = counts[c, wanted[c]]
+        skipped = cumulative[c] - np.cumsum(kept)
+        where = np.searchsorted(cumulative[c], ranks, side="right") - 1
+        local = ranks - skipped[where]
+        chosen.partition(np.unique(local))
+        order = dict(zip(ranks.tolist(), chosen[local].tolist(), strict=True))
+        first = np.array([order[r] for r in previous.tolist()])
+        second = np.array([order[r] for r in following.tolist()])
+        diff = second - first
+        value = first + diff * gamma
+        np.subtract(second, diff * (1 - gamma), out=value, where=gamma >= 0.5)
+        out[:, c] = value
+        step += 1  # (the partition of a channel of few distinct values can be long)
+        yield Progress(stage_name, step / steps, "order statistics")
+    return _f32(out), lo, hi
 
 
 def _match(values, quantiles, bins=4096):
@@ -354,6 +574,14 @@ def _match(values, quantiles, bins=4096):
     Each value's probability is read off its channel's empirical CDF, taken
     from a ``bins``-bin histogram (linear within a bin) rather than a full
     sort: O(n) arithmetic, within 1/bins of the exact rank.
+
+    The two end intervals reach the minimum and the maximum, which only a
+    handful of pixels of the analysed band attained; spread linearly there,
+    1/(q - 1) of the output (3 % for 32 quantiles) would be scattered evenly
+    up to the extremes: isolated pixels far brighter or darker than their
+    neighbours (the speckle of heavy-tailed band-pass bands). There the
+    quantile function follows an exponential tail instead, its scale read off
+    the next interval inward, and never goes beyond the linear one.
     """
     h, w, d = values.shape
     flat = values.reshape(-1, d)
@@ -373,8 +601,36 @@ def _match(values, quantiles, bins=4096):
         # quantiles sit at equally spaced probabilities: index arithmetic again
         pos = p * (q - 1)
         k = np.minimum(pos.astype(np.int64), q - 2)
-        out[:, c] = quantiles[k, c] + (pos - k) * (quantiles[k + 1, c] - quantiles[k, c])
+        mapped = quantiles[k, c] + (pos - k) * (quantiles[k + 1, c] - quantiles[k, c])
+        if q >= 4:
+            _exponential_tails(mapped, pos, k, quantiles[:, c])
+        out[:, c] = mapped
     return out.reshape(h, w, d)
+
+
+def _exponential_tails(mapped, pos, k, quantiles):
+    """In place: cap the end intervals of :func:`_match` by exponential tails.
+
+    With ``pos`` the probability in units of the quantile spacing, a value in
+    the last interval at distance ``t = q - 1 - pos`` (in (0, 1]) from
+    probability 1 is mapped to ``q[-2] + s log(1 / t)``, where ``s`` makes the
+    tail pass through ``q[-3]`` (``s = (q[-2] - q[-3]) / log 2``): the
+    quantile function of an exponential tail. The same mirrored at the
+    bottom. Where the next interval is empty (``s = 0``) the linear map
+    stays.
+    """
+    n = quantiles.size
+    with np.errstate(divide="ignore"):
+        scale = (quantiles[-2] - quantiles[-3]) / math.log(2.0)
+        top = k == n - 2
+        if scale > 0 and top.any():
+            tail = quantiles[-2] - scale * np.log((n - 1) - pos[top])
+            mapped[top] = np.minimum(mapped[top], tail)
+        scale = (quantiles[2] - quantiles[1]) / math.log(2.0)
+        bottom = k == 0
+        if scale > 0 and bottom.any():
+            tail = quantiles[1] + scale * np.log(pos[bottom])
+            mapped[bottom] = np.maximum(mapped[bottom], tail)
 
 
 def _blend_width(n):
@@ -459,8 +715,12 @@ class TextureModel:
         probabilities 0, 1/31, ..., 1. Every synthesised band is mapped onto
         them by rank (histogram matching): the CAR models are Gaussian, the
         bands of real textures are not (heavy-tailed, skewed), and the local
-        sign patterns of a texture (LBP) depend on those marginals. None for
-        models read from version-1 files (no matching).
+        sign patterns of a texture (LBP) depend on those marginals. The
+        quantile function is linear between them but for the two end
+        intervals, which follow an exponential tail up to the minimum and the
+        maximum (a linear end interval scatters 1/31 of the pixels evenly up to
+        the extremes: isolated speckle). None for models read from version-1
+        files (no matching).
     quantiles : (64, d) ndarray or None
         Per channel, the quantiles of the input at 0, 1/63, ..., 1; the
         collapsed output is mapped onto them (the histogram restore, after
@@ -928,10 +1188,12 @@ def iter_fit_texture(image, *, levels=3, model="3d", neighbourhood="auto", chann
     """Fit a multiresolution CAR texture model, as a job reporting progress.
 
     The generator form of :meth:`TextureModel.fit` (same arguments, same
-    result): it yields a :class:`~car_napari.Progress` record before every
-    pyramid band is fitted (message ``"level 2/3"``) and a last one when
-    all are, and returns the :class:`TextureModel`. Closing the generator
-    stops the fit before the next band.
+    result): every long pass runs by blocks of rows with a
+    :class:`~car_napari.Progress` record between them (the reading of the
+    image, its quantiles, the pyramid, each band's fit by
+    :func:`~car_napari.iter_fit_car`, the bands' quantiles), a last record
+    comes when all is done, and it returns the :class:`TextureModel`.
+    Closing the generator (a Cancel) stops the fit at the next record.
 
     Parameters
     ----------
@@ -954,13 +1216,20 @@ def iter_fit_texture(image, *, levels=3, model="3d", neighbourhood="auto", chann
     Yields
     ------
     Progress
-        Stage ``"fitting"``; ``fraction`` is the share of the pyramid's
-        pixels already fitted (the fit's cost is proportional to them).
+        Stage ``"reading"`` (the conversion to float, ``"rows 512/2048"``),
+        ``"quantiles"`` (message ``"texture, histogram"``), then
+        ``"pyramid"`` (``"band 1/3, rows 512/1024"``), then ``"fitting"``,
+        the records of each band's fit (``"level 2/3: rows 120/512"``,
+        ``"level 2/3: order 3: D = ..."``), then ``"quantiles"`` of every
+        band and a last ``"fitting"`` record at fraction 1. ``fraction``
+        grows in proportion to the work: each part costs about its pixels.
 
     Raises
     ------
     ValueError
-        As :meth:`TextureModel.fit`, before the first record.
+        As :meth:`TextureModel.fit`: bad options, layout or size before the
+        first record; non-finite or constant values while the image is read
+        (the first records).
     TypeError
         As :meth:`TextureModel.fit`, before the first record.
 
@@ -969,33 +1238,57 @@ def iter_fit_texture(image, *, levels=3, model="3d", neighbourhood="auto", chann
     >>> import numpy as np
     >>> from car_napari.texture import iter_fit_texture
     >>> texture = np.random.default_rng(0).random((64, 64))
-    >>> for record in iter_fit_texture(texture, levels=2):
-    ...     print(record.message, round(record.fraction, 2))
-    level 1/2 0.0
-    level 2/2 0.8
-    2 levels fitted 1.0
+    >>> records = list(iter_fit_texture(texture, levels=2))
+    >>> list(dict.fromkeys(r.stage for r in records))  # in their order
+    ['reading', 'quantiles', 'pyramid', 'fitting']
+    >>> all(a.fraction <= b.fraction for a, b in zip(records, records[1:]))
+    True
+    >>> records[-1].message, records[-1].fraction
+    ('2 levels fitted', 1.0)
     """
     levels = _check_options(levels, model, neighbourhood)
-    data = as_channel_last_float(image, channel_axis=channel_axis)
     grey = np.ndim(image) == 2
-    _check_texture_size(data.shape[:2], levels)
-    summary = summarize(data)
+    plane = _plane_shape(image, channel_axis)
+    if plane is None or np.asarray(image).dtype.kind not in "biuf" or 0 in plane:
+        # an input the reading refuses: its error, before any record
+        plane = as_channel_last_float(image, channel_axis=channel_axis).shape[:2]
+    _check_texture_size(plane, levels)
+    # shares of the whole: every part costs about its passes over the pixels
+    shapes = _level_shapes(plane, levels)
+    pixels = np.array([h * w for h, w in shapes], float)
+    parts = np.array([_SHARE_READ * pixels[0], _SHARE_QUANTILES * pixels[0],
+                      _SHARE_PYRAMID * pixels[:-1].sum(), _SHARE_FIT * pixels.sum(),
+                      _SHARE_QUANTILES * pixels.sum()])
+    edges = np.concatenate([[0.0], np.cumsum(parts)]) / parts.sum()
+    data, summary = yield from stage(_iter_float_image(image, channel_axis), edges[0],
+                                     edges[1])
     check_not_constant(data, summary=summary)
-    bands = _pyramid(data, levels)
-    pixels = np.array([b.shape[0] * b.shape[1] for b in bands], float)
-    done = np.concatenate([[0.0], np.cumsum(pixels)]) / pixels.sum()
+    # the input's quantiles first: the finest band then overwrites the input
+    quantiles, _, _ = yield from stage(
+        _iter_quantiles(data, _OUT_QUANTILES), edges[1], edges[2],
+        prefix="texture, ")
+    bands = yield from stage(_iter_pyramid(data, levels, overwrite=True), edges[2], edges[3])
+    del data
+    fit_edges = edges[3] + (edges[4] - edges[3]) * np.concatenate(
+        [[0.0], np.cumsum(pixels)]) / pixels.sum()
     models, fallbacks = [], []
     for k, band in enumerate(bands):
-        yield Progress("fitting", float(done[k]), f"level {k + 1}/{levels}")
-        fitted, note = _fit_level(band, neighbourhood, model)
+        fitted, note = yield from stage(
+            _iter_stable_fit(band, neighbourhood, model=model), fit_edges[k], fit_edges[k + 1],
+            name="fitting", prefix=f"level {k + 1}/{levels}: ")
         models.append(fitted)
         if note is not None:
             fallbacks.append(f"band {k}: {note}")
+    q_edges = edges[4] + (edges[5] - edges[4]) * np.concatenate(
+        [[0.0], np.cumsum(pixels)]) / pixels.sum()
+    band_quantiles, band_ranges = [], []
+    for k, band in enumerate(bands):
+        q, lo, hi = yield from stage(_iter_quantiles(band, _BAND_QUANTILES), q_edges[k],
+                                     q_edges[k + 1], prefix=f"level {k + 1}/{levels}, ")
+        band_quantiles.append(q)
+        band_ranges.append(np.stack([lo, hi]))
+    band_quantiles, band_ranges = np.stack(band_quantiles), np.stack(band_ranges)
     yield Progress("fitting", 1.0, f"{levels} level{'s' if levels > 1 else ''} fitted")
-    band_ranges = np.stack(
-        [np.stack([b.min(axis=(0, 1)), b.max(axis=(0, 1))]) for b in bands]
-    )
-    band_quantiles = np.stack([_quantiles(b, _BAND_QUANTILES) for b in bands])
     # The file stores float32: round now, so that a saved and loaded model
     # synthesises exactly what this one does.
     for m in models:
@@ -1005,5 +1298,5 @@ def iter_fit_texture(image, *, levels=3, model="3d", neighbourhood="auto", chann
         std=_f32(np.sqrt(np.asarray(summary.var, float))),
         value_range=_f32(np.stack([summary.min, summary.max])), grey=grey,
         model=model, fallbacks=tuple(fallbacks), band_quantiles=band_quantiles,
-        quantiles=_quantiles(data, _OUT_QUANTILES),
+        quantiles=quantiles,
     )

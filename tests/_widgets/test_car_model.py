@@ -90,3 +90,61 @@ def test_cancel_leaves_the_viewer_unchanged(widget, qtbot):
     assert w.model is None
     assert [lay.name for lay in viewer.layers] == ["astro"]
     assert w._fit.enabled and not w._cancel.enabled
+
+
+def test_cancelled_fit_keeps_the_model_and_name_of_the_previous_one(widget, qtbot):
+    # After a cancelled fit of B, Synthesize named the sample after B but used
+    # A's model: the name and the model must both stay A's.
+    from car_napari._widgets._layers import value_range
+    from car_napari.model import synthesize
+
+    viewer, w = widget
+    a = viewer.add_image(skdata.astronaut()[300:428, 0:128], name="A", rgb=True)
+    b = viewer.add_image(skdata.camera(), name="B")
+    w._image.value, w._max_order.value = a, 3
+    job = w.start_fit()
+    _wait(qtbot, job)
+    model_a = w.model
+    report_a = w._report.value
+    w._image.value, w._max_order.value = b, 5
+    job = w.start_fit()
+    qtbot.waitUntil(lambda: w._progress.value > 0 or job.done, timeout=60000)
+    w._cancel.native.click()
+    _wait(qtbot, job)
+    assert w.model is model_a and w._report.value == report_a
+    w._height.value, w._width.value, w._seed.value = 30, 40, 7
+    job = w.start_synthesis()
+    _wait(qtbot, job)
+    assert [layer.name for layer in viewer.layers] == ["A", "B", "A CAR sample"]
+    sample = viewer.layers["A CAR sample"]
+    assert sample.rgb and sample.data.shape == (30, 40, 3)  # A is RGB, B grey
+    expected = np.clip(synthesize(model_a, (30, 40), seed=7), *value_range(a.data))
+    np.testing.assert_array_equal(sample.data, expected)
+
+
+def test_cancel_of_a_large_fit_ends_the_worker_quickly(widget, qtbot, cancel_latency):
+    # On a 4000 x 4000 image the Run button stayed disabled for minutes after
+    # Cancel; here a 2048 x 2048 RGB image, cancelled in the middle of the fit.
+    viewer, w = widget
+    big = np.tile(skdata.astronaut(), (4, 4, 1))  # 2048 x 2048 x 3, uint8
+    w._image.value = viewer.add_image(big, name="big", rgb=True)
+    job = w.start_fit()
+    qtbot.waitUntil(lambda: w._progress.value >= 5 or job.done, timeout=120000)
+    assert not job.done
+    latency = cancel_latency(w, job, timeout=3.0)
+    assert latency is not None, f"the worker ran on after Cancel ({w._status.value})"
+    assert w._fit.enabled and not w._cancel.enabled and w.model is None
+    assert w._status.value == "cancelled"
+    assert [layer.name for layer in viewer.layers] == ["big"]
+
+
+def test_unstable_model_is_explained_in_the_widgets_terms(widget, qtbot, last_notification):
+    viewer, w = widget
+    w._image.value = viewer.add_image(skdata.astronaut()[300:428, 0:128], name="grass",
+                                      rgb=True)
+    w._max_order.value = 2  # this crop's order-2 model is (just) unstable
+    job = w.start_fit()
+    _wait(qtbot, job)
+    assert w.start_synthesis() is None
+    assert "unstable" in last_notification() and "lower 'max order'" in last_notification()
+    assert [layer.name for layer in viewer.layers] == ["grass"]

@@ -82,7 +82,9 @@ def test_iter_fit_btf_reports_progress_and_returns_the_fit():
     assert [r.message for r in records if r.stage == "histograms"] == [
         f"histogram {i}/4" for i in (1, 2, 3, 4)]
     fits = [r.message for r in records if r.stage == "subspaces"]
-    assert fits[0] == "subspace 1/2" and "subspace 2/2" in fits and "level 2/2" in fits
+    assert fits[0] == "subspace 1/2" and "subspace 2/2" in fits
+    assert "subspace 2/2, 2 levels fitted" in fits
+    assert any(m.startswith("subspace 1/2, level 2/2: ") for m in fits)
     fractions = [r.fraction for r in records]
     assert fractions == sorted(fractions) and fractions[0] == 0 and fractions[-1] == 1
     _same_btf(result, BTFModel.fit(stack, n_subspaces=2, levels=2))
