@@ -7,12 +7,18 @@ from magicgui.widgets import FloatSlider, Slider, SpinBox
 
 from ..segmentation import iter_segment
 from ._base import JobWidget
+from ._jobs import Job
 
 
 class SegmentationWidget(JobWidget):
     """Unsupervised texture segmentation of an image layer (section 14.4,
     docs/segmentation.md): the labels layer shows the mixture merging live,
     then the merge history can be re-cut without recomputing.
+
+    Re-cuts ("show K", "min probability") are look-ups of the stored merge
+    states; one that needs the pixels labelled again (a threshold on a state
+    whose probabilities are not kept) runs in a worker, the latest slider
+    value winning.
 
     Parameters
     ----------
@@ -30,11 +36,17 @@ class SegmentationWidget(JobWidget):
         self.updates = 0  # live updates shown during the current run
         self._name = None  # the labels layer the current run writes
         self._layer = None  # the labels layer of self.result
-        self._segments = SpinBox(value=0, min=0, max=64, label="segments",
-                                 tooltip="0: find the number automatically")
+        self._recut_job = None  # the re-cut running in a worker, if any
+        self._n_init = SpinBox(value=16, min=2, max=64, label="initial K",
+                               tooltip="components of the initial division of the image")
+        # (magicgui's spin box shows no special value text: the label says it)
+        self._segments = SpinBox(value=0, min=0, max=self._n_init.value,
+                                 label="segments (0 = auto)",
+                                 tooltip="0 = automatic: the merging finds the number; "
+                                         "at most the initial K")
         self._levels = SpinBox(value=3, min=1, max=5, label="resolutions")
         self._order = SpinBox(value=2, min=1, max=5, label="order")
-        self._n_init = SpinBox(value=16, min=2, max=64, label="initial K")
+        self._n_init.changed.connect(self._bound_segments)
         self._run = self.action("Run", self.start)
         self._cut = Slider(value=1, min=1, max=1, label="show K", enabled=False,
                            tooltip="re-cut the merge history: no recomputation")
@@ -46,9 +58,14 @@ class SegmentationWidget(JobWidget):
         self._cut.changed.connect(self._recut)
         self._threshold.changed.connect(self._recut)
 
+    def _bound_segments(self, *_):
+        """The segments box goes up to the initial K (its value is clipped)."""
+        self._segments.max = int(self._n_init.value)
+
     def _start(self):
         """Segment the picked layer, the merges shown live."""
         data, channel_axis = self.input_array()
+        self._stop_recut()
         self._name = f"{self._image.value.name} segments"
         self.updates = 0
         self._cut.enabled = self._threshold.enabled = False
@@ -78,9 +95,49 @@ class SegmentationWidget(JobWidget):
         self._cut.enabled = self._threshold.enabled = True
         self._status.value = f"{result.n_segments} segments (history {min(ks)}..{max(ks)})"
 
+    # --- re-cuts ----------------------------------------------------------------------
+
     def _recut(self, *_):
+        """Show the stored history cut at the sliders' values: at once when it
+        is a look-up, else in a worker (a newer value cancels it)."""
         if self.result is None or self._layer not in self._viewer.layers:
             return
-        labels = self.result.labels_at(int(self._cut.value),
-                                       threshold=float(self._threshold.value))
+        self._stop_recut()
+        k, threshold = int(self._cut.value), float(self._threshold.value)
+        labels = self.result.cached_labels_at(k, threshold=threshold)
+        if labels is not None:
+            self._show_cut(labels, k)
+            return
+        result = self.result
+        self._status.value = f"re-cutting: K = {k}"
+        job = Job(
+            result.iter_labels_at(k, threshold=threshold),
+            on_progress=lambda record: None,
+            on_done=lambda labels: self._recut_done(job, result, labels, k),
+            on_error=self._recut_failed,
+            on_cancel=lambda: None,
+            on_finished=lambda finished: None,
+        )
+        self._recut_job = job
+
+    def _recut_done(self, job, result, labels, k):
+        if job is not self._recut_job or result is not self.result:
+            return  # a newer re-cut or run took over
+        self._recut_job = None
+        if self._layer in self._viewer.layers:
+            self._show_cut(labels, k)
+
+    def _recut_failed(self, exc):
+        self._recut_job = None
+        self._status.value = "re-cut failed"
+        self.notify_error(exc)
+
+    def _show_cut(self, labels, k):
         self._layer.data = labels
+        n = int(labels.max(initial=0))
+        self._status.value = f"{n} segments shown (K = {k})"
+
+    def _stop_recut(self):
+        if self._recut_job is not None:
+            self._recut_job.cancel()
+            self._recut_job = None

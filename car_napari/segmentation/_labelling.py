@@ -1,13 +1,32 @@
 """Pixel labelling by the neighbourhood-weighted posterior and small-blob
-clean-up (labelling and post-processing, section 14.4, docs/segmentation.md)."""
+clean-up (labelling and post-processing, section 14.4, docs/segmentation.md).
+
+Memory stays bounded: the posteriors of all components exist only for one
+band of rows at a time (with a halo for the smoothing), so the labelling
+holds, besides the features, a few bytes per pixel (the labels, the
+probability and, for the clean-up, the connected components). The loops are
+generators that yield between bands (a Cancel stops them within a band),
+and the per-pixel work runs in ``nogil`` Numba kernels.
+"""
 
 from __future__ import annotations
 
-import numpy as np
+import math
 
-from ._mixture import _posteriors
+import numpy as np
+from numba import njit
+
+from .._progress import Progress, drain
 
 __all__ = ["label_pixels"]
+
+# posterior values (float64) of one band of rows: 16 MB (more on very wide
+# images: a band has at least four times the smoothing's halo in rows)
+_BAND_VALUES = 1 << 21
+# pixels of one chunk of the connected-component scans (and at most of one band)
+_CHUNK_PIXELS = 1 << 20
+# scipy.ndimage's Gaussian reaches int(truncate * sigma + 0.5) pixels
+_TRUNCATE = 4.0
 
 
 def label_pixels(features, mix, *, smoothing=2.0, threshold=0.0, min_area=0):
@@ -36,44 +55,294 @@ def label_pixels(features, mix, *, smoothing=2.0, threshold=0.0, min_area=0):
     -------
     labels : (H, W) ndarray of int32
         Component ids, 0 where unclassified.
-    probability : (H, W) ndarray
+    probability : (H, W) ndarray of float32
         The best averaged posterior of every pixel.
     """
-    from scipy import ndimage
-
-    h, w, D = features.shape
-    post, _ = _posteriors(features.reshape(-1, D).astype(np.float64), mix)
-    post = post.reshape(h, w, mix.k)
-    if smoothing > 0:
-        post = ndimage.gaussian_filter(post, sigma=(smoothing, smoothing, 0))
-    best = post.argmax(axis=2)
-    prob = np.take_along_axis(post, best[..., None], axis=2)[..., 0]
-    labels = mix.ids[best].astype(np.int32)
-    if min_area > 0:
-        labels = _absorb_small_blobs(labels, min_area)
+    labels, prob = drain(_iter_label(features, mix, smoothing=smoothing, min_area=min_area))
     if threshold > 0:
         labels[prob < threshold] = 0
     return labels, prob
 
 
+def _iter_label(features, mix, *, smoothing=2.0, min_area=0):
+    """:func:`label_pixels` without the threshold, as a job: a
+    :class:`~car_napari.Progress` record ("labelling") after every band of
+    rows and clean-up chunk; returns ``(labels, probability)``."""
+    from scipy import ndimage
+
+    features = np.asarray(features)
+    h, w, _ = features.shape
+    k = mix.k
+    means_t = np.ascontiguousarray(np.asarray(mix.means, dtype=np.float64).T)
+    inv_t = np.ascontiguousarray(1.0 / np.asarray(mix.variances, dtype=np.float64).T)
+    const = (-0.5 * (np.log(2 * np.pi * mix.variances).sum(axis=1))
+             + np.log(mix.weights)).astype(np.float64)
+    ids = np.asarray(mix.ids, dtype=np.int32)
+    halo = int(_TRUNCATE * float(smoothing) + 0.5) if smoothing > 0 else 0
+    rows = max(1, 4 * halo, min(_BAND_VALUES // (k * w) - 2 * halo, _CHUNK_PIXELS // w))
+    labels = np.empty((h, w), np.int32)
+    prob = np.empty((h, w), np.float32)
+    peak = np.empty(k)
+    share = 0.7 if min_area > 0 else 1.0  # the clean-up's part of the work
+    for r0 in range(0, h, rows):
+        r1 = min(h, r0 + rows)
+        a0, a1 = max(0, r0 - halo), min(h, r1 + halo)
+        post = np.empty((k, a1 - a0, w))
+        _band_posteriors(features, a0, a1, means_t, inv_t, const, post, peak)
+        if smoothing > 0:
+            for j in np.flatnonzero(peak >= 0.5 / k):
+                # the averaged posteriors of a pixel sum to 1, so its best is at
+                # least 1/K: a component below 0.5/K all over the band cannot
+                # be best anywhere, and is left unsmoothed (the same labels)
+                ndimage.gaussian_filter(post[j], sigma=smoothing, output=post[j])
+        _band_best(post, r0 - a0, ids, labels[r0:r1], prob[r0:r1])
+        del post
+        yield Progress("labelling", share * r1 / h, "labelling")
+    if min_area > 0:
+        for done in _iter_absorb(labels, min_area):
+            yield Progress("labelling", share + (1 - share) * done, "small blobs")
+    return labels, prob
+
+
+@njit(cache=True, nogil=True)
+def _band_posteriors(features, a0, a1, means_t, inv_t, const, out, peak):
+    """Posteriors of every component for the pixels of rows a0..a1-1, into
+    ``out`` (K, a1 - a0, W): ``w_j N(x | mu_j, diag var_j)`` normalised;
+    ``peak`` (K,) gets each component's largest posterior. ``means_t`` and
+    ``inv_t`` are (D, K): the loop over the components is the inner one
+    (vectorised), each component's sum runs over the features in order."""
+    d, k = means_t.shape
+    w = features.shape[1]
+    acc = np.empty(k)
+    peak[:] = 0.0
+    for y in range(a0, a1):
+        for x in range(w):
+            acc[:] = 0.0
+            for c in range(d):
+                v = features[y, x, c]
+                for j in range(k):
+                    t = v - means_t[c, j]
+                    acc[j] += t * t * inv_t[c, j]
+            top = -np.inf
+            for j in range(k):
+                acc[j] = const[j] - 0.5 * acc[j]
+                if acc[j] > top:
+                    top = acc[j]
+            total = 0.0
+            for j in range(k):
+                e = math.exp(acc[j] - top)
+                acc[j] = e
+                total += e
+            for j in range(k):
+                p = acc[j] / total
+                out[j, y - a0, x] = p
+                if p > peak[j]:
+                    peak[j] = p
+
+
+@njit(cache=True, nogil=True)
+def _band_best(post, first, ids, labels, prob):
+    """Each pixel's best component (the first of equals) and its posterior,
+    for the rows ``first..first + len(labels) - 1`` of the band ``post``."""
+    k = post.shape[0]
+    rows, w = labels.shape
+    for y in range(rows):
+        for x in range(w):
+            best = 0
+            top = post[0, first + y, x]
+            for j in range(1, k):
+                v = post[j, first + y, x]
+                if v > top:
+                    top = v
+                    best = j
+            labels[y, x] = ids[best]
+            prob[y, x] = top
+
+
+# --- small blobs -----------------------------------------------------------------------
+
 def _absorb_small_blobs(labels, min_area):
     """Blobs (4-connected) under ``min_area`` pixels take their nearest
-    larger neighbour's label."""
-    from skimage.measure import label as connected
-    from skimage.segmentation import expand_labels
-
-    regions = connected(labels, connectivity=1, background=-1)
-    sizes = np.bincount(regions.ravel())
-    small = sizes[regions] < min_area
-    if not small.any() or small.all():
-        return labels
-    out = labels.copy()
-    out[small] = 0
-    return expand_labels(out, distance=max(labels.shape))
+    larger neighbour's label (in place; ``labels`` is returned)."""
+    drain(_iter_absorb(labels, min_area))
+    return labels
 
 
-def _renumber(labels):
-    """Labels 1..K (in order of the old values), 0 kept."""
-    values, inverse = np.unique(labels, return_inverse=True)
-    new = np.arange(values.size) + (0 if values[0] == 0 else 1)
-    return new[inverse].reshape(labels.shape).astype(labels.dtype)
+def _iter_absorb(labels, min_area):
+    """:func:`_absorb_small_blobs` as a generator of the fraction done.
+
+    The 4-connected components come from a union-find scan in chunks of
+    rows; the small blobs' pixels then take the label of the nearest pixel
+    of a large blob (Euclidean distance), found in bands of rows with a
+    halo wide enough for every pixel of the band (widened where it is not).
+    """
+    h, w = labels.shape
+    comp = np.empty((h, w), np.int32)
+    parent = np.empty(max(16, 2 * w), np.int32)
+    n = 0
+    rows = max(1, _CHUNK_PIXELS // w)
+    for r0 in range(0, h, rows):
+        r1 = min(h, r0 + rows)
+        need = n + (r1 - r0) * w
+        if parent.size < need:
+            grown = np.empty(max(need, 2 * parent.size), np.int32)
+            grown[:n] = parent[:n]
+            parent = grown
+        n = _components_rows(labels, comp, parent, r0, r1, n)
+        yield 0.4 * r1 / h
+    _resolve_roots(parent, n)
+    sizes = np.zeros(n, np.int64)
+    for r0 in range(0, h, rows):
+        r1 = min(h, r0 + rows)
+        _count_roots(comp, parent, sizes, r0, r1)
+        yield 0.4 + 0.1 * r1 / h
+    small_rows = np.zeros(h, np.int64)
+    keep = sizes >= min_area
+    for r0 in range(0, h, rows):
+        r1 = min(h, r0 + rows)
+        _mark_small(comp, parent, keep, small_rows, r0, r1)
+        yield 0.5 + 0.1 * r1 / h
+    del sizes, keep, parent
+    total = int(small_rows.sum())
+    if total == 0 or total == h * w:
+        return
+    # comp now holds 0 on the small blobs' pixels, 1 elsewhere
+    for done in _iter_fill_nearest(labels, comp, small_rows, min_area):
+        yield 0.6 + 0.4 * done
+
+
+@njit(cache=True, nogil=True)
+def _find(parent, i):
+    root = i
+    while parent[root] != root:
+        root = parent[root]
+    while parent[i] != root:
+        nxt = parent[i]
+        parent[i] = root
+        i = nxt
+    return root
+
+
+@njit(cache=True, nogil=True)
+def _components_rows(labels, comp, parent, r0, r1, n):
+    """First union-find pass over rows r0..r1-1: provisional component ids
+    in ``comp`` (4-connectivity, equal labels), a parent forest in
+    ``parent`` whose links always point to smaller ids; returns the number
+    of ids."""
+    w = labels.shape[1]
+    for y in range(r0, r1):
+        for x in range(w):
+            v = labels[y, x]
+            up = comp[y - 1, x] if y > 0 and labels[y - 1, x] == v else -1
+            left = comp[y, x - 1] if x > 0 and labels[y, x - 1] == v else -1
+            if up >= 0 and left >= 0:
+                a = _find(parent, up)
+                b = _find(parent, left)
+                if a < b:
+                    parent[b] = a
+                elif b < a:
+                    parent[a] = b
+                comp[y, x] = min(a, b)
+            elif up >= 0:
+                comp[y, x] = up
+            elif left >= 0:
+                comp[y, x] = left
+            else:
+                parent[n] = n
+                comp[y, x] = n
+                n += 1
+    return n
+
+
+@njit(cache=True, nogil=True)
+def _resolve_roots(parent, n):
+    """Every id's parent becomes its root (links point to smaller ids)."""
+    for i in range(n):
+        parent[i] = parent[parent[i]]
+
+
+@njit(cache=True, nogil=True)
+def _count_roots(comp, parent, sizes, r0, r1):
+    w = comp.shape[1]
+    for y in range(r0, r1):
+        for x in range(w):
+            sizes[parent[comp[y, x]]] += 1
+
+
+@njit(cache=True, nogil=True)
+def _mark_small(comp, parent, keep, small_rows, r0, r1):
+    """``comp`` becomes 1 on kept blobs, 0 on small ones; counts per row."""
+    w = comp.shape[1]
+    for y in range(r0, r1):
+        count = 0
+        for x in range(w):
+            if keep[parent[comp[y, x]]]:
+                comp[y, x] = 1
+            else:
+                comp[y, x] = 0
+                count += 1
+        small_rows[y] = count
+
+
+def _iter_fill_nearest(labels, kept, small_rows, min_area):
+    """Pixels where ``kept`` is 0 take the label of the nearest kept pixel, in
+    place (``scipy.ndimage.distance_transform_edt``'s nearest, as
+    ``skimage.segmentation.expand_labels`` does), band by band: the nearest
+    kept pixel found in a window around a band's small pixels is the
+    image's when it is closer than the window's cut edges; a band whose
+    pixels are not all so is redone with a wider halo. Kept pixels keep
+    their labels, so the bands may be written as they are done. Yields the
+    fraction of the small pixels done."""
+    from scipy import ndimage
+
+    h, w = labels.shape
+    total = max(1, int(small_rows.sum()))
+    rows = max(1, _CHUNK_PIXELS // (4 * w))
+    # a compact blob's pixels are within half its side of its border
+    start_halo = math.ceil(math.sqrt(max(min_area, 1))) + 8
+    done = 0
+    for r0 in range(0, h, rows):
+        r1 = min(h, r0 + rows)
+        count = int(small_rows[r0:r1].sum())
+        if count == 0:
+            continue
+        cols = np.flatnonzero((kept[r0:r1] == 0).any(axis=0))
+        halo = start_halo
+        while True:
+            t, b = max(0, r0 - halo), min(h, r1 + halo)
+            c0, c1 = max(0, cols[0] - halo), min(w, cols[-1] + 1 + halo)
+            whole = t == 0 and b == h and c0 == 0 and c1 == w
+            window = kept[t:b, c0:c1] == 0
+            if window.all() and not whole:  # no kept pixel in reach: widen
+                halo *= 2
+                continue
+            dist, (iy, ix) = ndimage.distance_transform_edt(window, return_indices=True)
+            band = slice(r0 - t, r1 - t)
+            todo = window[band]
+            if whole:
+                break
+            # a pixel outside the window is farther than the window's cut edges
+            ys = np.arange(r0, r1, dtype=np.float64)[:, None]
+            xs = np.arange(c0, c1, dtype=np.float64)[None, :]
+            reach = np.minimum(
+                np.minimum(ys - t + 1 if t > 0 else np.inf, b - ys if b < h else np.inf),
+                np.minimum(xs - c0 + 1 if c0 > 0 else np.inf, c1 - xs if c1 < w else np.inf))
+            if (dist[band] < reach)[todo].all():
+                break
+            halo *= 2
+        near = labels[t:b, c0:c1][iy[band][todo], ix[band][todo]]
+        # expand_labels(distance=max(h, w)) leaves farther pixels at 0
+        near[dist[band][todo] > max(h, w)] = 0
+        labels[r0:r1, c0:c1][todo] = near
+        del dist, iy, ix, window
+        done += count
+        yield done / total
+
+
+def _renumber(labels, dtype=None):
+    """Labels 1..K (in order of the old values), 0 kept; non-negative labels
+    of any integer dtype; the result has ``dtype`` (default: the labels')."""
+    present = np.bincount(labels.ravel()) > 0
+    # the rank of each present value, from 0 when 0 is present, else from 1
+    new = (np.cumsum(present) - (1 if present[0] else 0)).astype(dtype or labels.dtype)
+    return np.take(new, labels)

@@ -8,6 +8,8 @@ from itertools import pairwise
 
 import numpy as np
 
+from .._progress import Progress, drain
+
 __all__ = ["Mixture"]
 
 
@@ -100,19 +102,34 @@ def _posteriors(X, mix):
 
 def _em_steps(X, mix, steps, var_floor):
     """``steps`` EM iterations on the rows of X, in place; ``mix.loglik`` updated."""
-    for _ in range(steps):
+    return drain(_iter_em(X, mix, steps, var_floor))
+
+
+def _iter_em(X, mix, steps, var_floor):
+    """:func:`_em_steps` as a job: a :class:`~car_napari.Progress` record
+    ("mixture", "EM") after each iteration (a job stops between them);
+    returns the mixture."""
+    for step in range(steps):
         post, loglik = _posteriors(X, mix)
         nk = post.sum(axis=0) + 1e-12
         mix.weights = nk / nk.sum()
         mix.means = (post.T @ X) / nk[:, None]
         mix.variances = np.maximum((post.T @ X**2) / nk[:, None] - mix.means**2, var_floor)
         mix.loglik = loglik
+        del post
+        yield Progress("mixture", (step + 1) / (steps + 1), "EM")
     _, mix.loglik = _posteriors(X, mix)
     return mix
 
 
 def _block_init(features, n_init, var_floor):
     """Components from a regular division of the image into ~n_init blocks."""
+    return drain(_iter_block_init(features, n_init, var_floor))
+
+
+def _iter_block_init(features, n_init, var_floor):
+    """:func:`_block_init` as a job: a :class:`~car_napari.Progress` record
+    after each block; returns the mixture."""
     h, w, D = features.shape
     rows = max(1, int(round(np.sqrt(n_init * h / w))))
     cols = max(1, int(round(n_init / rows)))
@@ -122,6 +139,8 @@ def _block_init(features, n_init, var_floor):
             block = features[bi[0] : bi[-1] + 1, bj[0] : bj[-1] + 1].reshape(-1, D)
             means.append(block.mean(axis=0))
             variances.append(np.maximum(block.var(axis=0), var_floor))
+            del block
+            yield Progress("mixture", len(means) / (rows * cols), "initial division")
     k = len(means)
     return Mixture(np.full(k, 1.0 / k), np.array(means), np.array(variances), np.arange(1, k + 1))
 

@@ -11,10 +11,18 @@ neighbourhood-weighted posterior (:mod:`._labelling`).
 records whose previews are the labels after initialisation and after every
 merge (so a viewer can show the segments merging live) and returns the
 :class:`SegmentationResult`; :func:`segment` runs it to its end.
+
+Memory: EM runs on a fixed random sample of pixels; every merge state is
+labelled in bands of rows (the posteriors of all components never exist for
+the whole image) and its labels are kept compressed, so that re-cuts of the
+history are look-ups. Besides the (H, W, D) float32 features (96 bytes per
+pixel for D = 24) the mixture, merging and labelling hold about 25 bytes per
+pixel at their peak, plus some 40 MB (one band of posteriors, the EM sample).
 """
 
 from __future__ import annotations
 
+import zlib
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -23,8 +31,8 @@ from .._docstrings import shared_parameters
 from .._progress import Progress, drain, stage
 from .._validation import as_channel_last_float, check_not_constant
 from ._features import iter_local_features, pseudo_colour
-from ._labelling import _renumber, label_pixels
-from ._mixture import _block_init, _choose_k, _drop_weak, _em_steps, _merge_closest
+from ._labelling import _iter_label, _renumber
+from ._mixture import _choose_k, _drop_weak, _iter_block_init, _iter_em, _merge_closest
 
 __all__ = ["SegmentationResult", "iter_segment", "segment"]
 
@@ -33,8 +41,11 @@ _INIT_EM_STEPS = 10
 _PRE_MERGE_EM_STEPS = 2
 # pixels the mixture is fitted on (a random sample of the masked image)
 _EM_SAMPLE = 40000
-# parts of the job's progress: features, then initialisation, then merges
-_FEATURES_END, _INIT_END, _MERGES_END = 0.3, 0.35, 0.95
+# parts of the job's progress: features (about 3/4 of the time on 1024x1024
+# RGB), then initialisation, then the labelling of every merge state (work
+# proportional to K + _ABSORB_WORK each)
+_FEATURES_END, _INIT_END, _MERGES_END = 0.7, 0.72, 1.0
+_ABSORB_WORK = 3.0
 
 
 @dataclass
@@ -49,9 +60,9 @@ class SegmentationResult:
         K of ``labels`` (found automatically unless given).
     history : list of Mixture
         Mixtures from ``K_ini`` components down to 1, one per merge.
-    probability : (H, W) ndarray
+    probability : (H, W) ndarray of float32
         Neighbourhood-weighted posterior probability of each pixel's label.
-    features : (H, W, D) ndarray
+    features : (H, W, D) ndarray of float32
         The per-pixel features the mixtures were fitted on.
     smoothing, min_area, threshold : float, int, float
         The labelling options used (reused by :meth:`labels_at`).
@@ -77,6 +88,11 @@ class SegmentationResult:
     min_area: int = 0
     threshold: float = 0.0
     mask: np.ndarray | None = field(default=None, repr=False)
+    # the labels of every history state (compressed, before the threshold
+    # and the mask) and a few states' probabilities: re-cuts are look-ups
+    _cuts: dict = field(default_factory=dict, init=False, repr=False, compare=False)
+    _probs: dict = field(default_factory=dict, init=False, repr=False, compare=False)
+    _final: int | None = field(default=None, init=False, repr=False, compare=False)
 
     def mixture_at(self, k):
         """The mixture of the history with ``k`` components.
@@ -108,16 +124,22 @@ class SegmentationResult:
         >>> result.mixture_at(2).k, result.mixture_at(99).k
         (2, 4)
         """
+        return self.history[self._index(k)]
+
+    def _index(self, k):
         ks = [mx.k for mx in self.history]
         if not ks:
             raise ValueError("the merge history is empty.")
         k = int(np.clip(k, min(ks), max(ks)))
-        return min((mx for mx in self.history if mx.k >= k), key=lambda mx: mx.k)
+        return min((i for i, kk in enumerate(ks) if kk >= k), key=lambda i: ks[i])
 
     def labels_at(self, k, *, threshold=None):
         """Labelling with ``k`` segments, re-cut from the stored history.
 
-        No new features and no new EM: fast enough for a slider.
+        No new features and no new EM; the labels of every merge state are
+        stored, so this is a look-up unless ``threshold`` needs the
+        probabilities of a state not labelled lately
+        (see :meth:`cached_labels_at`).
 
         Parameters
         ----------
@@ -139,15 +161,128 @@ class SegmentationResult:
         >>> int(result.labels_at(1).max())
         1
         """
-        mix = self.mixture_at(k)
-        labels, _ = label_pixels(
-            self.features, mix, smoothing=self.smoothing,
-            threshold=self.threshold if threshold is None else threshold,
-            min_area=self.min_area,
-        )
+        return drain(self.iter_labels_at(k, threshold=threshold))
+
+    def iter_labels_at(self, k, *, threshold=None):
+        """:meth:`labels_at` as a job: yield progress, return the labels.
+
+        It yields nothing when the re-cut is a look-up
+        (:meth:`cached_labels_at`); otherwise it labels the state's pixels
+        again, in bands of rows, and keeps the state's probabilities.
+
+        Parameters
+        ----------
+        k : int
+            The number of segments (see :meth:`mixture_at`).
+        threshold : float, optional
+            Posterior threshold of the labelling (default: the segmentation's).
+
+        Returns
+        -------
+        (H, W) ndarray of int32
+            What :meth:`labels_at` returns (the generator's return value).
+
+        Yields
+        ------
+        Progress
+            Stage "labelling", message ``"K = n: ..."``, after every band of
+            rows.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from car_napari import drain
+        >>> from car_napari.segmentation import segment
+        >>> result = segment(np.random.default_rng(0).random((32, 32)), levels=1, n_init=4)
+        >>> records = []
+        >>> labels = drain(result.iter_labels_at(3, threshold=0.9), records.append)
+        >>> labels.shape, {r.stage for r in records}
+        ((32, 32), {'labelling'})
+        >>> np.array_equal(result.cached_labels_at(3, threshold=0.9), labels)
+        True
+        """
+        threshold = self.threshold if threshold is None else float(threshold)
+        i = self._index(k)
+        labels, prob = self._cut(i, writable=threshold > 0 or self.mask is not None), \
+            self._probs.get(i)
+        if labels is None or (threshold > 0 and prob is None):
+            mix = self.history[i]
+            labels, prob = yield from stage(
+                _iter_label(self.features, mix, smoothing=self.smoothing,
+                            min_area=self.min_area),
+                0.0, 1.0, prefix=f"K = {mix.k}: ")
+            self._store(i, None if i in self._cuts else labels, prob)
+        return self._finish(labels, prob, threshold)
+
+    def cached_labels_at(self, k, *, threshold=None):
+        """:meth:`labels_at` when it is a look-up, else None (no labelling).
+
+        Every state's labels are stored; the probabilities (needed for a
+        threshold) are kept for the final state and the latest other state
+        labelled again. A viewer re-cuts at once when this gives labels, and
+        runs :meth:`iter_labels_at` in a worker when it gives None.
+
+        Parameters
+        ----------
+        k : int
+            The number of segments (see :meth:`mixture_at`).
+        threshold : float, optional
+            Posterior threshold of the labelling (default: the segmentation's).
+
+        Returns
+        -------
+        (H, W) ndarray of int32 or None
+            What :meth:`labels_at` returns, or None when it would label the
+            pixels again.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from car_napari.segmentation import segment
+        >>> result = segment(np.random.default_rng(0).random((32, 32)), levels=1, n_init=4)
+        >>> result.n_segments, int(result.cached_labels_at(3).max())
+        (2, 3)
+        >>> result.cached_labels_at(3, threshold=0.9) is None
+        True
+        """
+        threshold = self.threshold if threshold is None else float(threshold)
+        i = self._index(k)
+        prob = self._probs.get(i)  # one look-up: another thread may drop it later
+        if i not in self._cuts or (threshold > 0 and prob is None):
+            return None
+        return self._finish(self._cut(i, writable=threshold > 0 or self.mask is not None),
+                            prob, threshold)
+
+    def _cut(self, i, *, writable=True):
+        """The stored labels of state ``i`` (in their compact dtype), or None."""
+        if i not in self._cuts:
+            return None
+        data, dtype = self._cuts[i]
+        flat = np.frombuffer(zlib.decompress(data), dtype=dtype)
+        if writable:
+            flat = flat.copy()
+        return flat.reshape(self.features.shape[:2])
+
+    def _store(self, i, labels, prob=None):
+        """Keep state ``i``'s labels (compressed) and, with those of the final
+        state, its probabilities (the latest other state's only)."""
+        if labels is not None:
+            top = int(labels.max(initial=0))
+            dtype = np.uint8 if top < 2**8 else np.uint16 if top < 2**16 else np.int32
+            self._cuts[i] = zlib.compress(labels.astype(dtype).tobytes(), 1), dtype
+        if prob is not None:
+            for j in [j for j in self._probs if j not in (i, self._final)]:
+                del self._probs[j]
+            self._probs[i] = prob
+
+    def _finish(self, labels, prob, threshold):
+        """Threshold, mask and renumber state labels (modified in place):
+        a new (H, W) int32 array."""
+        if threshold > 0:
+            labels[prob < threshold] = 0
         if self.mask is not None:
             labels[~self.mask] = 0
-        return _renumber(labels)
+        return _renumber(labels, dtype=np.int32)
 
 
 def _check_options(n_segments, n_init, threshold, grey):
@@ -296,7 +431,9 @@ def iter_segment(
     if (arr is not None and arr.ndim == 2 or channel_axis is None) and grey == "pseudo_colour":
         data = as_channel_last_float(image, channel_axis=None)
         check_not_constant(data)
-        image, channel_axis = pseudo_colour(data[..., 0]), -1
+        if features is None:  # given features need no image
+            image, channel_axis = pseudo_colour(data[..., 0]), -1
+        del data
     if features is None:
         features = yield from stage(iter_local_features(
             image, levels=levels, neighbourhood=neighbourhood, forgetting=forgetting,
@@ -305,49 +442,100 @@ def iter_segment(
     else:
         features = np.asarray(features, dtype=np.float32)
         yield Progress("features", _FEATURES_END, "features given")
+    image = arr = None  # the rest needs the features only (a pseudo-colour copy goes)
     h, w, D = features.shape
     if min_area is None:
         min_area = max(16, (h * w) // 2000)
 
+    # EM runs on a random sample of the (masked) pixels
     rng = np.random.default_rng(seed)
-    flat = features.reshape(-1, D).astype(np.float64)
-    sel = np.ones(h * w, bool) if mask is None else np.asarray(mask, bool).ravel()
-    if mask is not None and (sel.size != h * w or not sel.any()):
-        raise ValueError(_MASK_ERROR)
-    idx = np.flatnonzero(sel)
-    sample = flat[rng.choice(idx, size=min(idx.size, _EM_SAMPLE), replace=False)]
-    mix = _em_steps(sample, _block_init(features, n_init, var_floor), _INIT_EM_STEPS, var_floor)
-    history = [mix.copy()]
-    labels, _ = label_pixels(features, mix, smoothing=smoothing, min_area=0)
-    yield Progress("mixture", _INIT_END, f"K = {mix.k}", labels)
+    if mask is None:
+        pick = rng.choice(h * w, size=min(h * w, _EM_SAMPLE), replace=False)
+    else:
+        sel = np.asarray(mask, bool).ravel()
+        if sel.size != h * w or not sel.any():
+            raise ValueError(_MASK_ERROR)
+        idx = np.flatnonzero(sel)
+        pick = rng.choice(idx, size=min(idx.size, _EM_SAMPLE), replace=False)
+        del sel, idx
+    sample = features[pick // w, pick % w].astype(np.float64)
+    del pick
 
+    middle = 0.5 * (_FEATURES_END + _INIT_END)
+    mix = yield from stage(_iter_block_init(features, n_init, var_floor),
+                           _FEATURES_END, middle, prefix=f"K = {n_init}: ")
+    mix = yield from stage(_iter_em(sample, mix, _INIT_EM_STEPS, var_floor),
+                           middle, _INIT_END, prefix=f"K = {mix.k}: ")
     k_ini = mix.k
-    while mix.k > 1:
-        mix = _drop_weak(_em_steps(sample, mix, _PRE_MERGE_EM_STEPS, var_floor), 0.01 / k_ini)
-        if mix.k == 1:
-            break
-        mix, _ = _merge_closest(mix)
-        mix = _em_steps(sample, mix, merge_em_steps, var_floor)
-        history.append(mix.copy())
-        labels, _ = label_pixels(features, mix, smoothing=smoothing, min_area=0)
-        done = 1 - (mix.k - 1) / max(k_ini - 1, 1)
-        yield Progress("merging", _INIT_END + (_MERGES_END - _INIT_END) * done,
-                       f"K = {mix.k}", labels)
+    work = [0.0]  # the merge states' share of the work so far (K + _ABSORB_WORK each)
+    total = sum(k + _ABSORB_WORK for k in range(1, k_ini + 1))
 
-    if n_segments is None:
-        n_segments = _choose_k(history, merge_threshold)
+    def at(extra=0.0):
+        return _INIT_END + (_MERGES_END - _INIT_END) * min(1.0, (work[0] + extra) / total)
+
+    def em(mix, steps):
+        return (yield from stage(_iter_em(sample, mix, steps, var_floor), at(), at(),
+                                 name="merging", prefix=f"K = {mix.k}: "))
+
     result = SegmentationResult(
-        labels=None, n_segments=n_segments, history=history, probability=None,
+        labels=None, n_segments=n_segments, history=[], probability=None,
         features=features, smoothing=smoothing, min_area=min_area, threshold=threshold,
         mask=None if mask is None else np.asarray(mask, bool),
     )
-    labels, prob = label_pixels(features, result.mixture_at(n_segments), smoothing=smoothing,
-                                threshold=threshold, min_area=min_area)
-    if mask is not None:
-        labels[~result.mask] = 0
-    result.labels, result.probability = _renumber(labels), prob
+    history = result.history
+
+    def label_state(stage_name):
+        """Label the newest state (in bands, yielding); keep its labels, its
+        probabilities while it may be the final state; preview it."""
+        i = len(history) - 1
+        mix_i = history[i]
+        share = mix_i.k + _ABSORB_WORK
+        labels, prob = yield from stage(
+            _iter_label(features, mix_i, smoothing=smoothing, min_area=min_area),
+            at(), at(share), name=stage_name, prefix=f"K = {mix_i.k}: ")
+        if i > 0 and result._final is None and _is_final(history, i - 1, n_segments,
+                                                         merge_threshold):
+            result._final = i - 1
+        result._store(i, labels, prob if result._final is None else None)
+        work[0] += share
+        yield Progress(stage_name, at(), f"K = {mix_i.k}", labels)
+
+    history.append(mix.copy())
+    yield from label_state("mixture")
+    while mix.k > 1:
+        mix = _drop_weak((yield from em(mix, _PRE_MERGE_EM_STEPS)), 0.01 / k_ini)
+        if mix.k == 1:
+            break
+        mix, _ = _merge_closest(mix)
+        mix = yield from em(mix, merge_em_steps)
+        history.append(mix.copy())
+        yield from label_state("merging")
+
+    if n_segments is None:
+        n_segments = _choose_k(history, merge_threshold)
+    final = result._index(n_segments)
+    labels, prob = result._cut(final), result._probs.get(final)
+    result._final = final
+    if prob is None:  # not kept (the rule of _is_final keeps it): label again
+        labels, prob = yield from stage(
+            _iter_label(features, history[final], smoothing=smoothing, min_area=min_area),
+            at(), at(), name="merging", prefix=f"K = {history[final].k}: ")
+    for j in [j for j in result._probs if j != final]:
+        del result._probs[j]
+    result.labels = result._finish(labels, prob, threshold)
+    result.probability = prob
     result.n_segments = int(result.labels.max())
     return result
+
+
+def _is_final(history, i, n_segments, merge_threshold):
+    """Whether state ``i`` is the one :meth:`SegmentationResult.mixture_at`
+    will pick, now that state ``i + 1`` exists: the first state whose merge
+    costs more than ``merge_threshold`` (automatic K, as :func:`_choose_k`),
+    or the last state with at least ``n_segments`` components."""
+    if n_segments is None:
+        return history[i].loglik - history[i + 1].loglik > merge_threshold
+    return history[i + 1].k < min(n_segments, history[0].k)
 
 
 @shared_parameters(_SEGMENT_PARAMETERS)
