@@ -15,7 +15,8 @@ from typing import NamedTuple
 import numpy as np
 
 from .._progress import Progress, drain, stage
-from .._validation import as_channel_last_float, check_not_constant, check_size, summarize
+from .._validation import as_channel_last_float, check_not_constant, check_size
+from .blocks import iter_centre, iter_channel_last_float, row_ranges
 from .directions import DIRECTIONS, scan_view
 from .neighbourhood import Context, as_offsets
 from .recursive import scan
@@ -206,13 +207,40 @@ def _decision_score(chol, beta, beta0, m, d):
     )
 
 
-def _prepare(image, channel_axis, name="image"):
-    """Validated float copy, centred; returns (data, mean, per-channel variance)."""
-    data = as_channel_last_float(image, channel_axis=channel_axis, name=name)
-    summary = summarize(data)
+def _iter_prepare(image, channel_axis, name="image"):
+    """Validated float copy, centred, by blocks of rows: Progress records
+    (stage "prepare"), then (data, mean, per-channel variance)."""
+    data, summary = yield from stage(
+        iter_channel_last_float(image, channel_axis=channel_axis, name=name), 0.0, 0.75)
     check_not_constant(data, name=name, summary=summary)
-    data -= summary.mean
+    yield from stage(iter_centre(data, summary.mean), 0.75, 1.0)
     return data, summary.mean, summary.var
+
+
+# Work per pixel of the parts of a fit, for progress fractions (about ns on one
+# core, 4000x4000 RGB): the float copy, summary and centring ~60 per channel,
+# the whitening ~80 per channel, a pass of statistics ~2 (columns)^2.
+def _prepare_cost(d):
+    return 60.0 * d
+
+
+def _whiten_cost(d):
+    return 80.0 * d
+
+
+def _statistics_cost(n_columns):
+    return 2.0 * n_columns**2
+
+
+def _channels(image, channel_axis):
+    """The channels an image will have (for progress shares only; 1 if unclear)."""
+    shape = np.shape(image)
+    if len(shape) == 3 and channel_axis is not None:
+        try:
+            return int(shape[channel_axis])
+        except (IndexError, TypeError):
+            return 1
+    return 1
 
 
 def _candidate_offsets(orders):
@@ -292,9 +320,12 @@ def _iter_scores(centred, candidates, direction, channel_var):
     # colour transform Y -> B Y (in particular, under the image's value range).
     # The one pass over the pixels is the work; the candidates' scores are small
     # factorisations of its sub-blocks.
+    white_cost = _whiten_cost(d)
+    split = 0.9 * white_cost / (white_cost + _statistics_cost(ctx.n_regressors + d))
+    white = yield from stage(_iter_whiten(centred), 0.0, split, name="support")
     V, count = yield from stage(
-        iter_data_statistics(_whiten(centred), ctx, direction=direction), 0.0, 0.9,
-        name="support")
+        iter_data_statistics(white, ctx, direction=direction), split, 0.9, name="support")
+    del white
     mu = ctx.n_regressors
     index = {s: k for k, s in enumerate(map(tuple, union.tolist()))}
     scores = {}
@@ -310,24 +341,52 @@ def _iter_scores(centred, candidates, direction, channel_var):
     return scores
 
 
+def _scores_cost(candidates, d):
+    """Work per pixel of choosing the support: the whitening and one pass of
+    statistics over the union of the candidates."""
+    union = {s for _, offs in candidates for s in map(tuple, offs.tolist())}
+    return _whiten_cost(d) + _statistics_cost(len(union) * d + d)
+
+
 def _support_share(candidates, d):
     """The part of a fit with ``neighbourhood='auto'`` spent choosing the
-    support: one pass over the union of the candidates against one over the
-    winner, costed as ``(regressors + d)^2`` per pixel (the winner taken as
-    the largest candidate)."""
-    union = {s for _, offs in candidates for s in map(tuple, offs.tolist())}
-    choose = (len(union) * d + d) ** 2
-    fit = (max(len(offs) for _, offs in candidates) * d + d) ** 2
+    support: the whitening and one pass over the union of the candidates
+    against one over the winner (taken as the largest candidate)."""
+    choose = _scores_cost(candidates, d)
+    fit = _statistics_cost(max(len(offs) for _, offs in candidates) * d + d)
     return choose / (choose + fit)
 
 
-def _whiten(centred):
+# rows of (N, d) per block of the whitening: a multiple of the BLAS kernels'
+# tiles and never a short tail, so each block computes what one call would
+_WHITEN_ROWS = 1 << 18
+
+
+def _iter_whiten(centred):
+    """The channels whitened (unit covariance), by blocks of pixels:
+    Progress records, then the whitened copy."""
     d = centred.shape[2]
     flat = centred.reshape(-1, d)
     cov = flat.T @ flat / flat.shape[0]
     cov += 1e-12 * np.trace(cov) / d * np.eye(d)
     L = np.linalg.cholesky(cov)
-    return np.linalg.solve(L, flat.T).T.reshape(centred.shape)
+    out = np.empty_like(centred)
+    out_flat = out.reshape(-1, d)
+    blocks = _long_blocks(flat.shape[0], _WHITEN_ROWS)
+    for k, (start, stop) in enumerate(blocks, start=1):
+        out_flat[start:stop] = np.linalg.solve(L, flat[start:stop].T).T
+        yield Progress("whitening", k / len(blocks), f"whitening: {k}/{len(blocks)}")
+    return out
+
+
+def _long_blocks(n, size):
+    """``[(start, stop), ...]`` over ``range(n)`` in blocks of ``size``, the
+    last one merged with a short tail (the BLAS calls then see the same
+    shapes as one call would, up to the tile size)."""
+    blocks = row_ranges(n, 1, size)
+    if len(blocks) > 1 and blocks[-1][1] - blocks[-1][0] < size // 2:
+        blocks[-2:] = [(blocks[-2][0], n)]
+    return blocks
 
 
 def iter_select_support(image, orders=range(1, 6), *, channel_axis=-1, direction="down"):
@@ -356,9 +415,12 @@ def iter_select_support(image, orders=range(1, 6), *, channel_axis=-1, direction
     Yields
     ------
     Progress
-        Stage ``"support"``: after each block of rows of the one pass over
-        the pixels (message ``"rows 120/512"``), then after each candidate's
-        score (message ``"order 3: D = ..."``).
+        Stage ``"support"``: after each block of rows of the float copy and
+        centring of a large image (message ``"image: rows 512/4000"``) and
+        of the whitening, after each block of rows of the one pass over the
+        pixels (message ``"rows 120/512"``), then after each candidate's
+        score (message ``"order 3: D = ..."``). No block is more than about
+        0.2 s of work on a 4000x4000 RGB image.
 
     Raises
     ------
@@ -379,9 +441,13 @@ def iter_select_support(image, orders=range(1, 6), *, channel_axis=-1, direction
     """
     if direction not in DIRECTIONS:
         raise ValueError(f"direction must be one of {DIRECTIONS}; got {direction!r}.")
-    centred, _, var = _prepare(image, channel_axis)
     candidates = _candidate_offsets(orders)
-    scores = yield from _iter_scores(centred, candidates, direction, var)
+    d = _channels(image, channel_axis)
+    prep = _prepare_cost(d)
+    split = prep / (prep + _scores_cost(candidates, d))
+    centred, _, var = yield from stage(_iter_prepare(image, channel_axis), 0.0, split,
+                                       name="support")
+    scores = yield from stage(_iter_scores(centred, candidates, direction, var), split, 1.0)
     best = max(scores, key=scores.get)
     return SupportSelection(best, scores)
 
@@ -482,11 +548,16 @@ def iter_fit_car(
     Yields
     ------
     Progress
-        With ``neighbourhood='auto'``, stage ``"support"`` first (the pass
+        First the float copy and centring of a large image, by blocks of
+        rows (message ``"image: rows 512/4000"``), in the name of the first
+        stage; with ``neighbourhood='auto'``, stage ``"support"`` (the pass
         over the pixels, then one record per candidate order, message
         ``"order 3: D = ..."``); then stage ``"statistics"`` after each block
         of rows of the fit (message ``"rows 120/512"``). The ``'2d'`` model
-        runs these once per spectral factor.
+        decorrelates the channels by blocks (stage ``"decorrelating"``) and
+        runs these once per spectral factor. No block is more than about
+        0.2 s of work on a 4000x4000 RGB image; the fractions follow the
+        estimated work.
 
     Raises
     ------
@@ -509,10 +580,40 @@ def iter_fit_car(
         raise ValueError(f"model must be '3d' or '2d'; got {model!r}.")
     if direction not in DIRECTIONS:
         raise ValueError(f"direction must be one of {DIRECTIONS}; got {direction!r}.")
-    centred, mean, var = _prepare(image, channel_axis)
+    d = _channels(image, channel_axis)
+    auto = isinstance(neighbourhood, str)
+    split = _prepare_share(d, neighbourhood, orders, model)
+    centred, mean, var = yield from stage(_iter_prepare(image, channel_axis), 0.0, split,
+                                          name="support" if auto else "statistics")
     if model == "2d":
-        return (yield from _iter_fit_2d(centred, mean, neighbourhood, orders, direction))
-    return (yield from _iter_fit_centred(centred, mean, var, neighbourhood, orders, direction))
+        fit = _iter_fit_2d(centred, mean, neighbourhood, orders, direction)
+    else:
+        fit = _iter_fit_centred(centred, mean, var, neighbourhood, orders, direction)
+    return (yield from stage(fit, split, 1.0))
+
+
+def _fit_cost(d, neighbourhood, orders):
+    """Work per pixel of fitting a centred image of d channels (the support
+    choice included), or None for a neighbourhood the fit will reject."""
+    try:
+        if isinstance(neighbourhood, str):
+            candidates = _candidate_offsets(orders)
+            eta = max(len(offs) for _, offs in candidates)
+            return _scores_cost(candidates, d) + _statistics_cost(eta * d + d)
+        return _statistics_cost(len(as_offsets(neighbourhood)[0]) * d + d)
+    except (TypeError, ValueError):  # the fit itself will say what is wrong
+        return None
+
+
+def _prepare_share(d, neighbourhood, orders, model):
+    """The part of a fit spent preparing the image (for progress only)."""
+    rest = _fit_cost(1 if model == "2d" else d, neighbourhood, orders)
+    if rest is None:
+        return 0.1
+    if model == "2d":  # the decorrelation, then d single-channel fits
+        rest = _decorrelate_cost(d) + d * rest
+    prep = _prepare_cost(d)
+    return prep / (prep + rest)
 
 
 def fit_car(
@@ -616,23 +717,68 @@ def _iter_fit_centred(centred, mean, channel_var, neighbourhood, orders, directi
     )
 
 
+def _decorrelate_cost(d):
+    return 100.0 * d
+
+
+def _iter_covariance(flat):
+    """``np.cov(flat, rowvar=False)``, the centring by blocks (the same
+    arithmetic as NumPy's: its mean, its centred copy, one product)."""
+    n, d = flat.shape
+    mean = flat.mean(axis=0)
+    centred = np.empty_like(flat)
+    blocks = _long_blocks(n, _WHITEN_ROWS)
+    for k, (start, stop) in enumerate(blocks, start=1):
+        np.subtract(flat[start:stop], mean, out=centred[start:stop])
+        yield Progress("decorrelating", 0.5 * k / len(blocks), "spectral covariance")
+    cov = np.dot(centred.T, centred) * (1.0 / (n - 1))
+    return cov.reshape(d, d)
+
+
 def _iter_fit_2d(centred, mean, neighbourhood, orders, direction):
     d = centred.shape[2]
-    cov = np.cov(centred.reshape(-1, d), rowvar=False).reshape(d, d)
+    dec = _decorrelate_cost(d)
+    fit_cost = _fit_cost(1, neighbourhood, orders) or dec
+    share = dec / (dec + d * fit_cost)  # the decorrelation, then d equal fits
+    each = (1.0 - share) / d
+    flat = centred.reshape(-1, d)
+    cov = yield from stage(_iter_covariance(flat), 0.0, share)
     evals, basis = np.linalg.eigh(cov)
     basis = basis[:, ::-1]  # strongest factor first
-    factors_data = centred @ basis
+    factors_data = np.empty_like(centred)
+    factors_flat = factors_data.reshape(-1, d)
+    blocks = _long_blocks(flat.shape[0], _WHITEN_ROWS)
+    for k, (start, stop) in enumerate(blocks, start=1):
+        factors_flat[start:stop] = flat[start:stop] @ basis
+        yield Progress("decorrelating", share * (0.5 + 0.5 * k / len(blocks)),
+                       "spectral factors")
     factors = []
     for k in range(d):
-        f = np.ascontiguousarray(factors_data[..., k : k + 1])
-        if np.ptp(f) <= 1e-12 * max(1.0, np.abs(f).max()):
+        start = share + k * each
+        f = np.empty(centred.shape[:2] + (1,))
+        f_flat = f.reshape(-1)
+        for r0, r1 in blocks:
+            f_flat[r0:r1] = factors_flat[r0:r1, k]
+            yield Progress("decorrelating", start, f"spectral factor {k + 1}/{d}")
+        lo, hi = f.min(), f.max()
+        yield Progress("decorrelating", start, f"spectral factor {k + 1}/{d}")
+        # np.ptp(f) and np.abs(f).max(), without a temporary
+        if hi - lo <= 1e-12 * max(1.0, max(abs(lo), abs(hi))):
             raise ValueError(
                 f"spectral factor {k} is constant (the channels are linearly dependent); "
                 "use model='3d' or fewer channels."
             )
-        fit = _iter_fit_centred(f, np.zeros(1), f.var(axis=(0, 1)), neighbourhood, orders,
-                                direction)
-        factors.append((yield from stage(fit, k / d, (k + 1) / d)))
+        # its variance by blocks (it only scales the tiny prior: rounding in
+        # its last bits cannot reach the estimates)
+        mu = f_flat.mean()
+        square = 0.0
+        for r0, r1 in blocks:
+            square += float(np.square(f_flat[r0:r1] - mu).sum())
+            yield Progress("decorrelating", start, f"spectral factor {k + 1}/{d}")
+        var = np.array([square / f_flat.size])
+        fit = _iter_fit_centred(f, np.zeros(1), var, neighbourhood, orders, direction)
+        factors.append((yield from stage(fit, start, start + each)))
+    del factors_data
     # Equivalent colour-space model over the union of the factors' offsets.
     union = []
     for fm in factors:

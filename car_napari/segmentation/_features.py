@@ -1,22 +1,120 @@
 """Per-pixel texture features of the segmentation: multiresolution local CAR
 parameters ((14.33), section 14.4, docs/segmentation.md) and the pseudo-colour
-of grey images."""
+of grey images.
+
+Bounded work between yields and bounded memory: the directional scans run in
+chunks of rows (:class:`~car_napari.model.recursive.RecursiveScan`) and
+stream their parameters, which are reduced on the fly (two passes per
+direction: one gathers the samples the robust scaling and the PCA are fitted
+on, the second re-runs the scan and projects every pixel), so no image-sized
+array of local parameters ever exists; the smoothing runs in place by blocks
+of rows and columns; the result is float32. The peak is about 90 (grey) to
+120 (RGB) bytes per pixel, the (H, W, D) float32 result (72 to 96) included,
+on the full-resolution level (the image in float64, its whitened copy, the
+twelve directional parameters in float32, the energy); every block of work
+is ~0.1 s with a yield after it.
+"""
 
 from __future__ import annotations
+
+import math
+import time
 
 import numpy as np
 
 from .._docstrings import shared_parameters
-from .._progress import Progress, drain
-from .._validation import as_channel_last_float, check_not_constant, summarize
-from ..model.directions import DIRECTIONS, scan_view, unscan_view
+from .._progress import Progress, drain, stage
+from .._validation import check_not_constant, summarize
+from ..model.blocks import iter_channel_last_float, row_ranges
+from ..model.directions import DIRECTIONS, scan_view
 from ..model.neighbourhood import Context, as_offsets
-from ..model.recursive import adaptive_scan
+from ..model.recursive import adaptive_scanner, scan_work
 
-__all__ = ["iter_local_features", "local_features", "pseudo_colour"]
+__all__ = ["iter_local_features", "iter_pseudo_colour", "local_features", "pseudo_colour"]
 
 # the coarsest pyramid level must keep at least this many pixels a side
 _MIN_LEVEL_SIDE = 16
+# pixels the robust scaling and each PCA are fitted on
+_SAMPLE = 20000
+# values per block of the whole-image passes that make float64 temporaries
+_SMALL_BLOCK = 1 << 20
+# estimated work (about ns of one core) between two yields, and at most this
+# much CPU time of the job's thread
+_YIELD_WORK = 7.0e7
+_YIELD_CPU = 0.1
+# estimated ns per unit of work of each kind of step (see _Work)
+_NS_GAUSS = 0.6  # per value and tap of a 1-D Gaussian pass
+_NS_SCAN = 0.4  # per work unit of a scan (see recursive._pixel_cost)
+_NS_VALUE = 4.0  # per value of an elementwise NumPy pass
+
+
+class _Work:
+    """Progress proportional to the estimated work: ``step`` adds work done
+    and returns a record once ``_YIELD_WORK`` has piled up since the last, or
+    ``_YIELD_CPU`` seconds of this thread's CPU time have passed (whichever
+    is first: an estimate that is off cannot make a long stretch)."""
+
+    def __init__(self, total):
+        self.total = max(float(total), 1.0)
+        self.done = 0.0
+        self.pending = 0.0
+        self.clock = time.thread_time()
+
+    def step(self, work, message, force=False):
+        self.done += work
+        self.pending += work
+        now = time.thread_time()
+        if force or self.pending >= _YIELD_WORK or now - self.clock >= _YIELD_CPU:
+            self.pending = 0.0
+            self.clock = now
+            return Progress("features", min(self.done / self.total, 1.0), message)
+        return None
+
+
+def iter_pseudo_colour(grey, gammas=(0.5, 2.0)):
+    """:func:`pseudo_colour` as a job: Progress per block of rows, then the image.
+
+    Parameters
+    ----------
+    grey : (H, W) array_like
+        Grey image, any numeric dtype.
+    gammas : sequence of float, optional
+        The gamma exponents of the channels after the first.
+
+    Returns
+    -------
+    (H, W, 1 + len(gammas)) ndarray of float64
+        What :func:`pseudo_colour` returns.
+
+    Yields
+    ------
+    Progress
+        Stage "pseudo-colour" after each block of rows.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from car_napari._progress import drain
+    >>> drain(iter_pseudo_colour(np.array([[0, 1], [2, 4]])))[1, 0]
+    array([0.5       , 0.70710678, 0.25      ])
+    """
+    g = np.asarray(grey)
+    if g.dtype != np.float64:
+        g = g.astype(np.float64)
+    lo, hi = g.min(), g.max()
+    out = np.empty(g.shape + (1 + len(gammas),))
+    blocks = row_ranges(g.shape[0], g.shape[1] * 8 * (1 + len(gammas)))
+    for k, (start, stop) in enumerate(blocks, start=1):
+        base = out[start:stop, ..., 0]
+        if hi > lo:
+            np.subtract(g[start:stop], lo, out=base)
+            base /= hi - lo
+        else:
+            base[...] = 0.0
+        for c, gm in enumerate(gammas, start=1):
+            np.power(base, gm, out=out[start:stop, ..., c])
+        yield Progress("pseudo-colour", k / len(blocks), f"rows {stop}/{g.shape[0]}")
+    return out
 
 
 def pseudo_colour(grey, gammas=(0.5, 2.0)):
@@ -45,66 +143,7 @@ def pseudo_colour(grey, gammas=(0.5, 2.0)):
     >>> pseudo_colour(np.array([[0, 1], [2, 4]]))[1, 0]
     array([0.5       , 0.70710678, 0.25      ])
     """
-    g = np.asarray(grey, dtype=np.float64)
-    lo, hi = g.min(), g.max()
-    g = (g - lo) / (hi - lo) if hi > lo else np.zeros_like(g)
-    return np.stack([g] + [g**gm for gm in gammas], axis=-1)
-
-
-def _pca(X, n_components, rng, sample=20000):
-    """Principal axes of the rows of X (fitted on a subsample)."""
-    idx = rng.choice(X.shape[0], size=min(sample, X.shape[0]), replace=False)
-    S = X[idx]
-    mean = S.mean(axis=0)
-    _, _, vt = np.linalg.svd(S - mean, full_matrices=False)
-    return mean, vt[:n_components].T
-
-
-def _whiten_channels(level):
-    """Spectral Karhunen-Loeve transform with unit-variance factors.
-
-    The 3DCAR parameters ((14.1)-(14.4), docs/model.md) transform as
-    ``A -> B A B^{-1}`` under a channel mixing ``B`` (section 14.3,
-    docs/model.md), so this changes no model, only how well the
-    cross-spectral terms are conditioned (RGB channels are nearly collinear)
-    and puts every parameter on a comparable scale.
-    """
-    h, w, d = level.shape
-    flat = level.reshape(-1, d)
-    mean = flat.mean(axis=0)
-    if d == 1:
-        std = flat.std()
-        return np.ascontiguousarray((level - mean) / (std if std > 0 else 1.0))
-    cov = np.cov((flat - mean).T)
-    ev, vec = np.linalg.eigh(cov)
-    ev = np.maximum(ev, 1e-6 * max(ev.max(), 1e-300))
-    return np.ascontiguousarray(((flat - mean) @ (vec / np.sqrt(ev))).reshape(h, w, d))
-
-
-def _recentre(field_, direction, lag):
-    """Shift a scan's field back along the scan line by ``lag`` pixels.
-
-    The recursive estimate at ``r`` describes the pixels scanned before
-    ``r``; with forgetting ``phi`` its window trails ``r`` by
-    ``phi^2 / (1 - phi^2)`` pixels on average. Shifting by that lag centres
-    the window on ``r``, so boundaries are not displaced towards where each
-    scan goes."""
-    if lag <= 0:
-        return field_
-    g = scan_view(field_, direction)
-    g = np.concatenate([g[:, lag:], np.repeat(g[:, -1:], lag, axis=1)], axis=1)
-    return np.ascontiguousarray(unscan_view(g, direction))
-
-
-def _robust_scale(flat, clip=4.0):
-    """Columns centred on the median, scaled by the MAD and clipped: a few
-    ill-conditioned local fits must not dominate the PCA."""
-    sample = flat[:: max(1, flat.shape[0] // 20000)]
-    med = np.median(sample, axis=0)
-    mad = np.median(np.abs(sample - med), axis=0) * 1.4826
-    spread = np.where(mad > 0, mad, np.maximum(sample.std(axis=0), 1e-12))
-    out = (flat - med) / spread
-    return np.clip(out, -clip, clip, out=out)
+    return drain(iter_pseudo_colour(grey, gammas))
 
 
 def _check_levels(shape, levels, neighbourhood):
@@ -119,6 +158,244 @@ def _check_levels(shape, levels, neighbourhood):
             f"levels: each side needs at least {need} pixels. Use fewer levels or a "
             "larger image."
         )
+
+
+# ---------------------------------------------------------------------------
+# blocked building blocks (each gives what the one-call NumPy/SciPy form gives)
+
+
+def _taps(sigma):
+    return 2 * int(4.0 * float(sigma) + 0.5) + 1
+
+
+def _iter_gaussian(plane, sigma, work, message, out=None):
+    """``ndimage.gaussian_filter(plane, sigma)`` into ``out`` (default: in
+    place), by blocks: the pass along axis 0 by blocks of columns, then the
+    pass along axis 1 by blocks of rows, as gaussian_filter runs them. Yields
+    the work's records."""
+    from scipy import ndimage
+
+    out = plane if out is None else out
+    h, w = plane.shape
+    taps = _taps(sigma)
+    per_value = _NS_GAUSS * taps
+    cols = max(1, int(_YIELD_WORK // (per_value * h)))
+    for start in range(0, w, cols):
+        stop = min(start + cols, w)
+        ndimage.gaussian_filter1d(plane[:, start:stop], sigma, axis=0,
+                                  output=out[:, start:stop])
+        rec = work.step(per_value * h * (stop - start), message)
+        if rec:
+            yield rec
+    rows = max(1, int(_YIELD_WORK // (per_value * w)))
+    for start in range(0, h, rows):
+        block = out[start : start + rows]
+        ndimage.gaussian_filter1d(block, sigma, axis=1, output=block)
+        rec = work.step(per_value * block.size, message)
+        if rec:
+            yield rec
+
+
+def _iter_pyramid_reduce(level, work, message):
+    """``skimage.transform.pyramid_reduce(level, downscale=2, channel_axis=-1)``
+    channel by channel, its smoothing by blocks: Progress, then the level."""
+    from scipy import ndimage
+
+    h, w, d = level.shape
+    out_shape = (math.ceil(h / 2.0), math.ceil(w / 2.0))
+    sigma = 2 * 2 / 6.0
+    zoom = [1 / f for f in np.divide((h, w), out_shape)]
+    out = np.empty(out_shape + (d,))
+    plane = np.empty((h, w))
+    lo, hi = np.inf, -np.inf
+    for c in range(d):
+        plane[...] = level[..., c]
+        yield from _iter_gaussian(plane, sigma, work, message)
+        lo, hi = min(lo, plane.min()), max(hi, plane.max())
+        # resize(order=1, mode='reflect', anti_aliasing=False) is this zoom
+        out[..., c] = ndimage.zoom(plane, zoom, order=1, mode="mirror", grid_mode=True)
+        rec = work.step(_NS_VALUE * 4 * out_shape[0] * out_shape[1], message)
+        if rec:
+            yield rec
+    np.clip(out, lo, hi, out=out)  # resize's clip to the input's range
+    return out
+
+
+def _iter_whiten_channels(level, work, message):
+    """Spectral Karhunen-Loeve transform with unit-variance factors, by blocks.
+
+    The 3DCAR parameters ((14.1)-(14.4), docs/model.md) transform as
+    ``A -> B A B^{-1}`` under a channel mixing ``B`` (section 14.3,
+    docs/model.md), so this changes no model, only how well the
+    cross-spectral terms are conditioned (RGB channels are nearly collinear)
+    and puts every parameter on a comparable scale. The same arithmetic as
+    the one-call form (NumPy's mean, covariance and products).
+    """
+    h, w, d = level.shape
+    flat = level.reshape(-1, d)
+    n = flat.shape[0]
+    mean = flat.mean(axis=0)
+    out = np.empty_like(level)
+    out_flat = out.reshape(-1, d)
+    blocks = _long_blocks(n)
+    step = _NS_VALUE * d
+    if d == 1:
+        std = flat.std()
+        scale = std if std > 0 else 1.0
+        for start, stop in blocks:
+            np.subtract(flat[start:stop], mean, out=out_flat[start:stop])
+            out_flat[start:stop] /= scale
+            rec = work.step(step * (stop - start), message)
+            if rec:
+                yield rec
+        return out
+    # np.cov((flat - mean).T): its mean of the centred data, its centred copy
+    for start, stop in blocks:
+        np.subtract(flat[start:stop], mean, out=out_flat[start:stop])
+        rec = work.step(step * (stop - start), message)
+        if rec:
+            yield rec
+    avg = out_flat.mean(axis=0)
+    for start, stop in blocks:
+        out_flat[start:stop] -= avg
+        rec = work.step(step * (stop - start), message)
+        if rec:
+            yield rec
+    cov = np.dot(out_flat.T, out_flat) * (1.0 / (n - 1))
+    ev, vec = np.linalg.eigh(cov)
+    ev = np.maximum(ev, 1e-6 * max(ev.max(), 1e-300))
+    transform = vec / np.sqrt(ev)
+    for start, stop in blocks:
+        out_flat[start:stop] = (flat[start:stop] - mean) @ transform
+        rec = work.step(step * (stop - start), message)
+        if rec:
+            yield rec
+    return out
+
+
+_LONG_ROWS = 1 << 16
+
+
+def _long_blocks(n):
+    """Blocks of ``_LONG_ROWS`` rows of an (n, k) array, a short tail merged
+    into the block before it (a BLAS product then sees the shapes one call
+    would, up to its tiles)."""
+    blocks = row_ranges(n, 1, _LONG_ROWS)
+    if len(blocks) > 1 and blocks[-1][1] - blocks[-1][0] < _LONG_ROWS // 2:
+        blocks[-2:] = [(blocks[-2][0], n)]
+    return blocks
+
+
+def _scan_coords(index, shape, direction):
+    """Scan coordinates (a, b) of raster pixel indices of an (h, w) image."""
+    h, w = shape
+    i, j = np.divmod(index, w)
+    if direction == "down":
+        return i, j
+    if direction == "up":
+        return h - 1 - i, j
+    if direction == "right":
+        return j, i
+    return w - 1 - j, i  # left
+
+
+class _Gather:
+    """Rows of a streamed scan output at given raster pixels (in their order),
+    collected chunk by chunk."""
+
+    def __init__(self, index, shape, direction, shift, width):
+        a, b = _scan_coords(np.asarray(index), shape, direction)
+        ws = shape[1] if direction in ("down", "up") else shape[0]
+        self.order = np.argsort(a, kind="stable")
+        self.a = a[self.order]
+        self.b = np.minimum(b[self.order] + shift, ws - 1)  # the re-centring
+        self.values = np.empty((len(index), width))
+
+    def take(self, start, stop, chunk):
+        lo, hi = np.searchsorted(self.a, [start, stop])
+        if hi > lo:
+            self.values[self.order[lo:hi]] = chunk[self.a[lo:hi] - start, self.b[lo:hi]]
+
+
+def _robust_fit(sample):
+    """Median and spread (MAD, else the std) of the columns of a sample: a
+    few ill-conditioned local fits must not dominate the PCA."""
+    med = np.median(sample, axis=0)
+    mad = np.median(np.abs(sample - med), axis=0) * 1.4826
+    spread = np.where(mad > 0, mad, np.maximum(sample.std(axis=0), 1e-12))
+    return med, spread
+
+
+def _robust_apply(x, med, spread, clip, out=None):
+    """Columns centred on the median, scaled by the spread and clipped."""
+    out = np.subtract(x, med, out=out)
+    out /= spread
+    return np.clip(out, -clip, clip, out=out)
+
+
+def _pca_fit(S, n_components):
+    """Mean and principal axes of the rows of a sample."""
+    mean = S.mean(axis=0)
+    _, _, vt = np.linalg.svd(S - mean, full_matrices=False)
+    return mean, vt[:n_components].T
+
+
+def _iter_direction(centred, ctx, var, *, forgetting, direction, lag, clip, components,
+                    rng, reduced, err, work, message):
+    """One directional scan's reduced parameters into ``reduced`` (hm, wm, c)
+    and, with ``err``, its share of the prediction-error energy: two streamed
+    passes (samples, then projection). Yields the work's records."""
+    hm, wm = centred.shape[:2]
+    n = hm * wm
+    ws = wm if direction in ("down", "up") else hm
+    shift = min(lag, ws // 4) if lag > 0 else 0
+    cols = np.minimum(np.arange(ws) + shift, ws - 1)
+    pca_index = rng.choice(n, size=min(_SAMPLE, n), replace=False)
+    robust_index = np.arange(0, n, max(1, n // _SAMPLE))
+    view_err = None if err is None else scan_view(err, direction)
+    view_centred = scan_view(centred, direction)
+    view_reduced = scan_view(reduced, direction)
+
+    # pass 1: the samples, and the energy
+    outputs = ("gamma", "mean") if err is not None else ("gamma",)
+    scanner = adaptive_scanner(centred, ctx, var, forgetting=forgetting, direction=direction,
+                               outputs=outputs, stream=True)
+    width = ctx.n_targets * ctx.n_regressors
+    rows = scanner.rows
+    per_row = _NS_SCAN * scanner.pixel_work * ws
+    samples = [_Gather(index, (hm, wm), direction, shift, width)
+               for index in (robust_index, pca_index)]
+    while not scanner.done:
+        start, stop, out = scanner.advance()
+        gamma = out["gamma"].reshape(stop - start, ws, width)
+        for sample in samples:
+            sample.take(start, stop, gamma)
+        if err is not None:
+            err2 = np.nan_to_num(((view_centred[start:stop] - out["mean"]) ** 2).sum(axis=2))
+            view_err[start:stop] += err2 / len(DIRECTIONS)
+        rec = work.step(per_row * (stop - start), f"{message} (1/2), rows {stop}/{rows}")
+        if rec:
+            yield rec
+    robust, pca_sample = (sample.values for sample in samples)
+    if clip:
+        med, spread = _robust_fit(robust)
+        pca_sample = _robust_apply(pca_sample, med, spread, clip)
+    mean, axes = _pca_fit(pca_sample, components)
+
+    # pass 2: the same scan again, every pixel projected on the axes
+    scanner = adaptive_scanner(centred, ctx, var, forgetting=forgetting, direction=direction,
+                               outputs=("gamma",), stream=True)
+    per_row = (_NS_SCAN * scanner.pixel_work + _NS_VALUE * width) * ws
+    while not scanner.done:
+        start, stop, out = scanner.advance()
+        x = out["gamma"].reshape(stop - start, ws, width)[:, cols]  # a copy
+        if clip:
+            _robust_apply(x, med, spread, clip, out=x)
+        x -= mean
+        view_reduced[start:stop] = x @ axes
+        rec = work.step(per_row * (stop - start), f"{message} (2/2), rows {stop}/{rows}")
+        if rec:
+            yield rec
 
 
 _FEATURE_PARAMETERS = """
@@ -155,6 +432,39 @@ seed : int, optional
 """
 
 
+def _plan(shape, levels, ctx, *, smoothing, mean_smoothing, level_smoothing, energy,
+          components, decorrelate):
+    """Estimated work of the whole job, step by step as it runs (for progress
+    fractions proportional to the work)."""
+    h, w = shape
+    d = ctx.n_targets
+    width = ctx.n_targets * ctx.n_regressors
+    first = scan_work(ctx, outputs=("gamma", "mean") if energy else ("gamma",), stream=True)
+    second = scan_work(ctx, stream=True)
+    per_level = (components + 1) + int(energy) + d
+    total = 0.0
+    hm, wm = h, w
+    for m in range(levels):
+        npx = hm * wm
+        sig = smoothing if level_smoothing == "same" else smoothing / 2**m
+        msig = mean_smoothing if level_smoothing == "same" else mean_smoothing / 2**m
+        if decorrelate:
+            total += (2 if d > 1 else 1) * _NS_VALUE * d * npx
+        total += len(DIRECTIONS) * npx * (_NS_SCAN * (first + second) + _NS_VALUE * width)
+        if msig > 0:
+            total += 2 * _NS_GAUSS * _taps(msig) * npx * d
+        if m + 1 < levels:
+            total += 2 * _NS_GAUSS * _taps(2 / 3) * npx * d + _NS_VALUE * npx
+        if sig > 0:
+            total += 2 * _NS_GAUSS * _taps(sig) * npx * (len(DIRECTIONS) * components
+                                                         + int(energy))
+        total += _NS_VALUE * npx * len(DIRECTIONS) * components
+        hm, wm = math.ceil(hm / 2), math.ceil(wm / 2)
+    total += (levels - 1) * _NS_VALUE * 4 * h * w * per_level  # the resizing
+    total += 2 * _NS_VALUE * h * w * per_level * levels  # the standardisation
+    return total
+
+
 @shared_parameters(_FEATURE_PARAMETERS)
 def iter_local_features(
     image,
@@ -175,7 +485,10 @@ def iter_local_features(
 ):
     """Per-pixel texture features as a job: yield progress, return the features.
 
-    See :func:`local_features` for what is computed.
+    See :func:`local_features` for what is computed. The work between two
+    records is bounded (about 0.1 s: the scans in chunks of rows, the
+    smoothing by blocks), and so is the memory: about 90 (grey) to 120 (RGB)
+    bytes per pixel at the peak, the float32 result included.
 
     Parameters
     ----------
@@ -189,8 +502,10 @@ def iter_local_features(
     Yields
     ------
     Progress
-        Stage "features": one record at the start, one after each
-        directional scan and one after each level.
+        Stage "features", its fraction proportional to the estimated work:
+        one record at the start, one after each directional scan and one
+        after each level, and on a large image more in between (about every
+        0.1 s of work: the rows of a scan, the blocks of the smoothing).
 
     Raises
     ------
@@ -206,78 +521,180 @@ def iter_local_features(
     >>> [record.message for record in job][:2]
     ['level 1/1', 'level 1/1: down scan']
     """
-    from scipy import ndimage
-    from skimage.transform import pyramid_reduce, resize
-
-    data = as_channel_last_float(image, channel_axis=channel_axis)
-    check_not_constant(data, summary=summarize(data))
+    # the float copy by blocks (a large image yields on the way, at 0 %: a
+    # small part of the work, and the plan needs its shape)
+    convert = iter_channel_last_float(image, channel_axis=channel_axis, stage="features")
+    data, summary = yield from stage(convert, 0.0, 0.0)
+    check_not_constant(data, summary=summary)
     _check_levels(data.shape, levels, neighbourhood)
     offsets, _ = as_offsets(neighbourhood)
     if mean_smoothing is None:
         mean_smoothing = smoothing
     rng = np.random.default_rng(seed)
     h, w, d = data.shape
-    level = data
-    blocks = []
-    steps = levels * (len(DIRECTIONS) + 1)
-    done = 0
+    ctx = Context.spatial(offsets, d)
+    per_level = (components + 1) + int(bool(energy)) + d
+    n_feats = levels * per_level
+    work = _Work(_plan((h, w), levels, ctx, smoothing=smoothing, mean_smoothing=mean_smoothing,
+                       level_smoothing=level_smoothing, energy=bool(energy),
+                       components=components, decorrelate=decorrelate))
     q = float(forgetting) ** 2
     lag = int(round(q / (1.0 - q))) if (centre and q < 1) else 0
+    # the result: level 0 is written, compact, to the end of the result's
+    # buffer and spread out in place at the end (its untouched pages cost
+    # nothing before); coarse levels are kept small until then
+    buffer = np.empty(h * w * n_feats, np.float32)
+    level_results = []
     yield Progress("features", 0.0, f"level 1/{levels}")
+    level = data
+    del data
     for m in range(levels):
-        if m:
-            level = pyramid_reduce(level, downscale=2, channel_axis=-1)
+        label = f"level {m + 1}/{levels}"
         hm, wm = level.shape[:2]
         sig = smoothing if level_smoothing == "same" else smoothing / 2**m
         msig = mean_smoothing if level_smoothing == "same" else mean_smoothing / 2**m
-        source = _whiten_channels(level) if decorrelate else level
-        summary = summarize(source)
-        centred = np.ascontiguousarray(source - summary.mean)
-        ctx = Context.spatial(offsets, d)
-        reduced = []
-        err = np.zeros((hm, wm))
-        for direction in DIRECTIONS:
-            res = adaptive_scan(centred, ctx, summary.var, forgetting=forgetting,
-                                direction=direction, outputs=("gamma", "mean"))
-            gamma = res["gamma"].reshape(hm, wm, -1)
-            shift = min(lag, (wm if direction in ("down", "up") else hm) // 4)
-            gamma = _recentre(gamma, direction, shift)
-            if energy:
-                err2 = np.nan_to_num(((centred - res["mean"]) ** 2).sum(axis=2))
-                err += err2 / len(DIRECTIONS)
-            flat = gamma.reshape(hm * wm, -1)
-            if clip:
-                flat = _robust_scale(flat, clip)
-            mean, axes = _pca(flat, components, rng)
-            reduced.append(((flat - mean) @ axes).reshape(hm, wm, -1))
-            del gamma, flat, res
-            done += 1
-            yield Progress("features", done / steps, f"level {m + 1}/{levels}: {direction} scan")
-        stacked = np.concatenate(reduced, axis=2)
+        if decorrelate:
+            centred = yield from _iter_whiten_channels(level, work, f"{label}: decorrelating")
+        else:
+            centred = level.copy()
+        source_summary = summarize(centred)
+        rec = work.step(_NS_VALUE * hm * wm * d / 2, f"{label}: centring")
+        if rec:
+            yield rec
+        for start, stop in _long_blocks(hm * wm):
+            centred.reshape(-1, d)[start:stop] -= source_summary.mean
+            rec = work.step(_NS_VALUE * (stop - start) * d, f"{label}: centring")
+            if rec:
+                yield rec
+        reduced = np.empty((hm, wm, len(DIRECTIONS) * components), np.float32)
+        err = np.zeros((hm, wm)) if energy else None
+        for k, direction in enumerate(DIRECTIONS):
+            yield from _iter_direction(
+                centred, ctx, source_summary.var, forgetting=forgetting, direction=direction,
+                lag=lag, clip=clip, components=components, rng=rng,
+                reduced=reduced[..., k * components : (k + 1) * components], err=err,
+                work=work, message=f"{label}: {direction} scan")
+            yield work.step(0.0, f"{label}: {direction} scan", force=True)
+        del centred
+        # (in this order, so that the least is alive at once)
+        current = level
+        if m + 1 < levels:
+            level = yield from _iter_pyramid_reduce(current, work, f"{label}: next level")
+        # the stacked directional parameters, smoothed, reduced by PCA
         if sig > 0:
-            stacked = ndimage.gaussian_filter(stacked, sigma=(sig, sig, 0))
-        flat = stacked.reshape(hm * wm, -1)
-        mean, axes = _pca(flat, components + 1, rng)
-        parts = [((flat - mean) @ axes).reshape(hm, wm, -1)]
+            for c in range(reduced.shape[2]):
+                yield from _iter_gaussian(reduced[..., c], sig, work, f"{label}: smoothing")
+        flat = reduced.reshape(hm * wm, -1)
+        idx = rng.choice(flat.shape[0], size=min(_SAMPLE, flat.shape[0]), replace=False)
+        mean, axes = _pca_fit(flat[idx].astype(np.float64), components + 1)
+        if m == 0:
+            result = buffer[h * w * (n_feats - per_level):].reshape(h, w, per_level)
+        else:
+            result = np.empty((hm, wm, per_level), np.float32)
+        out_flat = result.reshape(hm * wm, per_level)
+        for start, stop in _long_blocks(hm * wm):
+            out_flat[start:stop, : components + 1] = (flat[start:stop] - mean) @ axes
+            rec = work.step(_NS_VALUE * flat.shape[1] * (stop - start), f"{label}: reducing")
+            if rec:
+                yield rec
+        del reduced, flat
         if energy:
             # the local models' prediction-error energy (their Sigma), log scale
-            e = ndimage.gaussian_filter(err, sig) if sig > 0 else err
-            parts.append(np.log(e + 1e-6 * float(np.mean(summary.var)))[..., None])
-        local_mean = level
-        if msig > 0:
-            local_mean = ndimage.gaussian_filter(level, sigma=(msig, msig, 0))
-        parts.append(local_mean)
-        feats = np.concatenate(parts, axis=2)
-        if m:
-            feats = resize(feats, (h, w), order=1, mode="edge", anti_aliasing=False)
-        blocks.append(feats)
-        done += 1
-        yield Progress("features", done / steps, f"level {m + 1}/{levels} done")
-    theta = np.concatenate(blocks, axis=2)
-    theta -= theta.mean(axis=(0, 1))
-    std = theta.std(axis=(0, 1))
-    theta /= np.where(std > 0, std, 1.0)
-    return theta.astype(np.float32)
+            if sig > 0:
+                yield from _iter_gaussian(err, sig, work, f"{label}: energy")
+            floor = 1e-6 * float(np.mean(source_summary.var))
+            for start, stop in row_ranges(hm, wm):
+                result[start:stop, :, components + 1] = np.log(err[start:stop] + floor)
+            del err
+        # the local mean spectrum
+        plane = np.empty((hm, wm))
+        for c in range(d):
+            if msig > 0:
+                yield from _iter_gaussian(current[..., c], msig, work, f"{label}: local mean",
+                                          out=plane)
+            else:
+                plane[...] = current[..., c]
+            result[..., per_level - d + c] = plane
+        del plane, current
+        level_results.append(result)
+        if m + 1 < levels:
+            yield work.step(0.0, f"{label} done", force=True)
+    theta = yield from _iter_assemble(buffer, level_results, (h, w), work)
+    yield Progress("features", 1.0, f"level {levels}/{levels} done")
+    return theta
+
+
+def _iter_assemble(buffer, level_results, shape, work):
+    """The (H, W, D) result in ``buffer``: level 0 spread out from the end of
+    the buffer in place, the coarse levels interpolated to full resolution,
+    every feature standardised (zero mean, unit variance)."""
+    h, w = shape
+    per_level = level_results[0].shape[2]
+    n_feats = per_level * len(level_results)
+    theta = buffer.reshape(h, w, n_feats)
+    first = level_results[0]
+    if len(level_results) > 1:
+        # each block's compact rows are copied out before the wide rows they
+        # spread to are written; those end before any later compact row starts
+        for start, stop in row_ranges(h, w * n_feats, _SMALL_BLOCK):
+            rows = first[start:stop].copy()
+            theta[start:stop, :, :per_level] = rows
+            rec = work.step(_NS_VALUE * rows.size * n_feats / per_level, "assembling")
+            if rec:
+                yield rec
+    del first
+    for m, coarse in enumerate(level_results[1:], start=1):
+        yield from _iter_upsample(coarse, theta[..., m * per_level : (m + 1) * per_level],
+                                  work, f"level {m + 1}/{len(level_results)}: resizing")
+    level_results.clear()
+    # standardise each feature: mean and variance in float64, by blocks
+    blocks = row_ranges(h, w * n_feats, _SMALL_BLOCK)
+    total = np.zeros(n_feats)
+    for start, stop in blocks:
+        total += theta[start:stop].sum(axis=(0, 1), dtype=np.float64)
+        rec = work.step(_NS_VALUE * (stop - start) * w * n_feats / 2, "standardising")
+        if rec:
+            yield rec
+    mean = total / (h * w)
+    square = np.zeros(n_feats)
+    for start, stop in blocks:
+        square += ((theta[start:stop] - mean) ** 2).sum(axis=(0, 1))
+        rec = work.step(_NS_VALUE * (stop - start) * w * n_feats, "standardising")
+        if rec:
+            yield rec
+    std = np.sqrt(square / (h * w))
+    scale = np.where(std > 0, std, 1.0)
+    for start, stop in blocks:
+        theta[start:stop] = (theta[start:stop] - mean) / scale
+        rec = work.step(_NS_VALUE * (stop - start) * w * n_feats, "standardising")
+        if rec:
+            yield rec
+    return theta
+
+
+def _iter_upsample(coarse, out, work, message):
+    """Bilinear interpolation of (hm, wm, c) features to ``out`` (h, w, c), as
+    ``skimage.transform.resize(order=1, mode='edge', anti_aliasing=False)``
+    (pixel centres aligned, edges repeated), by blocks of rows."""
+    hm, wm, c = coarse.shape
+    h, w = out.shape[:2]
+
+    def axis(n_out, n_in):
+        pos = np.clip((np.arange(n_out) + 0.5) * (n_in / n_out) - 0.5, 0, n_in - 1)
+        lo = np.minimum(pos.astype(np.int64), n_in - 1)
+        hi = np.minimum(lo + 1, n_in - 1)
+        return lo, hi, (pos - lo)
+
+    y0, y1, fy = axis(h, hm)
+    x0, x1, fx = axis(w, wm)
+    fx = fx[None, :, None]
+    for start, stop in row_ranges(h, w * c * 4, _SMALL_BLOCK):
+        wy = fy[start:stop, None, None]
+        rows = coarse[y0[start:stop]] * (1 - wy) + coarse[y1[start:stop]] * wy
+        out[start:stop] = rows[:, x0] * (1 - fx) + rows[:, x1] * fx
+        rec = work.step(_NS_VALUE * 4 * (stop - start) * w * c, message)
+        if rec:
+            yield rec
 
 
 @shared_parameters(_FEATURE_PARAMETERS)

@@ -9,7 +9,8 @@ from skimage import data as skdata
 
 from car_fields import ORDERS, SHARED_DATA
 from car_napari import Context, local_parameters
-from car_napari.model.recursive import default_prior, scan
+from car_napari._progress import drain
+from car_napari.model.recursive import default_prior, iter_scan, scan
 
 
 def batch_ls_with_intercept(Y, offsets):
@@ -186,6 +187,12 @@ def test_one_step_density_equals_dense_recursion():
     ok = np.isfinite(logp)
     np.testing.assert_allclose(res["logp"][ok], logp[ok], rtol=1e-9, atol=1e-9)
     np.testing.assert_allclose(res["gamma"][ok], gammas[ok], rtol=1e-7, atol=1e-9)
+    # in chunks of rows (issue 12): the same bits
+    for rows in (1, 3):
+        chunked = drain(iter_scan(img, ctx, forgetting=1.0, intercept=True, prior=prior,
+                                  outputs=("logp", "gamma"), chunk_rows=rows))
+        for key in ("logp", "gamma", "T", "G", "lam", "beta", "count"):
+            np.testing.assert_array_equal(chunked[key], res[key])
 
 
 @pytest.mark.parametrize(
@@ -204,6 +211,9 @@ def test_forgetting_tracks_the_exact_stabilised_recursion(phi, order, collinear)
     ctx = Context.spatial(np.array(ORDERS[order]), 3)
     prior = default_prior(img.var(axis=(0, 1)), ctx.n_regressors, True, 3, 1e-6)
     got = scan(np.ascontiguousarray(img), ctx, forgetting=phi, intercept=True, prior=prior)["gamma"]
+    chunked = drain(iter_scan(np.ascontiguousarray(img), ctx, forgetting=phi, intercept=True,
+                              prior=prior, chunk_rows=5))["gamma"]
+    np.testing.assert_array_equal(chunked, got)  # in chunks of rows: the same bits
     exact, _ = _dense_recursion(img, ORDERS[order], phi, prior)
     ok = np.isfinite(exact[..., 0, 0])
     ok[: 4] = False  # the first rows, where the prior still dominates

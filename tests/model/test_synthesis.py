@@ -112,3 +112,25 @@ def test_narrow_in_row_resonance_is_found():
     model.gamma[0, 4] = -r * r  # (0, 2)
     model.gamma[0, 1] = 1e-5  # (1, 0)
     assert spectral_radius(model) > 1
+
+
+def test_synthesis_in_chunks_of_rows_is_the_one_call_field(monkeypatch):
+    # issue 12: the field in chunks of rows (and its noise drawn by blocks of
+    # rows) is, bit for bit, the field of one kernel call
+    from car_napari._progress import drain
+    from car_napari.model import blocks, iter_synthesize
+    from car_napari.model import synthesize as synth
+
+    rng = np.random.default_rng(4)
+    model = fit_car(rng.random((64, 64, 3)), 2)
+    whole = synth(model, (50, 70), seed=3)
+    for rows in (1, 7, 1000):
+        records = []
+        got = drain(iter_synthesize(model, (50, 70), seed=3, chunk_rows=rows), records.append)
+        np.testing.assert_array_equal(got, whole)
+        assert records[-1].fraction == 1.0 and records[-1].stage == "synthesis"
+    monkeypatch.setattr(blocks, "BLOCK_VALUES", 500)
+    np.testing.assert_array_equal(synth(model, (50, 70), seed=3), whole)
+    left = fit_car(rng.random((64, 64)), 1, direction="left")
+    np.testing.assert_array_equal(drain(iter_synthesize(left, (30, 40), seed=1, chunk_rows=3)),
+                                  synth(left, (30, 40), seed=1))

@@ -115,14 +115,17 @@ def _inject_prior(T, G, lam, v, w, coef, e, k0, amount, tau, p, d):
 def recursive_scan(
     data,
     geom,
+    rows,
+    out_geom,
     tap_off,
     tap_ch,
     target_off,
     intercept,
-    T0,
-    G0,
-    lam0,
-    beta_init,
+    T,
+    G,
+    lam,
+    fstate,
+    istate,
     beta_prior,
     phi,
     prior_diag,
@@ -138,20 +141,29 @@ def recursive_scan(
     fill_lo,
     fill_hi,
     suspect_logrel,
-    T_final,
-    G_final,
-    lam_final,
-    state_final,
 ):
-    """Scan an image once, in one direction, with the recursive estimator.
+    """Scan rows ``rows[0] .. rows[1] - 1`` of an image, in one direction,
+    with the recursive estimator, resuming from the state it is given.
+
+    The whole estimator state lives in ``T, G, lam, fstate, istate`` and is
+    updated in place, so consecutive calls over consecutive row ranges give,
+    bit for bit, the scan of one call over their union: a long scan runs in
+    chunks with a yield (a chance to cancel) between them. Nothing is
+    allocated per pixel; the scratch vectors are allocated once per call.
 
     Parameters (all flat / contiguous)
     ----------------------------------
     data : float64[:] the (H, W, C) source array, raveled.
     geom : int64[12] ``Hs, Ws, base, sa, sb, base_px, sa_px, sb_px, a_lo, a_hi,
         b_lo, b_hi``: scan extent, element offset of scan pixel (a, b) in
-        ``data`` as ``base + a*sa + b*sb`` (pixel index likewise for outputs)
-        and the rectangle of scan positions whose taps are all inside.
+        ``data`` as ``base + a*sa + b*sb`` (pixel index ``px`` likewise, used
+        by ``missing``) and the rectangle of scan positions whose taps are
+        all inside.
+    rows : int64[2] the scan rows ``[start, stop)`` of this call.
+    out_geom : int64[3] ``base, sa, sb`` of the outputs: pixel (a, b) writes
+        output entry ``base + a*sa + b*sb`` (times its width). The pixel
+        geometry of ``geom`` writes image-shaped outputs; ``(-start*Ws, Ws, 1)``
+        writes this call's rows, in scan order, to a chunk-sized buffer.
     tap_off : int64[m] element offset of each tap from the pixel's channel 0.
     tap_ch : int64[m] channel of each tap. A pixel whose every tap equals its
         own channel's value at ``r`` (a flat neighbourhood: a clipped,
@@ -160,15 +172,21 @@ def recursive_scan(
         after a flat background is estimated as if the background were absent.
     target_off : int64[d] channel of each modelled component.
     intercept : bool, append a constant 1 regressor (a local mean).
-    T0 : float64[p, p] lower factor with ``V_x^{-1} = T0^T T0`` at the start
-        (p = m + intercept); G0 (d, p) gamma with the intercept column;
-        lam0 (d, d) lambda.
-    beta_init, beta_prior : initial and prior ``beta``.
+    T, G, lam : the statistics, updated in place: float64[p, p] lower factor
+        with ``V_x^{-1} = tau^2 T^T T`` (p = m + intercept), G (d, p) gamma
+        with the intercept column, lam (d, d) lambda.
+    fstate : float64[3] ``[tau, beta, count]``, updated in place (start:
+        ``[1, beta(0), 0]``).
+    istate : int64[2] ``[tick, next_k]``: learned pixels counted for the
+        prior re-injection schedule and the coordinate it injects next (the
+        round robin position), updated in place (start: zeros).
+    beta_prior : the prior ``beta``.
     phi : forgetting factor (1 = none).
     prior_diag : float64[p + d] ``V_0`` diagonal re-injected when ``phi < 1``.
     update : bool, False freezes the statistics (prediction by a fixed model).
-    gamma_out : float64[N*d*m] or empty. Estimate after each pixel (carried
-        over where the neighbourhood leaves the image).
+    gamma_out : float64[N*d*m] or empty (N pixels addressed by ``out_geom``).
+        Estimate after each pixel (carried over where the neighbourhood
+        leaves the image).
     mean_out, logp_out, q_out, maha_out : float64[N*d], [N], [N], [N] or empty.
         One-step-ahead conditional mean, Student-t log density ((14.23)-(14.25)),
         ``q = 1 + X^T V_x^{-1} X`` and ``e^T lambda^{-1} e`` from the
@@ -191,23 +209,25 @@ def recursive_scan(
     fill_lo, fill_hi : float64[d] bounds of the filled values (a chain of
         predictions through a long hole must not run away).
     suspect_logrel : float, the outlier threshold (<= 0) for suspect pixels.
-    T_final, G_final, lam_final, state_final : the final statistics and
-        ``[beta, count]``.
+
+    The final ``V_x^{-1}`` factor is ``tau * T`` (see ``finish_factor``).
     """
     Hs, Ws = geom[0], geom[1]
     base, sa, sb = geom[2], geom[3], geom[4]
     base_px, sa_px, sb_px = geom[5], geom[6], geom[7]
     a_lo, a_hi, b_lo, b_hi = geom[8], geom[9], geom[10], geom[11]
+    out_base, out_sa, out_sb = out_geom[0], out_geom[1], out_geom[2]
+    row_start, row_stop = max(rows[0], 0), min(rows[1], Hs)
     m = tap_off.shape[0]
     d = target_off.shape[0]
     p = m + (1 if intercept else 0)
     n = p + d
 
-    T = T0.copy()
-    G = G0.copy()
-    lam = lam0.copy()
-    tau = 1.0
-    beta = beta_init
+    tau = fstate[0]
+    beta = fstate[1]
+    count = fstate[2]
+    tick = istate[0]
+    next_k = istate[1]
     phi2 = phi * phi
     forget = phi < 1.0
     # Prior re-injection schedule: `per_event` coordinates every `every`
@@ -225,7 +245,6 @@ def recursive_scan(
     inject = np.empty(n)
     for k in range(n):
         inject[k] = math.sqrt(period * (1.0 - phi2) * prior_diag[k]) if forget else 0.0
-    next_k = 0
 
     want_gamma = gamma_out.shape[0] > 0
     want_mean = mean_out.shape[0] > 0
@@ -245,30 +264,29 @@ def recursive_scan(
     u = np.empty(d)
     L = np.zeros((d, d))
     log_pi = math.log(math.pi)
-    count = 0.0
-    tick = 0
 
-    for a in range(Hs):
+    for a in range(row_start, row_stop):
         for b in range(Ws):
             px = base_px + a * sa_px + b * sb_px
+            po = out_base + a * out_sa + b * out_sb
             inside = a >= a_lo and a < a_hi and b >= b_lo and b < b_hi
             if not inside:
                 if want_gamma:
-                    o = px * d * m
+                    o = po * d * m
                     for t in range(d):
                         for k in range(m):
                             gamma_out[o + t * m + k] = G[t, k]
                 if want_mean:
                     for t in range(d):
-                        mean_out[px * d + t] = np.nan
+                        mean_out[po * d + t] = np.nan
                 if want_logp:
-                    logp_out[px] = np.nan
+                    logp_out[po] = np.nan
                 if want_q:
-                    q_out[px] = np.nan
+                    q_out[po] = np.nan
                 if want_maha:
-                    maha_out[px] = np.nan
+                    maha_out[po] = np.nan
                 if want_logrel:
-                    logrel_out[px] = np.nan
+                    logrel_out[po] = np.nan
                 continue
 
             pos = base + a * sa + b * sb
@@ -318,19 +336,19 @@ def recursive_scan(
                 q = 1.0 + tau * tau * vv
                 if want_mean:
                     for t in range(d):
-                        mean_out[px * d + t] = y[t] - e[t]
+                        mean_out[po * d + t] = y[t] - e[t]
                 if want_q:
-                    q_out[px] = q
+                    q_out[po] = q
                 if want_logp or want_maha or want_logrel:
                     logdet = cholesky_logdet(lam, L, d)
                     maha = mahalanobis(L, e, u, d)
                     if want_maha:
-                        maha_out[px] = maha
+                        maha_out[po] = maha
                     if want_logrel:
-                        logrel_out[px] = -0.5 * (beta - p + 2.0 + d) * math.log1p(maha / q)
+                        logrel_out[po] = -0.5 * (beta - p + 2.0 + d) * math.log1p(maha / q)
                     if want_logp:
                         nu = beta - p + 2.0
-                        logp_out[px] = (
+                        logp_out[po] = (
                             math.lgamma(0.5 * (nu + d))
                             - math.lgamma(0.5 * nu)
                             - 0.5 * d * (log_pi + math.log(q))
@@ -370,15 +388,23 @@ def recursive_scan(
                 count += 1.0
 
             if want_gamma:
-                o = px * d * m
+                o = po * d * m
                 for t in range(d):
                     for k in range(m):
                         gamma_out[o + t * m + k] = G[t, k]
 
+    fstate[0] = tau
+    fstate[1] = beta
+    fstate[2] = count
+    istate[0] = tick
+    istate[1] = next_k
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def finish_factor(T, tau, out):
+    """``out = tau * T`` on the lower triangle, zeros above: the factor with
+    ``V_x^{-1} = out^T out`` after a scan."""
+    p = T.shape[0]
     for j in range(p):
         for i in range(p):
-            T_final[j, i] = T[j, i] * tau if i <= j else 0.0
-    G_final[:, :] = G
-    lam_final[:, :] = lam
-    state_final[0] = beta
-    state_final[1] = count
+            out[j, i] = T[j, i] * tau if i <= j else 0.0

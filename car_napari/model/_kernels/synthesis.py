@@ -7,8 +7,13 @@ from numba import njit
 
 
 @njit(cache=True, nogil=True)
-def synthesize_field(gamma, chol_sigma, noise, tap_di, tap_dj, tap_ch, limit):
+def synthesize_field(gamma, chol_sigma, noise, tap_di, tap_dj, tap_ch, limit, row_start=0,
+                     row_stop=-1):
     """Generate a zero-mean CAR field in raster order (synthesis, docs/model.md).
+
+    Rows ``row_start .. row_stop - 1`` (default: all): the field's state is
+    the array itself, so consecutive row ranges give, bit for bit, the
+    one-call field (a long synthesis runs in chunks with a yield between).
 
     ``noise`` (H, W, C) holds standard normal draws in its first ``d``
     channels (``d`` = rows of ``gamma``); they are overwritten by the field.
@@ -22,7 +27,8 @@ def synthesize_field(gamma, chol_sigma, noise, tap_di, tap_dj, tap_ch, limit):
     m = tap_di.shape[0]
     x = np.empty(m)
     innov = np.empty(d)
-    for i in range(H):
+    stop = H if row_stop < 0 else min(row_stop, H)
+    for i in range(max(row_start, 0), stop):
         for j in range(W):
             for k in range(m):
                 ii = i - tap_di[k]
