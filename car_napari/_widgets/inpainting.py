@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import numpy as np
-from magicgui.widgets import CheckBox
+from magicgui.widgets import CheckBox, ComboBox
+from napari.layers import Image, Labels
 from napari.utils.notifications import show_info
 
-from ..inpainting import iter_detect_scratches, iter_inpaint
+from ..inpainting import fit_mask, iter_detect_scratches, iter_inpaint
 from ._base import JobWidget, guarded
 
 BRUSH_SIZE = 5
@@ -14,8 +15,13 @@ FRAME_OR_CLIP = "choose a frame (2-D) or a clip (frames, rows, columns)."
 
 
 class InpaintingWidget(JobWidget):
-    """Restore scratched film frames or clips from a painted or detected mask
-    (section 14.7, docs/inpainting.md). The source layer is never modified.
+    """Restore scratched film frames or clips from a painted, detected or
+    opened mask (section 14.7, docs/inpainting.md). The source layer is never
+    modified.
+
+    The mask is any Labels or Image layer (non-zero = damaged), by default
+    the source's "scratch mask" layer; one of another size is resized
+    (nearest neighbour) to the frame, with a note saying so.
 
     Parameters
     ----------
@@ -33,9 +39,18 @@ class InpaintingWidget(JobWidget):
                                              "paint")
         self._detect = self.action("Detect scratches", self.detect,
                                    tooltip="add a proposal to the mask (Ctrl+Z undoes it)")
+        self._mask = ComboBox(
+            label="scratch mask", choices=self._mask_choices, nullable=True,
+            tooltip="the damage: a Labels or Image layer, non-zero = damaged (a mask of "
+                    "another size is resized to the frame)")
         self._temporal = CheckBox(value=True, text="use the previous frame (clips)")
+        self._follow = CheckBox(value=False, text="follow progress (show each frame as "
+                                                  "it is restored)")
         self._run = self.action("Restore", self.start)
-        self.arrange([self._new_mask, self._detect, self._temporal, self._run])
+        self.arrange([self._new_mask, self._detect, self._mask, self._temporal,
+                      self._follow, self._run])
+        self._image.changed.connect(self._source_changed)
+        self._default_mask()
 
     # --- the source and its mask -------------------------------------------------
 
@@ -53,6 +68,43 @@ class InpaintingWidget(JobWidget):
     @staticmethod
     def _mask_name(layer):
         return f"{layer.name} scratch mask"
+
+    def _mask_choices(self, _widget=None):
+        return [(layer.name, layer) for layer in self._viewer.layers
+                if isinstance(layer, (Labels, Image))]
+
+    def _own_mask(self):
+        """The source's "scratch mask" layer, or None."""
+        layer = self._image.value
+        if layer is None:
+            return None
+        name = self._mask_name(layer)
+        return self._viewer.layers[name] if name in self._viewer.layers else None
+
+    def _choose_mask(self, layer):
+        self._mask.reset_choices()
+        self._mask.value = layer
+
+    def _default_mask(self, force=False):
+        """Choose the source's scratch mask when there is one (when no mask is
+        chosen, or with ``force``); with no mask chosen and none of its own,
+        the newest other layer named like a mask (an opened ``mask.png``)."""
+        own = self._own_mask()
+        if own is not None and (force or self._mask.value is None):
+            self._choose_mask(own)
+        elif self._mask.value is None:
+            named = [layer for _, layer in self._mask_choices()
+                     if "mask" in layer.name.lower() and layer is not self._image.value]
+            if named:
+                self._choose_mask(named[-1])
+
+    def _source_changed(self, *_):
+        self._default_mask(force=True)
+
+    def reset_choices(self, *args):
+        """Refresh the layer pickers (napari calls this when layers change)."""
+        super().reset_choices(*args)
+        self._default_mask()
 
     @guarded
     def mask_layer(self, *_):
@@ -90,6 +142,7 @@ class InpaintingWidget(JobWidget):
         mask.selected_label = 1
         layers.selection.active = mask
         mask.mode = "paint"
+        self._choose_mask(mask)
         return mask
 
     @guarded
@@ -116,14 +169,36 @@ class InpaintingWidget(JobWidget):
 
     # --- restoring -------------------------------------------------------------------
 
+    def _chosen_mask(self, shape):
+        """The chosen mask layer's data fitted to the source's frames
+        ``shape``, as bool; a note when it had to be resized."""
+        layer = self._mask.value
+        if layer is None or layer not in self._viewer.layers:
+            layer = self._own_mask()
+        if layer is None:
+            raise ValueError("there is no scratch mask yet: press 'New mask layer' and paint "
+                             "the damage, or 'Detect scratches', or choose a mask layer "
+                             "(an opened mask image) as 'scratch mask'.")
+        data = np.asarray(layer.data)
+        rgb = bool(getattr(layer, "rgb", False))
+        if rgb:
+            data = data[..., :3]  # an RGBA mask: its alpha is not the damage
+        try:
+            mask = fit_mask(data, shape, channel_axis=-1 if rgb else None)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"'scratch mask' ({layer.name!r}): {exc}") from exc
+        drawn = data.shape[-3:-1] if rgb else data.shape[-2:]
+        if tuple(drawn) != tuple(shape[-2:]):
+            show_info(f"the mask {layer.name!r} is {drawn[0]}x{drawn[1]} pixels and the "
+                      f"frames {shape[-2]}x{shape[-1]}: it was resized (nearest neighbour) to "
+                      "fit them.")
+        return mask
+
     def _start(self):
         """Restore the masked pixels of the source, frame by frame."""
         layer, rgb = self._source()
-        name = self._mask_name(layer)
-        if name not in self._viewer.layers:
-            raise ValueError("there is no scratch mask yet: press 'New mask layer' and "
-                             "paint the damage, or 'Detect scratches'.")
-        mask = np.asarray(self._viewer.layers[name].data) != 0
+        shape = layer.data.shape[:-1] if rgb else layer.data.shape
+        mask = self._chosen_mask(shape)
         if not mask.any():
             show_info("the scratch mask is empty: paint the damaged pixels (or detect "
                       "them) first; nothing was changed.")
@@ -134,6 +209,7 @@ class InpaintingWidget(JobWidget):
         self._out_name = f"{layer.name} restored"
         self._frames = data.copy()  # the output, filled in frame by frame
         self._clip = data.ndim - rgb == 3
+        self._following = bool(self._follow.value)
         self.updates = 0
         job = iter_inpaint(data, mask, channel_axis=channel_axis,
                            temporal=bool(self._temporal.value))
@@ -153,7 +229,8 @@ class InpaintingWidget(JobWidget):
         index, frame = preview
         if self._clip:
             self._frames[index] = frame
-            self.record.set_step(0, index)
+            if self._following:  # only when asked: the viewer stays on the user's frame
+                self.record.set_step(0, index)
         else:
             self._frames = np.asarray(frame)
         self._put(self._frames)

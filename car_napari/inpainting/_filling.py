@@ -19,13 +19,14 @@ the mask are returned bit-identical.
 from __future__ import annotations
 
 import warnings
-from concurrent.futures import ThreadPoolExecutor, as_completed
+from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 
 import numpy as np
+from numba import njit
 
 from .._progress import Progress, drain, stage
 from ..model.neighbourhood import Context
-from ..model.recursive import default_prior, scan
+from ..model.recursive import RecursiveScan, default_prior
 from ._layout import MAX_COLOURS, read_layout
 
 __all__ = ["DEFAULT_INTERLEAVE", "EDGE_OUTLIER_LOGREL", "inpaint", "iter_inpaint",
@@ -42,6 +43,18 @@ EDGE_OUTLIER_LOGREL = -12.0
 _CROSS = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], bool)
 _DIRECTIONS = ("down", "up", "right", "left")  # from the top, bottom, left, right
 _CLEAN_FRAME_WORK = 0.01  # a frame without damage is only copied: its share of the work
+# Pixels of one scan per kernel call (a chunk of scan rows), with a record
+# after each: about 0.1-0.3 s of one core, so a Cancel stops a large frame
+# quickly. The scans resume exactly (model.recursive.RecursiveScan): the fill
+# does not depend on the chunks.
+SCAN_CHUNK_PIXELS = 1 << 18
+_SCANNERS = 2  # scans run at the same time (the machine's two cores)
+# The passes over a whole frame before and after the scans (statistics, the
+# scans' source, the side distances) go by bands of rows of BAND_PIXELS
+# pixels, bit for bit the whole-frame passes, with a record after every
+# PASS_RECORD_PIXELS pixels of them (a few hundredths of a second).
+BAND_PIXELS = 1 << 20
+PASS_RECORD_PIXELS = 1 << 20
 
 
 # --- validation ------------------------------------------------------------------
@@ -136,32 +149,243 @@ def line_offsets(depth, half_width=2):
 # --- one frame ----------------------------------------------------------------------
 
 
+@njit(cache=True, nogil=True)
+def _side_runs(mask, out):
+    """``out[i, j]``: 0 at a known pixel, else 1 more than at ``(i, j - 1)``;
+    a row that starts in a hole starts from its width."""
+    H, W = mask.shape
+    for i in range(H):
+        run = float(W)  # rows starting in a hole: far from any known pixel
+        for j in range(W):
+            run = run + 1.0 if mask[i, j] else 0.0
+            out[i, j] = run
+
+
 def _side_distance(mask):
     """Distance (pixels) from each pixel to the nearest known pixel to its
     left in the same row (1 for a missing pixel right of a known one); large
     where the row has no known pixel on that side."""
-    H, W = mask.shape
-    dist = np.zeros((H, W))
-    run = np.full(H, float(W))  # rows starting in a hole: far from any known pixel
-    for j in range(W):
-        run = np.where(mask[:, j], run + 1.0, 0.0)
-        dist[:, j] = run
+    dist = np.empty(mask.shape)
+    _side_runs(np.ascontiguousarray(mask), dist)  # one compiled layout
     return dist
 
 
-def _iter_fill_frame(frame, mask, previous, offsets, forgetting, interleave, prior, halo,
-                     message):
-    """Conditional-mean fill of one (H, W, C) float frame, a Progress record
-    after each of the four scans but the last; returns the filled values at
-    ``mask`` as (n_missing, C)."""
+class _Meter:
+    """Work done since the last record, in pixels of one pass over a frame:
+    :meth:`due` says when another record is due (every
+    :data:`PASS_RECORD_PIXELS`), so that a small frame makes no extra
+    records and a large one one every fraction of a second."""
+
+    def __init__(self, every=None):
+        self.every = PASS_RECORD_PIXELS if every is None else every
+        self.pending = 0
+
+    def due(self, pixels):
+        self.pending += pixels
+        if self.pending < self.every:
+            return False
+        self.pending = 0
+        return True
+
+
+def _bands(n, width):
+    """(start, stop) of bands of rows of about :data:`BAND_PIXELS` pixels
+    over ``n`` rows of ``width`` pixels."""
+    size = max(1, BAND_PIXELS // max(1, width))
+    return [(a, min(a + size, n)) for a in range(0, n, size)]
+
+
+def _as_float(array, out, meter, fraction, message):
+    """``array.astype(np.float64)`` into ``out``, by bands (exact: element
+    by element); a record (at ``fraction``) when due."""
+    H, W = array.shape[:2]
+    for a, b in _bands(H, W):
+        out[a:b] = array[a:b]
+        if meter.due((b - a) * W):
+            yield Progress("frames", fraction, message)
+    return out
+
+
+def _iter_known_statistics(frame, mask, meter, message):
+    """Per channel mean, variance, min and max of the known pixels of an
+    (H, W, C) frame, bit for bit what ``frame[~mask].mean(axis=0)``,
+    ``.var(axis=0)``, ``.min(axis=0)`` and ``.max(axis=0)`` give, by bands.
+
+    NumPy sums the rows of an (n, C >= 2) array one after another, so a sum
+    continued band by band is the same sum; an (n, 1) array is summed
+    pairwise, so a grey frame's variance is one call (a third of the data)."""
     H, W, C = frame.shape
-    known = ~mask
-    mean = frame[known].mean(axis=0)
-    var = frame[known].var(axis=0)
+    bands = _bands(H, W)
+    counts = [int(np.count_nonzero(~mask[a:b])) for a, b in bands]
+    n = sum(counts)
+    known = np.empty((n, C))
+    total = None  # C >= 2: the sum of the rows so far, continued band by band
+    at = 0
+    for (a, b), count in zip(bands, counts, strict=True):
+        part = known[at : at + count]
+        part[...] = frame[a:b][~mask[a:b]]
+        at += count
+        if C > 1 and count:
+            total = _continued_sum(total, part)
+        if meter.due((b - a) * W):
+            yield Progress("frames", 0.0, message)
+    if C == 1:
+        stats = known.mean(axis=0), known.var(axis=0), known.min(axis=0), known.max(axis=0)
+        if meter.due(H * W):
+            yield Progress("frames", 0.0, message)
+        return stats
+    mean = total / n  # numpy's mean: the sum over the count
+    centre = mean[None, :]  # as numpy's var subtracts it (keepdims)
+    squares = lo = hi = None
+    rows = max(1, BAND_PIXELS // C)
+    for r in range(0, n, rows):
+        part = known[r : r + rows]
+        deviation = part - centre
+        np.square(deviation, out=deviation)
+        squares = _continued_sum(squares, deviation)
+        part_lo, part_hi = part.min(axis=0), part.max(axis=0)
+        lo = part_lo if lo is None else np.minimum(lo, part_lo)
+        hi = part_hi if hi is None else np.maximum(hi, part_hi)
+        if meter.due(part.size):  # a band of values: a record each, on a large frame
+            yield Progress("frames", 0.0, message)
+    return mean, squares / n, lo, hi
+
+
+def _continued_sum(total, rows):
+    """The sum over axis 0 of the rows before (``total``, None for none) and
+    ``rows``, in order: numpy adds the rows of an (n, C >= 2) array one after
+    another, so this is, bit for bit, the sum of all of them at once."""
+    if total is None:
+        return np.add.reduce(rows, axis=0)
+    return np.add.reduce(np.concatenate([total[None, :], rows]), axis=0)
+
+
+def _reflect_edges(padded, pad):
+    """Fill the ``pad`` rows and columns around the interior of ``padded``
+    by reflection about the edge (``np.pad(..., mode="reflect")``: rows
+    first over the interior columns, then columns over all rows)."""
+    if not pad:
+        return
+    H = padded.shape[0] - 2 * pad
+    W = padded.shape[1] - 2 * pad
+    inner = slice(pad, pad + W)
+    padded[:pad, inner] = padded[2 * pad : pad : -1, inner]
+    padded[pad + H :, inner] = padded[pad + H - 2 : H - 2 : -1, inner]
+    padded[:, :pad] = padded[:, 2 * pad : pad : -1]
+    padded[:, pad + W :] = padded[:, pad + W - 2 : W - 2 : -1]
+
+
+def _iter_source(frame, previous, mean, mask, pad, meter, message):
+    """The scans' source: the centred frame (damaged values 0) and the
+    centred previous frame side by side on the channel axis, padded by
+    reflection; built by bands, bit for bit the whole-frame construction."""
+    H, W, C = frame.shape
+    channels = C if previous is None else 2 * C
+    source = np.empty((H + 2 * pad, W + 2 * pad, channels))
+    for a, b in _bands(H, W):
+        rows = source[pad + a : pad + b, pad : pad + W]
+        np.subtract(frame[a:b], mean, out=rows[..., :C])
+        if previous is not None:
+            np.subtract(previous[a:b], mean, out=rows[..., C:])
+        target = rows[..., :C]
+        target[mask[a:b]] = 0.0  # damaged values never enter (the previous frame is restored)
+        if meter.due((b - a) * W):
+            yield Progress("frames", 0.0, message)
+    _reflect_edges(source, pad)
+    return source
+
+
+def _iter_scans(source, codes, options, buffers, finish, meter, message):
+    """The four scans of a frame (:data:`_DIRECTIONS`), two at a time in
+    threads (the kernel releases the GIL), each in chunks of about
+    :data:`SCAN_CHUNK_PIXELS` pixels, a Progress record after every chunk but
+    the last. Each scan works on a copy of ``source`` (copied by bands into
+    one of the reused ``buffers``) and of ``codes``; ``finish(work)`` gives a
+    finished scan's result; returns the four results.
+
+    Closing the generator (a Cancel) waits only for the chunks running (a
+    fraction of a second each) and starts no other."""
+    height, width = source.shape[:2]
+    length = {"down": width, "up": width, "right": height, "left": height}  # pixels a row
+    chunk = {k: max(1, SCAN_CHUNK_PIXELS // length[k]) for k in _DIRECTIONS}
+    copy_bands = _bands(height, width)
+    total = 4 * height * width
+    while len(buffers) < _SCANNERS:
+        buffers.append(None)
+    for k, buffer in enumerate(buffers):
+        if buffer is None or buffer.shape != source.shape:
+            buffers[k] = np.empty_like(source)
+    free = list(buffers)
+    scans, results = {}, {}
+    waiting = list(_DIRECTIONS)
+    done_pixels = 0
+
+    def step(direction):
+        """In a thread: copy the next band of the source (returns its pixels
+        and 0 scan rows), or scan the next rows (0 and the rows)."""
+        state = scans[direction]
+        if state["copied"] < len(copy_bands):
+            a, b = copy_bands[state["copied"]]
+            state["work"][a:b] = source[a:b]
+            state["copied"] += 1
+            return (b - a) * width, 0
+        if state["scanner"] is None:
+            state["scanner"] = RecursiveScan(state["work"], direction=direction,
+                                             missing=codes.copy(), **options)
+        piece = state["scanner"].advance(chunk[direction])
+        return 0, piece.stop - piece.start
+
+    def submit(direction):
+        if direction not in scans:
+            scans[direction] = {"work": free.pop(), "copied": 0, "scanner": None}
+        running[pool.submit(step, direction)] = direction
+
+    with ThreadPoolExecutor(max_workers=_SCANNERS) as pool:
+        running = {}
+        try:
+            while waiting and len(running) < _SCANNERS:
+                submit(waiting.pop(0))
+            while running:
+                finished, _ = wait(running, return_when=FIRST_COMPLETED)
+                # in a fixed order: the records do not depend on the threads' timing
+                for future in sorted(finished, key=lambda f: _DIRECTIONS.index(running[f])):
+                    direction = running.pop(future)
+                    copied, rows = future.result()
+                    done_pixels += rows * length[direction]
+                    state = scans[direction]
+                    if state["scanner"] is not None and state["scanner"].done:
+                        results[direction] = finish(state["work"])
+                        free.append(scans.pop(direction)["work"])
+                        if waiting:
+                            submit(waiting.pop(0))
+                    else:
+                        submit(direction)
+                    if running and (rows or meter.due(copied)):
+                        yield Progress("frames", done_pixels / total,
+                                       f"{message}, scan {len(results)}/{len(_DIRECTIONS)}")
+        finally:
+            for future in running:
+                future.cancel()  # those not started yet; the running chunks end soon
+    return [results[k] for k in _DIRECTIONS]
+
+
+def _iter_fill_frame(frame, mask, previous, offsets, forgetting, interleave, prior, halo,
+                     message, buffers):
+    """Conditional-mean fill of one (H, W, C) float frame; returns the filled
+    values at ``mask`` as (n_missing, C).
+
+    A Progress record after each chunk of its four scans but the last (see
+    :func:`_iter_scans`), and, on a large frame, between the bands of the
+    passes before and after them. ``buffers`` are the scans' work arrays,
+    reused from frame to frame."""
+    H, W, C = frame.shape
+    meter = _Meter()
+    preparing = f"{message}, preparing"
+    mean, var, lo, hi = yield from _iter_known_statistics(frame, mask, meter, preparing)
     # fills stay within the known pixels' range: a chain of predictions
     # through a long hole (a full-height scratch seen by the vertical models)
     # can otherwise run away
-    fill_range = (frame[known].min(axis=0) - mean, frame[known].max(axis=0) - mean)
+    fill_range = (lo - mean, hi - mean)
     offsets = np.asarray(offsets, np.int64)
     taps = [(di, dj, c) for di, dj in offsets for c in range(C)]
     if previous is not None:  # 3.5D: the previous frame at r and at the same offsets
@@ -169,11 +393,7 @@ def _iter_fill_frame(frame, mask, previous, offsets, forgetting, interleave, pri
         taps += [(di, dj, C + c) for di, dj in offsets for c in range(C)]
     context = Context(np.array(taps, np.int64), np.arange(C))
     pad = max(max(context.reach[0]), max(context.reach[1]))
-    parts = [frame - mean] + ([] if previous is None else [previous - mean])
-    source = np.concatenate(parts, axis=2)
-    source[mask, :C] = 0.0  # damaged values never enter (the previous frame is restored)
-    source = np.ascontiguousarray(np.pad(source, ((pad, pad), (pad, pad), (0, 0)),
-                                          mode="reflect"))
+    source = yield from _iter_source(frame, previous, mean, mask, pad, meter, preparing)
     # the known pixels bordering the damage are suspect: soft-edged damage
     # (a blotch or dust whose fringe is below the mask's threshold) leaves a
     # halo there, and a one-line model copies it into the hole. Each scan
@@ -185,37 +405,31 @@ def _iter_fill_frame(frame, mask, previous, offsets, forgetting, interleave, pri
     if halo is not None:
         codes[ndimage.binary_dilation(mask, structure=_CROSS) & ~mask] = 2
     padded_codes = np.ascontiguousarray(np.pad(codes, pad, mode="reflect"))
-    pri = default_prior(var, context.n_regressors, True, C, prior)
+    options = dict(context=context, forgetting=forgetting, intercept=True,
+                   prior=default_prior(var, context.n_regressors, True, C, prior),
+                   outputs=(), fill_range=fill_range,
+                   suspect_logrel=-np.inf if halo is None else halo)
 
-    def fill(direction):
-        work = source.copy()
-        scan(work, context, direction=direction, forgetting=forgetting, intercept=True,
-             prior=pri, outputs=(), missing=padded_codes.copy(), fill_range=fill_range,
-             suspect_logrel=-np.inf if halo is None else halo)
+    def finish(work):
         out = work[pad:-pad, pad:-pad, :C] if pad else work[..., :C]
         return out[mask]
 
-    # the scans are independent (two at a time: the machine's cores); a yield
-    # after each lets a Cancel stop the frame between them
-    with ThreadPoolExecutor(max_workers=2) as pool:
-        futures = [pool.submit(fill, direction) for direction in _DIRECTIONS]
-        try:
-            for done, _ in enumerate(as_completed(futures), start=1):
-                if done < len(futures):
-                    yield Progress("frames", done / len(futures),
-                                   f"{message}, scan {done}/{len(futures)}")
-        finally:
-            for future in futures:
-                future.cancel()  # those not started yet, when the job is closed
-        filled = [future.result() for future in futures]
+    filled = yield from _iter_scans(source, padded_codes, options, buffers, finish, meter,
+                                    message)
+    del source
     # exponential interleaving (section 14.7): each model's weight decays with the
     # distance from the known data on its side
-    distance = [
-        _side_distance(mask.T).T[mask],  # from the top
-        _side_distance(mask[::-1].T).T[::-1][mask],  # from the bottom
-        _side_distance(mask)[mask],  # from the left
-        _side_distance(mask[:, ::-1])[:, ::-1][mask],  # from the right
-    ]
+    sides = (
+        lambda: _side_distance(mask.T).T[mask],  # from the top
+        lambda: _side_distance(mask[::-1].T).T[::-1][mask],  # from the bottom
+        lambda: _side_distance(mask)[mask],  # from the left
+        lambda: _side_distance(mask[:, ::-1])[:, ::-1][mask],  # from the right
+    )
+    distance = []
+    for side in sides:
+        distance.append(side())
+        if meter.due(H * W):
+            yield Progress("frames", 1.0, f"{message}, combining")
     nearest = np.minimum.reduce(distance)  # exp of differences only: no underflow
     weights = [np.exp(-(d - nearest) / interleave)[:, None] for d in distance]
     values = sum(w * f for w, f in zip(weights, filled, strict=True)) / sum(weights)
@@ -234,8 +448,12 @@ def iter_inpaint(image, mask, *, temporal=True, neighbourhood=1, forgetting=0.99
     """Fill damaged pixels, as a job: Progress records, then the result.
 
     The generator form of :func:`inpaint`, with the same parameters and
-    result. Each frame is four scans; a record follows each scan, and the
-    last record of frame ``t`` carries that frame restored, for live display.
+    result. Each frame is four scans, run two at a time in chunks of rows
+    (about :data:`SCAN_CHUNK_PIXELS` pixels each, a fraction of a second) with
+    a record after each chunk, so that closing the job (a Cancel) stops it
+    quickly even on a large frame; the last record of frame ``t`` carries
+    that frame restored, for live display. The result does not depend on
+    the chunks.
 
     Parameters
     ----------
@@ -269,8 +487,11 @@ def iter_inpaint(image, mask, *, temporal=True, neighbourhood=1, forgetting=0.99
         Stage ``"frames"``, with a fraction proportional to the damaged
         frames done. After frame ``t`` of ``T``: message ``"frame t+1/T"`` and
         preview ``(t, restored_frame)``, the frame in the layout of the
-        input's frames (a read-only view of the result). Between its scans:
-        message ``"frame t+1/T, scan k/4"``, no preview.
+        input's frames (a read-only view of the result). Between chunks of
+        its scans: message ``"frame t+1/T, scan k/4"`` (``k`` scans done), no
+        preview; on a large frame also between the bands of the passes
+        before and after the scans: ``"frame t+1/T, preparing"`` and
+        ``"frame t+1/T, combining"``.
 
     Raises
     ------
@@ -323,17 +544,25 @@ def iter_inpaint(image, mask, *, temporal=True, neighbourhood=1, forgetting=0.99
     work = np.cumsum([1.0 if d else _CLEAN_FRAME_WORK for d in damaged])
     work /= work[-1]
     previous = None
+    frame = np.empty((H, W, C))  # the frame being restored, as float
+    buffers = []  # the scans' work arrays, reused from frame to frame
     for t in range(T):
         message = f"frame {t + 1}/{T}"
+        meter = _Meter()
         if damaged[t]:
             frame_mask = np.asarray(masks[t])
-            frame = clip[t].astype(np.float64)
+            yield from _as_float(clip[t], frame, meter, work[t - 1] if t else 0.0,
+                                 f"{message}, preparing")
             fill = _iter_fill_frame(frame, frame_mask, previous if temporal else None,
                                     offsets, float(forgetting), float(interleave), 1e-6,
-                                    None if halo is None else float(halo), message)
+                                    None if halo is None else float(halo), message, buffers)
             values = yield from stage(fill, work[t - 1] if t else 0.0, work[t])
             out[t][frame_mask] = _to_dtype(values, clip.dtype)
-        previous = out[t].astype(np.float64)
+        if temporal and t + 1 < T:  # the next frame's context: this one, restored
+            if previous is None:
+                previous = np.empty((H, W, C))
+            yield from _as_float(out[t], previous, meter, float(work[t]),
+                                 f"{message}, preparing")
         restored_frame = layout.frame_to_input(out[t]).view()
         restored_frame.flags.writeable = False
         yield Progress("frames", float(work[t]), message, (t, restored_frame))

@@ -91,3 +91,88 @@ def _normalised_axis(channel_axis, ndim):
             f"channel_axis {channel_axis} is out of range for a {ndim}-D image; pass an axis "
             f"from {-ndim} to {ndim - 1}, or None for grey.")
     return int(channel_axis) % ndim
+
+
+def fit_mask(mask, shape, *, channel_axis=None):
+    """A damage mask fitted to a frame or a clip: True where damaged,
+    resized by nearest neighbour when its size differs.
+
+    A mask drawn or saved at another resolution (a scan's ``mask.png``, a
+    Labels layer painted on a preview) is mapped onto the frame's pixel grid:
+    each frame pixel takes the mask pixel under its centre. Non-zero is
+    damaged; in a colour mask, a pixel is damaged when any channel is
+    non-zero.
+
+    Parameters
+    ----------
+    mask : array_like
+        Boolean or numeric: ``(h, w)`` for every frame, or ``(t, h, w)``
+        one per frame of a clip of ``t`` frames; with ``channel_axis``, a
+        colour mask with that channel axis (``(h, w, C)`` or
+        ``(t, h, w, C)`` for ``channel_axis=-1``).
+    shape : tuple of int
+        The frame ``(H, W)`` or the clip ``(T, H, W)`` the mask is for.
+    channel_axis : int or None, optional
+        The mask's colour axis; None (the default) for a grey or label mask.
+
+    Returns
+    -------
+    ndarray of bool
+        ``(H, W)`` for a mask of one frame (it applies to every frame of a
+        clip), ``(T, H, W)`` for a mask per frame; a new array.
+
+    Raises
+    ------
+    TypeError
+        If the mask is not boolean or numeric.
+    ValueError
+        If ``shape`` is not ``(H, W)`` or ``(T, H, W)`` of positive sizes,
+        the mask is empty or has another number of axes, or a mask per
+        frame has another number of frames than the clip.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> small = np.array([[0, 255], [0, 0]], np.uint8)
+    >>> fit_mask(small, (4, 4)).astype(int)
+    array([[0, 0, 1, 1],
+           [0, 0, 1, 1],
+           [0, 0, 0, 0],
+           [0, 0, 0, 0]])
+    >>> fit_mask(np.ones((2, 3, 3), bool), (2, 6, 6)).shape
+    (2, 6, 6)
+    """
+    shape = tuple(int(n) for n in shape)
+    if len(shape) not in (2, 3) or min(shape) < 1:
+        raise ValueError(f"shape must be a frame (H, W) or a clip (T, H, W) of positive "
+                         f"sizes; got {shape}.")
+    m = np.asarray(mask)
+    if m.dtype.kind not in "biuf":
+        raise TypeError(f"mask must be boolean or numeric (non-zero = damaged); got "
+                        f"{m.dtype}.")
+    if m.size == 0:
+        raise ValueError(f"mask is empty (shape {m.shape}).")
+    damaged = m != 0
+    if channel_axis is not None:
+        if m.ndim not in (3, 4):
+            raise ValueError(f"a colour mask is (h, w, C) or (t, h, w, C); got shape "
+                             f"{m.shape}.")
+        damaged = damaged.any(axis=_normalised_axis(channel_axis, m.ndim))
+    if damaged.ndim not in (2, 3):
+        raise ValueError(f"mask must be (h, w) or (t, h, w); got shape {damaged.shape}.")
+    frames = shape[0] if len(shape) == 3 else 1
+    if damaged.ndim == 3:
+        if damaged.shape[0] != frames:
+            what = f"a clip of {frames} frames" if len(shape) == 3 else "a single frame"
+            raise ValueError(f"mask has {damaged.shape[0]} frames, for {what}: draw one "
+                             "(h, w) mask for all frames or one per frame.")
+        if len(shape) == 2:
+            damaged = damaged[0]
+    H, W = shape[-2:]
+    h, w = damaged.shape[-2:]
+    if (h, w) == (H, W):
+        return np.array(damaged, copy=True)
+    # the mask pixel under each frame pixel's centre: floor((i + 1/2) h / H), exactly
+    rows = (2 * np.arange(H) + 1) * h // (2 * H)
+    cols = (2 * np.arange(W) + 1) * w // (2 * W)
+    return damaged[..., rows[:, None], cols[None, :]]
