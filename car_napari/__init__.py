@@ -10,7 +10,7 @@ imports neither Qt nor napari; the napari dock widgets live in
 
 from ._progress import Progress, drain
 from ._threads import limited_blas
-from .inpainting import detect_scratches, inpaint, iter_detect_scratches, iter_inpaint
+from .inpainting import detect_scratches, fit_mask, inpaint, iter_detect_scratches, iter_inpaint
 from .mammography import (
     MammogramROIs,
     detect_breast,
@@ -28,7 +28,9 @@ from .model import (
     fit_car,
     illumination_invariants,
     iter_fit_car,
+    iter_local_parameters,
     iter_select_support,
+    iter_synthesize,
     local_parameters,
     predict,
     select_support,
@@ -77,7 +79,9 @@ __all__ = [
     "fit_car",
     "illumination_invariants",
     "iter_fit_car",
+    "iter_local_parameters",
     "iter_select_support",
+    "iter_synthesize",
     "local_parameters",
     "predict",
     "select_support",
@@ -106,6 +110,7 @@ __all__ = [
     "restore_multichannel",
     # scratches and blotches
     "detect_scratches",
+    "fit_mask",
     "inpaint",
     "iter_detect_scratches",
     "iter_inpaint",
