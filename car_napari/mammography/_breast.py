@@ -8,6 +8,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .._progress import Progress, drain
 from ._images import _as_grey, _block_mean, _grey01, _upsample_mask
 
 __all__ = ["BreastDetection", "detect_breast"]
@@ -72,6 +73,18 @@ def chest_wall_side(mask):
     return "right" if right > left else "left"
 
 
+def _theil_sen(y, x):
+    """Theil-Sen line ``y = a + b x``: the slope and intercept of
+    ``scipy.stats.theilslopes(y, x)`` (its 'separate' intercept), without
+    importing scipy.stats (seconds, holding the GIL, on a job's first run)."""
+    dx = x[:, np.newaxis] - x
+    dy = y[:, np.newaxis] - y
+    slopes = dy[dx > 0] / dx[dx > 0]
+    slopes.sort()
+    b = np.median(slopes)
+    return b, np.median(y) - b * np.median(x)
+
+
 def _pectoral(grey, breast):
     """Pectoral muscle mask on a breast whose chest wall is on the LEFT.
 
@@ -95,7 +108,6 @@ def _pectoral(grey, breast):
        band just right of the line, and it covers 1 % to 35 % of the breast.
     """
     from scipy import ndimage
-    from scipy.stats import theilslopes
 
     h, w = grey.shape
     none = np.zeros_like(breast)
@@ -145,7 +157,7 @@ def _pectoral(grey, breast):
     if len(rr) < max(5, height // 20):
         return none
     rr, ext = np.array(rr, float), np.array(ext, float)
-    b, a, _, _ = theilslopes(ext, rr)
+    b, a = _theil_sen(ext, rr)
     if b > -0.1:
         return none
     R, C = np.mgrid[0:h, 0:w]
@@ -157,6 +169,23 @@ def _pectoral(grey, breast):
     if band.sum() < 10 or grey[pect].mean() <= grey[band].mean():
         return none
     return pect
+
+
+def _background(grey):
+    """The working-resolution factor, the smoothed image and the background
+    threshold of a grey mammogram on [0, 1] (steps 1-2 of
+    :func:`detect_breast`)."""
+    from scipy import ndimage
+
+    factor = max(1, round(max(grey.shape) / _WORK_SIDE))
+    smooth = ndimage.gaussian_filter(_block_mean(grey, factor), 1.0)
+    b, p99 = np.percentile(smooth, [5, 99])
+    if p99 <= b:
+        raise ValueError(
+            "image has almost no contrast (5th and 99th percentiles are equal): "
+            "no breast found. Pass a mammogram with visible tissue."
+        )
+    return factor, smooth, float(b + 0.08 * (p99 - b))
 
 
 def detect_breast(image, *, pectoral=True, return_details=False, channel_axis=-1):
@@ -215,20 +244,18 @@ def detect_breast(image, *, pectoral=True, return_details=False, channel_axis=-1
     >>> bool(mask[64, 100]), bool(mask[64, 10])
     (True, False)
     """
+    grey = _grey01(_as_grey(image, channel_axis))
+    return drain(_iter_detect(grey, pectoral=pectoral, return_details=return_details))
+
+
+def _iter_detect(grey, *, pectoral=True, return_details=False):
+    """:func:`detect_breast` of a grey image on [0, 1] (:func:`_grey01`), as a
+    job: "breast" records between the steps that scan the full image."""
     from scipy import ndimage
 
-    grey = _grey01(_as_grey(image, channel_axis))
     H, W = grey.shape
-    factor = max(1, round(max(H, W) / _WORK_SIDE))
-    small = _block_mean(grey, factor)
-    smooth = ndimage.gaussian_filter(small, 1.0)
-    b, p99 = np.percentile(smooth, [5, 99])
-    if p99 <= b:
-        raise ValueError(
-            "image has almost no contrast (5th and 99th percentiles are equal): "
-            "no breast found. Pass a mammogram with visible tissue."
-        )
-    t = b + 0.08 * (p99 - b)
+    factor, smooth, t = _background(grey)
+    yield Progress("breast", 0.4, "background level")
     mask = smooth > t
     mask = ndimage.binary_opening(mask, iterations=3)
     mask = _largest_component(mask)
@@ -250,10 +277,11 @@ def detect_breast(image, *, pectoral=True, return_details=False, channel_axis=-1
         mask = mask & ~pect
         mask = _largest_component(mask)
     full = _upsample_mask(mask, (H, W), factor)
-    if return_details:
-        return BreastDetection(full, {
-            "side": side,
-            "pectoral": _upsample_mask(pect, (H, W), factor),
-            "threshold": float(t),
-        })
-    return full
+    if not return_details:
+        return full
+    yield Progress("breast", 0.8, "pectoral muscle")
+    return BreastDetection(full, {
+        "side": side,
+        "pectoral": _upsample_mask(pect, (H, W), factor),
+        "threshold": float(t),
+    })

@@ -5,7 +5,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._progress import Progress
 from .._validation import as_channel_last_float
+
+# Pixels converted, averaged or upsampled between two records of a job, so
+# that a Cancel is seen soon on a 4096x4096 mammogram.
+_STRIP = 1 << 20
 
 
 def _as_grey(image, channel_axis):
@@ -28,16 +33,91 @@ def _as_grey(image, channel_axis):
     return rgb2gray(arr[..., :3])
 
 
+# A mammogram whose every value lies within this many grey levels of an
+# 8-bit image's (k / 255) is that 8-bit image carried in floats (a PNG read
+# as float, a DICOM made from one, float32 rounding, noise of 1e-4): it is
+# read as the 8-bit image, so that such differences, which carry no
+# information, cannot change the segmentation (whose EM and greedy merging
+# amplify any difference) and so the regions.
+_SNAP_LEVELS = 0.1
+
+
+def _off_grid(data):
+    """The largest distance of a value of ``data`` from the 8-bit grid k / 255,
+    in grey levels (strips of rows: no full-size temporaries)."""
+    worst = 0.0
+    rows = max(1, _STRIP // max(1, data.shape[1]))
+    for r0 in range(0, data.shape[0], rows):
+        levels = data[r0 : r0 + rows] * 255.0
+        worst = max(worst, float(np.abs(levels - np.round(levels)).max()))
+        if worst > _SNAP_LEVELS:
+            break
+    return worst
+
+
+def _snap(data, r0=0, r1=None):
+    """Rows ``r0:r1`` of ``data`` onto the 8-bit grid, in place."""
+    part = data[r0:r1]
+    np.round(part * 255.0, out=part)
+    part /= 255.0
+
+
+def _exact(arr):
+    """True for dtypes whose values are already on the 8-bit grid or need no snap."""
+    return arr.dtype in (np.uint8, np.bool_)
+
+
 def _grey01(image, name="image"):
-    """(H, W) float64 grey image scaled like img_as_float; clear errors."""
+    """(H, W) float64 grey image scaled like img_as_float (an 8-bit image
+    carried in floats is read as the 8-bit image, :data:`_SNAP_LEVELS`);
+    clear errors."""
     data = as_channel_last_float(image, channel_axis=None, name=name)[..., 0]
+    _check_contrast(data, name)
+    if not _exact(np.asarray(image)) and _off_grid(data) <= _SNAP_LEVELS:
+        _snap(data)
+    return data
+
+
+def _iter_grey(image, channel_axis, name="mammogram"):
+    """``_grey01(_as_grey(image, channel_axis), name)`` as a job: a large
+    image is converted in strips of rows with a "reading" record after each
+    (the same values; a bad image gets the same error)."""
+    arr = np.asarray(image) if image is not None else None
+    colour = arr is not None and channel_axis is not None and arr.ndim == 3
+    plain = (arr is None or arr.dtype.kind not in "biuf" or arr.ndim not in (2, 3)
+             or (arr.ndim == 3 and not colour))
+    if not plain and colour:
+        arr = np.moveaxis(arr, channel_axis, -1)
+    if (plain or arr.shape[0] * arr.shape[1] <= _STRIP
+            or (colour and arr.shape[-1] not in (1, 3, 4))):
+        return _grey01(_as_grey(image, channel_axis), name=name)
+    H, W = arr.shape[:2]
+    rows = max(1, _STRIP // W)
+    out = np.empty((H, W))
+    for r0 in range(0, H, rows):
+        part = arr[r0 : r0 + rows]
+        try:
+            part = _as_grey(part, -1 if colour else None)
+            out[r0 : r0 + rows] = as_channel_last_float(part, channel_axis=None, name=name)[..., 0]
+        except (ValueError, TypeError):
+            return _grey01(_as_grey(image, channel_axis), name=name)  # the whole image's error
+        r1 = min(r0 + rows, H)
+        yield Progress("reading", 0.8 * r1 / H, f"rows {r1}/{H}")
+    _check_contrast(out, name)
+    if not (_exact(arr) and not colour) and _off_grid(out) <= _SNAP_LEVELS:
+        for r0 in range(0, H, rows):
+            _snap(out, r0, r0 + rows)
+            yield Progress("reading", 0.8 + 0.2 * min(r0 + rows, H) / H, "8-bit grey levels")
+    return out
+
+
+def _check_contrast(data, name):
     lo, hi = float(data.min()), float(data.max())
     if hi <= lo:
         raise ValueError(
             f"{name} is constant (every pixel is {lo:g}): there is no breast to find. "
             "Pass a mammogram with visible tissue."
         )
-    return data
 
 
 def _block_mean(data, factor):

@@ -8,6 +8,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .._progress import Progress, drain
 from ._images import _as_grey, _block_mean, _grey01, _upsample_mask
 
 __all__ = [
@@ -43,6 +44,10 @@ MASS_RADIUS_RANGE = (20.0, 130.0)
 # ``SPLIT_DELTA`` (grey / 255) form the sub-regions.
 SPLIT_SIGMAS = (16.0, 64.0)
 SPLIT_DELTA = 0.01
+# Candidates of one finding whose scores are within this fraction of the
+# finding's score are equally good descriptions of it: the region is their
+# union (:func:`_select`), so a near tie in the ranking does not decide it.
+_TIE = 0.1
 _ANALYSIS_SIDE = 256  # region analysis resolution (longest side, pixels)
 
 TABLE_COLUMNS = ("label", "area", "mean_grey", "contrast", "bbox_min_row", "bbox_min_col",
@@ -126,6 +131,43 @@ def _candidates(grey, labellings, breast, *, split, sigmas, delta, min_area):
     return out
 
 
+def _select(rows, max_regions):
+    """The findings among scored candidates: (score, contrast, mask) best first.
+
+    ``rows`` are ``(score, contrast, cc, i, (r0, r1, c0, c1), row, col)``,
+    sorted best first: candidate ``cc == i`` inside the box, its centroid.
+    A candidate is the same finding as a kept one when its centroid lies in
+    it or it holds the finding's centroid. Within :data:`_TIE` of that
+    finding's score it joins it (the finding's mask grows to the union, so
+    which of two nearly equal candidates ranks first does not change the
+    region); otherwise it is skipped. Once ``max_regions`` findings are
+    kept, only near ties may still join.
+    """
+    findings = []  # [score, contrast, mask on the analysis grid, centroid row, col]
+    for score, contrast, cc, i, (r0, r1, c0, c1), cr, ccol in rows:
+        full = max_regions is not None and len(findings) >= int(max_regions)
+        if full and score < (1.0 - _TIE) * findings[-1][0]:
+            break
+        box = (slice(r0, r1), slice(c0, c1))
+        inside = cc[box] == i
+        same = None
+        for fnd in findings:
+            if fnd[2][cr, ccol] or (r0 <= fnd[3] < r1 and c0 <= fnd[4] < c1
+                                    and cc[fnd[3], fnd[4]] == i):
+                same = fnd
+                break
+        if same is not None:
+            if score >= (1.0 - _TIE) * same[0]:
+                same[2][box] |= inside
+            continue
+        if full:
+            continue
+        mask = np.zeros(cc.shape, bool)
+        mask[box] = inside
+        findings.append([score, contrast, mask, cr, ccol])
+    return [(fnd[0], fnd[1], fnd[2]) for fnd in findings]
+
+
 def filter_regions(image, segments, *, reference=None, tolerance=None, max_regions=None,
                    min_area=None, split=True, radius_range=MASS_RADIUS_RANGE,
                    split_sigmas=SPLIT_SIGMAS, split_delta=SPLIT_DELTA, channel_axis=-1):
@@ -152,9 +194,13 @@ def filter_regions(image, segments, *, reference=None, tolerance=None, max_regio
     are dropped) times ``1 - |mean - reference| / tolerance`` times the
     compactness (fraction of the candidate inside the equal-area disc at
     its centroid) times a log-normal size prior on the equivalent radius.
-    Candidates are taken best first, skipping any whose centroid lies in an
-    already kept one or that holds a kept one's centroid; with
-    ``max_regions`` only that many are kept. With ``split=False,
+    Candidates are taken best first. One whose centroid lies in an already
+    kept region or that holds a kept region's centroid is the same finding:
+    it joins that region (the region grows to their union) when its score
+    is within 10 % of the region's, so that which of two nearly equal
+    candidates ranks first does not decide the region, and is skipped
+    otherwise. With
+    ``max_regions`` only that many regions are kept. With ``split=False,
     radius_range=None`` and a single labelling this is close to the former
     behaviour (plus the opening and the compactness factor).
 
@@ -162,7 +208,8 @@ def filter_regions(image, segments, *, reference=None, tolerance=None, max_regio
     ----------
     image : (H, W) array_like
         Grey mammogram (bright = dense), any numeric dtype; an RGB(A) export
-        of one, with ``channel_axis``, is reduced to its luminance.
+        of one, with ``channel_axis``, is reduced to its luminance. One within
+        a tenth of a grey level of an 8-bit image is read as that image.
     segments : (H, W) array_like of int, or a sequence of them
         Segmentation(s) of the breast, 0 outside it (the first one's non-zero
         pixels are the breast).
@@ -220,18 +267,57 @@ def filter_regions(image, segments, *, reference=None, tolerance=None, max_regio
     >>> int(rois.labels.max()), rois.table["area"].tolist()
     (1, [1596])
     """
-    from scipy import ndimage
+    _check_filter_options(reference, tolerance, max_regions)
+    grey_full = _grey01(_as_grey(image, channel_axis), name="mammogram")
+    return drain(_iter_filter(
+        grey_full, segments, reference=reference, tolerance=tolerance,
+        max_regions=max_regions, min_area=min_area, split=split, radius_range=radius_range,
+        split_sigmas=split_sigmas, split_delta=split_delta))
 
+
+def _check_filter_options(reference, tolerance, max_regions):
     reference = REFERENCE_GREY if reference is None else float(reference)
     tolerance = REFERENCE_TOLERANCE if tolerance is None else float(tolerance)
     if tolerance <= 0:
         raise ValueError(f"tolerance must be positive; got {tolerance}.")
     if max_regions is not None and (int(max_regions) != max_regions or max_regions < 1):
         raise ValueError(f"max_regions must be a positive int or None; got {max_regions!r}.")
-    grey_full = _grey01(_as_grey(image, channel_axis), name="mammogram")
+    return reference, tolerance
+
+
+def _upsample_box(mask, shape, factor):
+    """``_upsample_mask(mask, shape, factor)`` inside the bounding box of the
+    mask only: (rows, cols) slices of the full image and the mask there."""
+    h, w = mask.shape
+    rows = np.flatnonzero(mask.any(axis=1))
+    cols = np.flatnonzero(mask.any(axis=0))
+    if rows.size == 0:
+        return (slice(0, 0), slice(0, 0)), np.zeros((0, 0), bool)
+    a, b, c, d = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
+    # the last row and column of the grid also cover the image's uncovered edge
+    R0, R1 = min(a * factor, shape[0]), (b * factor if b < h else shape[0])
+    C0, C1 = min(c * factor, shape[1]), (d * factor if d < w else shape[1])
+    R1, C1 = max(R0, min(R1, shape[0])), max(C0, min(C1, shape[1]))
+    sub = mask[a:b, c:d]
+    if R0 == R1 or C0 == C1:
+        return (slice(R0, R1), slice(C0, C1)), np.zeros((R1 - R0, C1 - C0), bool)
+    return (slice(R0, R1), slice(C0, C1)), _upsample_mask(sub, (R1 - R0, C1 - C0), factor)
+
+
+def _iter_filter(grey_full, segments, *, reference=None, tolerance=None, max_regions=None,
+                 min_area=None, split=True, radius_range=MASS_RADIUS_RANGE,
+                 split_sigmas=SPLIT_SIGMAS, split_delta=SPLIT_DELTA):
+    """:func:`filter_regions` of a grey image on [0, 1] as a job: "regions"
+    records between the steps (a Cancel is seen soon on a large image)."""
+    from scipy import ndimage
+
+    reference, tolerance = _check_filter_options(reference, tolerance, max_regions)
     H, W = grey_full.shape
-    labellings = [np.asarray(segments)] if np.ndim(segments) == 2 else [
-        np.asarray(s) for s in segments]
+    if isinstance(segments, (list, tuple)) and segments and np.ndim(segments[0]) == 2:
+        labellings = [np.asarray(s) for s in segments]  # (np.ndim(segments) copies them all)
+    else:
+        segments = np.asarray(segments)
+        labellings = [segments] if segments.ndim == 2 else list(segments)
     if not labellings or any(s.shape != grey_full.shape for s in labellings):
         raise ValueError(f"segments {[s.shape for s in labellings]} must match the image "
                          f"{grey_full.shape}.")
@@ -241,13 +327,17 @@ def filter_regions(image, segments, *, reference=None, tolerance=None, max_regio
     grey = _block_mean(grey_full, f)
     h, w = grey.shape
     small = [s[f // 2 :: f, f // 2 :: f][:h, :w] for s in labellings]
-    breast_full = labellings[0] > 0
     breast = small[0] > 0
+    yield Progress("regions", 0.1, "candidate regions")
     cands = _candidates(grey, small, breast, split=split,
                         sigmas=[s / f for s in split_sigmas], delta=split_delta,
                         min_area=max(4, min_area // (f * f)))
+    yield Progress("regions", 0.3, f"scoring {len(cands)} candidates")
     rows = []
-    for cc, i, sl, a in cands:
+    for n, (cc, i, sl, a) in enumerate(cands):
+        if n % 64 == 63:
+            yield Progress("regions", 0.3 + 0.3 * n / len(cands),
+                           f"scoring candidates {n + 1}/{len(cands)}")
         req = np.sqrt(a / np.pi)
         width = max(2, round(0.5 * req))
         r0, r1 = max(0, sl[0].start - width), min(h, sl[0].stop + width)
@@ -273,37 +363,27 @@ def filter_regions(image, segments, *, reference=None, tolerance=None, max_regio
         rows.append((score, contrast, cc, i, (r0, r1, c0, c1), int(round(cr)) + r0,
                      int(round(ccol)) + c0))
     rows.sort(key=lambda t: -t[0])
-    kept = []
-    for t in rows:
-        _, _, cc, i, (r0, r1, c0, c1), cr, ccol = t
-        clash = False
-        for k in kept:
-            kc, ki, (k0, k1, kc0, kc1) = k[2], k[3], k[4]
-            if k0 <= cr < k1 and kc0 <= ccol < kc1 and kc[cr, ccol] == ki:
-                clash = True
-                break
-            if r0 <= k[5] < r1 and c0 <= k[6] < c1 and cc[k[5], k[6]] == i:
-                clash = True
-                break
-        if clash:
-            continue
-        kept.append(t)
-        if max_regions is not None and len(kept) >= int(max_regions):
-            break
-    # paint at full resolution, best first; measure there
+    findings = _select(rows, max_regions)
+    yield Progress("regions", 0.6, f"{len(findings)} regions at full resolution")
+    # paint at full resolution, best first; measure there (inside each
+    # region's box: the same pixels as on the whole image)
     labels = np.zeros((H, W), np.int32)
+    first = labellings[0]
     out_rows = []
-    for t in kept:
-        score, contrast, cc, i = t[:4]
-        m = _upsample_mask(cc == i, (H, W), f) & breast_full & (labels == 0)
+    for n, (score, contrast, mask) in enumerate(findings):
+        box, sub = _upsample_box(mask, (H, W), f)
+        m = sub & (first[box] > 0) & (labels[box] == 0)
+        yield Progress("regions", 0.6 + 0.4 * (n + 1) / max(len(findings), 1),
+                       f"region {n + 1}/{len(findings)}")
         if not m.any():
             continue
-        mean = float(grey_full[m].mean())
+        mean = float(grey_full[box][m].mean())
         if abs(mean - reference) > tolerance:
             continue
         new = len(out_rows) + 1
-        labels[m] = new
+        labels[box][m] = new
         rr, cl = np.nonzero(m)
+        rr, cl = rr + box[0].start, cl + box[1].start
         out_rows.append((new, int(m.sum()), mean, float(contrast), int(rr.min()), int(cl.min()),
                          int(rr.max()) + 1, int(cl.max()) + 1, float(rr.mean()), float(cl.mean()),
                          float(score)))
@@ -314,13 +394,19 @@ def filter_regions(image, segments, *, reference=None, tolerance=None, max_regio
     return MammogramROIs(labels, table)
 
 
-def region_outlines(labels):
+def region_outlines(labels, *, tolerance=0.0):
     """Outline polygons of the regions of a label image.
 
     Parameters
     ----------
     labels : (H, W) array_like of int
         Regions 1..n (e.g. :func:`detect_mammogram_rois`'s labels), 0 elsewhere.
+    tolerance : float, optional
+        Simplify each outline (Douglas-Peucker,
+        ``skimage.measure.approximate_polygon``) so that it stays within this
+        many pixels of the contour; 0 keeps every vertex. A viewer draws a
+        polygon of a few hundred vertices much faster than one of thousands
+        (a 4096x4096 region's staircase contour).
 
     Returns
     -------
@@ -328,6 +414,11 @@ def region_outlines(labels):
         One polygon of (row, col) vertices per region present, in label order:
         the longest contour of the region, on pixel centres, closed at the
         image edge; ready for a napari Shapes layer.
+
+    Raises
+    ------
+    ValueError
+        If ``tolerance`` is negative.
 
     Examples
     --------
@@ -338,10 +429,15 @@ def region_outlines(labels):
     >>> (outline,) = region_outlines(labels)
     >>> outline.min(axis=0).tolist(), outline.max(axis=0).tolist()
     ([1.5, 2.5], [4.5, 5.5])
+    >>> (simple,) = region_outlines(labels, tolerance=1.0)
+    >>> len(outline), len(simple)
+    (13, 5)
     """
     from scipy import ndimage
-    from skimage.measure import find_contours
+    from skimage.measure import approximate_polygon, find_contours
 
+    if not tolerance >= 0:
+        raise ValueError(f"tolerance must be >= 0 pixels; got {tolerance}.")
     labels = np.asarray(labels)
     outlines = []
     for i, sl in enumerate(ndimage.find_objects(labels), start=1):
@@ -350,5 +446,7 @@ def region_outlines(labels):
         # one pixel of padding so regions touching the crop edge close
         inside = np.pad(labels[sl] == i, 1).astype(np.float32)
         contour = max(find_contours(inside, 0.5), key=len)
+        if tolerance > 0:
+            contour = approximate_polygon(contour, tolerance)
         outlines.append(contour + np.array([sl[0].start - 1, sl[1].start - 1]))
     return outlines

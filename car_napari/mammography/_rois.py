@@ -19,9 +19,9 @@ import numpy as np
 from .._docstrings import shared_parameters
 from .._progress import Progress, drain, stage
 from ..segmentation import iter_segment, pseudo_colour
-from ._breast import detect_breast
-from ._images import _as_grey, _block_mean, _grey01
-from ._regions import DEFAULT_MAX_REGIONS, filter_regions
+from ._breast import _iter_detect
+from ._images import _STRIP, _block_mean, _iter_grey
+from ._regions import DEFAULT_MAX_REGIONS, _check_filter_options, _iter_filter
 
 __all__ = [
     "DEFAULT_POOL_SEGMENTS",
@@ -36,6 +36,26 @@ __all__ = [
 # states with these numbers of segments (one CAR segmentation, KL merging
 # (14.36), section 14.4, docs/segmentation.md).
 DEFAULT_POOL_SEGMENTS = (8, 10, 12)
+
+
+def _work(n_pixels, n_outputs):
+    """Relative work (seconds on 2 cores, measured on mdb001 at 1024x1024 and
+    upsampled to 4096x4096) of the job's parts, so that the progress fraction
+    follows the work: the full-resolution steps grow with the image, the
+    segmentation (at ``work_side``) does not."""
+    m = n_pixels / 1e6
+    return {"reading": 0.04 * m, "breast": 0.03 * m, "segmentation": 8.0,
+            "pooling": 0.008 * m * n_outputs, "regions": 0.3 + 0.01 * m}
+
+
+def _spans(work, parts):
+    """Consecutive [start, stop) fractions of ``parts`` in proportion to ``work``."""
+    total = sum(work[p] for p in parts)
+    out, at = {}, 0.0
+    for p in parts:
+        out[p] = (at, at + work[p] / total)
+        at = out[p][1]
+    return out
 
 
 class BreastSegmentation(NamedTuple):
@@ -140,9 +160,14 @@ def iter_segment_breast(image, *, breast=None, n_segments=None, levels=3, neighb
     Yields
     ------
     Progress
-        Stage "breast", then the segmentation's records ("features",
-        "mixture", "merging"); their previews are the labels of the
-        working-resolution crop of the breast, not of the mammogram.
+        Stage "reading" (a large image is converted in strips), "breast",
+        then the segmentation's records ("features", "mixture", "merging";
+        their previews are the labels of the working-resolution crop of the
+        breast, not of the mammogram), then "pooling" (the segments mapped
+        back to full resolution, in strips). On a 4096x4096 mammogram a
+        record comes at least every half second or so (2 cores), so closing
+        the job stops it soon; the fractions follow the work (the
+        full-resolution steps grow with the image, the segmentation does not).
 
     Raises
     ------
@@ -161,45 +186,81 @@ def iter_segment_breast(image, *, breast=None, n_segments=None, levels=3, neighb
     'breast'
     >>> job.close()
     """
-    grey = _grey01(_as_grey(image, channel_axis), name="mammogram")
+    work = _work(np.size(image), len(pool or ()) + 1)
+    spans = _spans(work, ("reading", "breast", "segmentation", "pooling"))
+    grey = yield from stage(_iter_grey(image, channel_axis), *spans["reading"])
+    return (yield from stage(_iter_segment_grey(
+        grey, breast=breast, n_segments=n_segments, levels=levels, neighbourhood=neighbourhood,
+        n_init=n_init, work_side=work_side, seed=seed, pool=pool,
+        segment_options=segment_options), spans["reading"][1], 1.0))
+
+
+def _block_fraction(mask, factor):
+    """``_block_mean(mask.astype(float), factor)`` without the float copy."""
+    if factor <= 1:
+        return mask.astype(float)
+    h, w = (mask.shape[0] // factor) * factor, (mask.shape[1] // factor) * factor
+    counts = mask[:h, :w].reshape(h // factor, factor, w // factor, factor).sum(
+        axis=(1, 3), dtype=np.int64)
+    return counts / float(factor * factor)
+
+
+def _iter_segment_grey(grey, *, breast, n_segments, levels, neighbourhood, n_init, work_side,
+                       seed, pool, segment_options):
+    """:func:`iter_segment_breast` of a grey image on [0, 1] (:func:`_iter_grey`)."""
     H, W = grey.shape
+    span = _spans(_work(H * W, len(pool or ()) + 1), ("breast", "segmentation", "pooling"))
+    (b0, b1), (s0_, s1_), (p0, p1) = span["breast"], span["segmentation"], span["pooling"]
     if breast is None:
-        breast = detect_breast(grey)
+        breast = yield from stage(_iter_detect(grey), b0, b0 + 0.6 * (b1 - b0))
         found = "found"
     else:
         found = "given"
     breast = np.asarray(breast, bool)
     if breast.shape != (H, W) or not breast.any():
         raise ValueError("breast must be an (H, W) mask like the mammogram with some True pixels.")
-    yield Progress("breast", 0.02, f"breast {found}: {breast.mean():.0%} of the image")
+    yield Progress("breast", b0 + 0.6 * (b1 - b0),
+                   f"breast {found}: {breast.mean():.0%} of the image")
     factor = max(1, round(max(H, W) / work_side))
     small = _block_mean(grey, factor)
-    small_mask = _block_mean(breast.astype(float), factor) > 0.5
+    yield Progress("breast", b0 + 0.8 * (b1 - b0), "working resolution")
+    fraction = _block_fraction(breast, factor)
+    small_mask = fraction > 0.5
     if not small_mask.any():
-        small_mask = _block_mean(breast.astype(float), factor) > 0
+        small_mask = fraction > 0
     need = (2 ** (levels - 1)) * 32
     (r0, r1), (c0, c1) = _crop_box(small_mask, need)
     crop, crop_mask = small[r0:r1, c0:c1], small_mask[r0:r1, c0:c1]
+    yield Progress("breast", b1, "breast cropped")
     result = yield from stage(
         iter_segment(pseudo_colour(crop), n_segments=n_segments, levels=levels,
                      neighbourhood=neighbourhood, n_init=n_init, mask=crop_mask, seed=seed,
                      **(segment_options or {})),
-        0.05, 0.95,
+        s0_, s1_,
     )
-
-    def to_full(seg):
-        seg = np.asarray(seg, np.int32)
+    R0, C0 = r0 * factor, c0 * factor
+    hh, ww = min((r1 - r0) * factor, H - R0), min((c1 - c0) * factor, W - C0)
+    step = max(1, _STRIP // max(1, ww * factor))  # working-resolution rows per strip
+    outputs = [(int(k), f"{k} segments") for k in pool] if pool else []
+    outputs.append((None, "the segments"))
+    full = []
+    for j, (k, what) in enumerate(outputs):
+        # the crop's segments, block-upsampled into the mammogram, 0 off the breast
+        seg = np.array(result.labels if k is None else result.labels_at(k), np.int32)
         seg[~crop_mask] = 0
-        big = np.repeat(np.repeat(seg, factor, axis=0), factor, axis=1)
         out = np.zeros((H, W), np.int32)
-        R0, C0 = r0 * factor, c0 * factor
-        hh, ww = min(big.shape[0], H - R0), min(big.shape[1], W - C0)
-        out[R0 : R0 + hh, C0 : C0 + ww] = big[:hh, :ww]
-        out[~breast] = 0
-        return out
-
-    pooled = [to_full(result.labels_at(int(k))) for k in pool] if pool else None
-    return BreastSegmentation(to_full(result.labels), breast, factor, pooled)
+        for s0 in range(0, r1 - r0, step):
+            a, b = R0 + s0 * factor, min(R0 + (s0 + step) * factor, R0 + hh)
+            if a >= b:
+                break
+            part = np.repeat(np.repeat(seg[s0 : s0 + step], factor, axis=0), factor, axis=1)
+            part = part[: b - a, :ww]
+            part[~breast[a:b, C0 : C0 + ww]] = 0
+            out[a:b, C0 : C0 + ww] = part
+            yield Progress("pooling", p0 + (p1 - p0) * (j + (b - R0) / max(hh, 1)) / len(outputs),
+                           f"{what} at full resolution")
+        full.append(out)
+    return BreastSegmentation(full[-1], breast, factor, full[:-1] if pool else None)
 
 
 @shared_parameters(_SEGMENT_BREAST_PARAMETERS)
@@ -308,7 +369,8 @@ def iter_detect_mammogram_rois(image, *, reference=None, tolerance=None, levels=
     ------
     Progress
         The breast segmentation's records (:func:`iter_segment_breast`),
-        then stage "regions" before and after the filter.
+        then stage "regions" while the candidates are scored and the kept
+        regions painted at full resolution.
 
     Raises
     ------
@@ -326,18 +388,25 @@ def iter_detect_mammogram_rois(image, *, reference=None, tolerance=None, levels=
     >>> records[0].stage, records[-1].stage, records[-1].fraction
     ('breast', 'regions', 1.0)
     """
-    image = _as_grey(image, channel_axis)
+    _check_filter_options(reference, tolerance, max_regions)
     pool = None if n_segments is not None else pool
+    spans = _spans(_work(np.size(image), len(pool or ()) + 1),
+                   ("reading", "breast", "segmentation", "pooling", "regions"))
+    grey = yield from stage(_iter_grey(image, channel_axis), *spans["reading"])
     segmentation = yield from stage(
-        iter_segment_breast(image, breast=breast, n_segments=n_segments, levels=levels,
-                            neighbourhood=neighbourhood, n_init=n_init, work_side=work_side,
-                            seed=seed, pool=pool, channel_axis=None),
-        0.0, 0.9,
+        _iter_segment_grey(grey, breast=breast, n_segments=n_segments, levels=levels,
+                           neighbourhood=neighbourhood, n_init=n_init, work_side=work_side,
+                           seed=seed, pool=pool, segment_options=None),
+        spans["breast"][0], spans["pooling"][1],
     )
-    yield Progress("regions", 0.9, "filtering candidate regions")
-    rois = filter_regions(image, segmentation.pooled or segmentation.segments,
-                          reference=reference, tolerance=tolerance, max_regions=max_regions,
-                          min_area=min_area, split=split, channel_axis=None)
+    r0, r1 = spans["regions"]
+    yield Progress("regions", r0, "filtering candidate regions")
+    rois = yield from stage(
+        _iter_filter(grey, segmentation.pooled or segmentation.segments, reference=reference,
+                     tolerance=tolerance, max_regions=max_regions, min_area=min_area,
+                     split=split),
+        r0, r1,
+    )
     n = len(rois.table["label"])
     yield Progress("regions", 1.0, f"{n} region{'' if n == 1 else 's'}")
     return rois
@@ -352,6 +421,11 @@ def detect_mammogram_rois(image, *, reference=None, tolerance=None, levels=3, n_
 
     The method of section 14.4, docs/mammography.md:
 
+    0. The image is scaled to [0, 1]; one within a tenth of a grey level of
+       an 8-bit image (a PNG read as float, a DICOM made from one) is read
+       as that 8-bit image, so that such differences cannot change the
+       regions (the segmentation's EM and greedy merging amplify any
+       difference).
     1. Breast area: :func:`detect_breast` (or ``breast`` if given).
     2. The mammogram is block-averaged to about ``work_side`` pixels (512:
        factor 2 for mini-MIAS 1024x1024), cropped to the breast, and
@@ -365,7 +439,9 @@ def detect_mammogram_rois(image, *, reference=None, tolerance=None, levels=3, n_
        ``tolerance`` of ``reference`` (learned: the median mean grey of
        ground-truth mass regions), ranked by contrast with their ring,
        closeness to ``reference``, compactness and a mass-size prior; the
-       best ``max_regions`` are kept (None: all).
+       best ``max_regions`` are kept (None: all). Candidates of one finding
+       whose scores are within 10 % of each other make one region, their
+       union, so a near tie in the ranking does not decide its shape.
 
     See ``benchmarks/bench_mammography.py`` for the measured sensitivity on
     mini-MIAS; with 13 mass findings in all it is a rough figure. A research

@@ -63,3 +63,39 @@ def test_napari_opens_dicom(make_napari_viewer, tmp_path, ramp):
     (layer,) = viewer.open(path, plugin="car-napari")
     np.testing.assert_allclose(layer.data, 1.0 - ramp / 4095.0, atol=1e-6)
     assert tuple(layer.scale) == (0.1, 0.1)
+
+
+# --- how napari names the reader (defect j of issue 12) --------------------------------
+
+
+def test_manifest_names_the_reader_for_what_it_reads():
+    from pathlib import Path
+
+    from npe2 import PluginManifest
+
+    manifest = PluginManifest.from_file(str(Path(__file__).parents[2] / "napari.yaml"))
+    # napari's reader chooser lists a reader by its plugin's display name
+    assert manifest.display_name == "car-napari"
+    (reader,) = manifest.contributions.readers
+    command = {c.id: c for c in manifest.contributions.commands}[reader.command]
+    assert command.title.startswith("DICOM")
+    assert set(reader.filename_patterns) >= {"*.dcm", "*.DCM", "*.dicom"}
+
+
+def test_reader_chooser_shows_the_plugin_not_a_model(make_napari_viewer, tmp_path, ramp):
+    """What napari's "Choose reader" dialog shows for a .dcm file."""
+    from napari._qt.dialogs.qt_reader_dialog import QtReaderDialog
+    from napari.plugins import _npe2
+    from qtpy.QtWidgets import QRadioButton
+
+    viewer = make_napari_viewer()
+    path = str(_write(tmp_path / "g.dcm", ramp))
+    readers = _npe2.get_readers(path)
+    assert readers.get("car-napari") == "car-napari"
+    dialog = QtReaderDialog(pth=path, parent=viewer.window._qt_viewer, readers=readers)
+    shown = [b.text() for b in dialog.findChildren(QRadioButton)]
+    assert "car-napari" in shown and "CAR models" not in shown
+    dialog.close()
+    # and choosing it opens the file with the DICOM reader
+    (layer,) = viewer.open(path, plugin="car-napari")
+    assert layer.metadata["modality"] == "MG"

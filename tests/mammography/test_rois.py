@@ -182,6 +182,92 @@ def test_segment_breast_pools_one_history(sample):
     assert again.pooled is None and again.segments.max() <= 3
 
 
+def _matched_ious(a, b):
+    """For every region of labels ``a``, its best IoU with a region of ``b``."""
+    out = []
+    for i in range(1, int(a.max()) + 1):
+        m = a == i
+        ious = [(m & (b == j)).sum() / (m | (b == j)).sum() for j in range(1, int(b.max()) + 1)]
+        out.append(max(ious, default=0.0))
+    return out
+
+
+@pytest.fixture(scope="module")
+def stability(sample):
+    """ROIs of mdb001 as uint8, as float in [0, 1] and with +-1e-4 noise
+    (issue 12, defect l: the DICOM and the PNG of one mammogram differ so)."""
+    noise = np.random.default_rng(12).uniform(-1e-4, 1e-4, sample.shape)
+    inputs = {"uint8": sample, "float": sample / 255.0,
+              "noise": np.clip(sample / 255.0 + noise, 0.0, 1.0)}
+    return {name: detect_mammogram_rois(image) for name, image in inputs.items()}
+
+
+@pytest.mark.parametrize("variant", ["float", "noise"])
+def test_rois_do_not_follow_quantisation_or_tiny_noise(stability, variant):
+    labels, table = stability["uint8"]
+    other, other_table = stability[variant]
+    assert len(other_table["label"]) == len(table["label"]) >= 1
+    assert min(_matched_ious(labels, other)) >= 0.9
+    assert min(_matched_ious(other, labels)) >= 0.9
+
+
+def test_an_8_bit_image_carried_in_floats_is_read_as_it(sample):
+    """The cause of defect l: the segmentation's EM and greedy KL merging
+    amplify any difference, and the ROIs followed. A mammogram within a tenth
+    of a grey level of an 8-bit image (a PNG read as float, a DICOM made from
+    one, float32, noise of 1e-4) is read as that 8-bit image."""
+    from car_napari.mammography._images import _grey01
+
+    exact = sample / 255.0
+    rng = np.random.default_rng(0)
+    for variant in (exact, exact.astype(np.float32), sample.astype(np.uint16) * 257,
+                    np.clip(exact + rng.uniform(-3e-4, 3e-4, sample.shape), 0, 1)):
+        np.testing.assert_array_equal(_grey01(variant), exact)
+    # so is its 12-bit copy; a true 12-bit or a continuous image is left as it is
+    np.testing.assert_array_equal(_grey01(np.round(exact * 4095) / 4095), exact)
+    twelve = rng.integers(0, 4096, (256, 256)) / 4095
+    np.testing.assert_array_equal(_grey01(twelve), twelve)
+    smooth = rng.random((256, 256))
+    np.testing.assert_array_equal(_grey01(smooth), smooth)
+
+
+def test_near_ties_of_one_finding_make_one_region():
+    """Two candidates of one finding (each holds the other's centroid) with
+    nearly the same score are one region, their union, whichever ranks
+    first: a near tie no longer decides the region's shape."""
+    from car_napari.mammography._regions import _select
+
+    cc = np.zeros((40, 40), np.int32)
+    cc[5:25, 5:25] = 1
+    other = np.zeros((40, 40), np.int32)
+    other[15:30, 15:30] = 1
+    a = (0.0205, 0.07, cc, 1, (0, 40, 0, 40), 15, 15)
+    b = (0.0204, 0.04, other, 1, (0, 40, 0, 40), 22, 22)
+    for rows in ([a, b], [b, a]):
+        (score, _, mask), = _select(rows, max_regions=1)
+        np.testing.assert_array_equal(mask, (cc == 1) | (other == 1))
+    # far apart in score: the better one alone
+    weak = (0.01, 0.04, other, 1, (0, 40, 0, 40), 22, 22)
+    (_, _, mask), = _select([a, weak], max_regions=None)
+    np.testing.assert_array_equal(mask, cc == 1)
+
+
+def test_the_job_yields_while_it_reads_a_large_mammogram(sample):
+    """A 4096x4096 mammogram is converted in strips, with a record after each
+    (so that a Cancel is seen soon), to the same values."""
+    from car_napari.mammography._images import _grey01, _iter_grey
+
+    big = np.kron(sample, np.ones((2, 2), np.uint8))
+    records = []
+    grey = drain(_iter_grey(big, None), records.append)
+    assert len(records) >= 4 and {r.stage for r in records} == {"reading"}
+    np.testing.assert_array_equal(grey, _grey01(big))
+    with pytest.raises(ValueError, match="NaN"):
+        bad = big / 255.0
+        bad[-1, -1] = np.nan
+        drain(_iter_grey(bad, None))
+
+
 # --- DICOM ----------------------------------------------------------------------
 
 
