@@ -1,0 +1,688 @@
+"""Every dock widget in a real napari viewer on a large image: how long the
+viewer freezes, how fast Cancel stops the job, how much memory it takes.
+Run by hand (not under ``nice``: it measures pauses):
+
+    xvfb-run -a -s "-screen 0 1280x1024x24" .venv/bin/python benchmarks/bench_gui.py \
+        [--size 4000] [--only NAME[,NAME]] [--cancel-after 3[,20]] [--complete]
+
+Each widget runs in a fresh Python process with its own ``napari.Viewer(show=True)``
+and the widget docked, so that its memory peak is its own. In that process:
+
+1. warm-up: the same widget, through the same entry point, on a small crop of
+   the same data, run to its end (the Numba kernels loaded from the on-disk
+   cache, so that what follows is what a user sees from the second run on);
+   then the viewer is emptied;
+2. the large input is opened as layers (uint8, as read from a file) and the
+   viewer is left to draw it;
+3. an event-loop monitor starts: a ``QTimer`` firing every 5 ms records the
+   ``perf_counter`` gaps between its firings; a pause is a gap minus the 5 ms
+   period. It also samples the process's resident memory (psutil) at every
+   firing;
+4. the job starts through the widget's own entry point (the method its button
+   calls: ``start``, ``start_fit`` or ``detect``), as a click would, inside the
+   event loop;
+5. after ``--cancel-after`` seconds (a comma-separated list: one fresh run for
+   each, to probe later stages of a job) the Cancel button is clicked; the cancel
+   latency is the time from the click to the worker's ``finished`` signal
+   (``Job.done``); "Run back" is the time until the widget's action button is
+   enabled again; "viewer as before" compares the layer list with the one
+   before the run.
+
+With ``--complete`` the job runs to its end instead (default size 1024) and
+the table gives its seconds; the segmentation's "show K" / "min probability"
+sliders and the restoration's kappa slider are then moved a few times and the
+longest pause of those re-cuts is reported.
+
+Columns: longest pause and 99th percentile of the pauses (ms) over the whole
+measured window (start, run, cancel, until the worker has gone); "in" says
+where the longest pause fell: "start" (the entry point's own work on the main
+thread, before the worker runs), "run", "cancel" (after the click) or
+"result" (showing it); cancel
+latency (s); peak memory (GB): the largest resident memory of the process
+during the window (sampled, or the kernel's high-water mark ``ru_maxrss``
+when the run raised it) minus the resident memory just before the start; B/px
+is that peak per input pixel (rows x columns x versions; a colour pixel
+counts once).
+
+Inputs, made once from real data and cached in ``--cache`` (``.npy``):
+
+* RGB ``size x size``: a mosaic of four VisTex textures
+  (``../shared/data/textures/vistex``, 640x640, mirror-tiled to the size, in
+  four wavy quadrants): CAR model fit, texture segmentation, texture synthesis
+  fit, texture retrieval (the query; the gallery: three other VisTex textures
+  tiled to the same size, as open layers);
+* the same mosaic with Gaussian noise (sigma 12 grey levels): restoration of
+  one image; four versions blurred by 0.5, 1, 1.5, 2 px with independent
+  noise, ``(4, size, size, 3)``: restoration of a burst;
+* grey ``4096x4096`` (``1024 * round(size / 1000)``): the shipped mini-MIAS
+  mammogram mdb001 upsampled (bilinear): Mammogram ROI;
+* the real damaged film scan ``film-damage/cinestill50d_half_1/damaged.jpg``
+  resized to ``size x size`` with its real damage mask (``mask.png``,
+  nearest-neighbour): scratch detection, and restoration with that mask as a
+  Labels layer.
+
+A child that exceeds ``--mem-limit`` GB is killed (the row says so); one whose
+worker is still running ``--cancel-timeout`` s after the click reports
+``> timeout``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import gc
+import json
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = ROOT.parent / "shared" / "data"
+VISTEX = DATA / "textures" / "vistex"
+MOSAIC_TEXTURES = ("VS50.png", "VS1.png", "VS120.png", "VS87.png")
+GALLERY_TEXTURES = ("VS5.png", "VS18.png", "VS63.png")
+FILM = DATA / "film-damage" / "cinestill50d_half_1"
+MAMMOGRAM = ROOT / "resources" / "mammogram_mdb001.png"
+PERIOD_MS = 5
+
+
+# --- inputs ---------------------------------------------------------------------------
+
+def _mirror_tile(texture, shape):
+    """``texture`` repeated by reflection (no seams) and cropped to ``shape``."""
+    block = np.concatenate([texture, texture[::-1]], axis=0)
+    block = np.concatenate([block, block[:, ::-1]], axis=1)
+    reps = (-(-shape[0] // block.shape[0]), -(-shape[1] // block.shape[1]))
+    reps += (1,) * (block.ndim - 2)
+    return np.tile(block, reps)[: shape[0], : shape[1]]
+
+
+def _read_rgb(path):
+    from skimage import io
+
+    image = io.imread(path)
+    if image.ndim == 2:
+        image = np.repeat(image[..., None], 3, axis=2)
+    return np.ascontiguousarray(image[..., :3])
+
+
+def _mosaic(size):
+    """Four mirror-tiled VisTex textures in four quadrants with wavy borders."""
+    rows = np.arange(size)
+    wave_r = (size / 2 + size / 16 * np.sin(2 * np.pi * 3 * rows / size)).astype(int)
+    wave_c = (size / 2 + size / 16 * np.sin(2 * np.pi * 2 * rows / size + 1.0)).astype(int)
+    bottom = rows[:, None] >= wave_r[None, :]  # row below the wavy horizontal border
+    right = rows[None, :] >= wave_c[:, None]  # column right of the wavy vertical border
+    quadrant = 2 * bottom + right
+    out = np.empty((size, size, 3), np.uint8)
+    for k, name in enumerate(MOSAIC_TEXTURES):
+        tiled = _mirror_tile(_read_rgb(VISTEX / name), (size, size))
+        out[quadrant == k] = tiled[quadrant == k]
+    return out
+
+
+def _noisy(image, sigma, seed, blur=0.0):
+    from scipy import ndimage
+
+    rng = np.random.default_rng(seed)
+    out = image.astype(np.float32)
+    if blur:
+        out = ndimage.gaussian_filter(out, (blur, blur, 0))
+    out += rng.normal(0.0, sigma, out.shape).astype(np.float32)
+    return np.clip(np.round(out), 0, 255).astype(np.uint8)
+
+
+def make_inputs(size, cache):
+    """Write the benchmark's inputs for ``size`` into ``cache`` (once); return the folder."""
+    from skimage import io
+    from skimage.transform import resize
+
+    folder = Path(cache) / f"size{size}"
+    folder.mkdir(parents=True, exist_ok=True)
+    msize = 1024 * max(1, round(size / 1000))
+
+    def cached(name, make):
+        path = folder / f"{name}.npy"
+        if not path.exists():
+            t0 = time.perf_counter()
+            array = make()
+            np.save(path.with_suffix(".tmp.npy"), array)
+            path.with_suffix(".tmp.npy").rename(path)
+            print(f"  made {name} {array.shape} {array.dtype} in "
+                  f"{time.perf_counter() - t0:.1f} s", file=sys.stderr)
+
+    cached("mosaic", lambda: _mosaic(size))
+    mosaic = np.load(folder / "mosaic.npy")
+    cached("noisy", lambda: _noisy(mosaic, 12.0, 0))
+    cached("burst", lambda: np.stack([_noisy(mosaic, 12.0, 1 + k, blur=b)
+                                      for k, b in enumerate((1.5, 0.5, 2.0, 1.0))]))
+    for k, name in enumerate(GALLERY_TEXTURES):
+        cached(f"gallery{k}", lambda name=name: _mirror_tile(_read_rgb(VISTEX / name),
+                                                             (size, size)))
+
+    def mammogram():
+        image = io.imread(MAMMOGRAM)
+        up = resize(image.astype(np.float32), (msize, msize), order=1, preserve_range=True,
+                    anti_aliasing=False)
+        return np.clip(np.round(up), 0, 255).astype(np.uint8)
+
+    cached("mammogram", mammogram)
+
+    def film():
+        frame = _read_rgb(FILM / "damaged.jpg")
+        up = resize(frame, (size, size), order=1, preserve_range=True, anti_aliasing=False)
+        return np.clip(np.round(up), 0, 255).astype(np.uint8)
+
+    def film_mask():
+        mask = io.imread(FILM / "mask.png")
+        mask = mask[..., :3].max(axis=2) if mask.ndim == 3 else mask
+        rows = (np.arange(size) * mask.shape[0]) // size
+        cols = (np.arange(size) * mask.shape[1]) // size
+        return (mask[rows][:, cols] > 127).astype(np.uint8)
+
+    cached("film", film)
+    cached("film_mask", film_mask)
+    return folder
+
+
+# --- the event-loop monitor -------------------------------------------------------------
+
+class EventLoopMonitor:
+    """Gaps between the firings of a 5 ms ``QTimer`` on the main thread, and
+    the process's resident memory sampled at each firing."""
+
+    def __init__(self, period_ms=PERIOD_MS):
+        import psutil
+        from qtpy.QtCore import Qt, QTimer
+
+        self.period = period_ms / 1000.0
+        self._process = psutil.Process()
+        self._timer = QTimer()
+        self._timer.setTimerType(Qt.PreciseTimer)
+        self._timer.setInterval(period_ms)
+        self._timer.timeout.connect(self._tick)
+        self.gaps = []
+        self.times = []  # perf_counter at the end of each gap
+        self.peak_rss = 0
+        self._last = None
+
+    def start(self):
+        self.gaps = []
+        self.times = []
+        self.peak_rss = self._process.memory_info().rss
+        self._last = time.perf_counter()
+        self._timer.start()
+
+    def _tick(self):
+        now = time.perf_counter()
+        self.gaps.append(now - self._last)
+        self.times.append(now)
+        self._last = now
+        rss = self._process.memory_info().rss
+        if rss > self.peak_rss:
+            self.peak_rss = rss
+
+    def stop(self):
+        self._timer.stop()
+        self._tick()  # the gap up to now counts as well
+
+    def pauses_ms(self):
+        gaps = np.asarray(self.gaps, dtype=float)
+        return np.maximum(gaps - self.period, 0.0) * 1000.0
+
+    def longest_ms(self):
+        pauses = self.pauses_ms()
+        return float(pauses.max()) if pauses.size else 0.0
+
+    def p99_ms(self):
+        pauses = self.pauses_ms()
+        return float(np.percentile(pauses, 99)) if pauses.size else 0.0
+
+    def longest_at(self):
+        """(start, end) perf_counter times of the longest pause."""
+        if not self.gaps:
+            return None
+        i = int(np.argmax(self.gaps))
+        return self.times[i] - self.gaps[i], self.times[i]
+
+
+def run_until(condition, timeout):
+    """Run the Qt event loop until ``condition()`` or ``timeout`` seconds; returns
+    ``condition()``."""
+    from qtpy.QtCore import QEventLoop, QTimer
+
+    deadline = time.perf_counter() + timeout
+    loop = QEventLoop()
+    check = QTimer()
+    check.setInterval(5)
+    check.timeout.connect(
+        lambda: loop.quit() if condition() or time.perf_counter() > deadline else None)
+    check.start()
+    if not (condition() or time.perf_counter() > deadline):
+        loop.exec_() if hasattr(loop, "exec_") else loop.exec()
+    check.stop()
+    return bool(condition())
+
+
+def settle(quiet=1.0, timeout=30.0):
+    """Let the viewer draw: until ``quiet`` s pass without a pause over 50 ms."""
+    monitor = EventLoopMonitor()
+    monitor.start()
+    t0 = time.perf_counter()
+    state = {"since": t0}
+
+    def calm():
+        now = time.perf_counter()
+        if monitor.gaps and monitor.gaps[-1] > 0.05:
+            state["since"] = now
+        return now - state["since"] >= quiet
+
+    run_until(calm, timeout)
+    monitor.stop()
+
+
+# --- the widgets --------------------------------------------------------------------------
+
+@dataclass
+class Case:
+    key: str
+    title: str
+    module: str
+    cls: str
+    button: str  # the action button whose enabled state says "idle"
+
+
+CASES = [
+    Case("car", "CAR model fit", "car_model", "CARModelWidget", "_fit"),
+    Case("segmentation", "Texture segmentation", "segmentation", "SegmentationWidget", "_run"),
+    Case("mammogram", "Mammogram ROI", "mammography", "MammogramWidget", "_run"),
+    Case("restoration", "Restoration (single image)", "restoration", "RestorationWidget",
+         "_run"),
+    Case("burst", "Restoration (burst)", "restoration", "RestorationWidget", "_run"),
+    Case("detect", "Scratch restoration: Detect", "inpainting", "InpaintingWidget", "_detect"),
+    Case("restore", "Scratch restoration: Restore", "inpainting", "InpaintingWidget", "_run"),
+    Case("texture", "Texture synthesis fit", "texture", "TextureSynthesisWidget", "_fit"),
+    Case("retrieval", "Texture retrieval", "retrieval", "TextureRetrievalWidget", "_run"),
+]
+
+
+def _crop(array, n, stack=False):
+    return array[:, :n, :n] if stack else array[:n, :n]
+
+
+def _choose_mask(widget, layer):
+    """Point a mask picker of the widget (if it has one) at ``layer``."""
+    for child in widget:
+        label = str(getattr(child, "label", "")).lower()
+        choices = getattr(child, "choices", None)
+        if "mask" in label and choices is not None and layer in choices:
+            child.value = layer
+            return
+
+
+def setup(case, viewer, widget, inputs, small=None):
+    """Open the case's layers and set the widget's controls; returns
+    ``(entry point, input pixels)``. ``small`` crops every input to that size."""
+    def load(name, stack=False):
+        array = np.load(inputs / f"{name}.npy")
+        return np.ascontiguousarray(_crop(array, small, stack)) if small else array
+
+    w = widget
+    key = case.key
+    if key in ("car", "segmentation", "texture", "retrieval"):
+        image = load("mosaic")
+        layer = viewer.add_image(image, name="mosaic", rgb=True)
+        w._image.value = layer
+        pixels = image.shape[0] * image.shape[1]
+        if key == "car":
+            return w.start_fit, pixels
+        if key == "texture":
+            w._mode.value = w._mode.choices[0]  # a single texture
+            return w.start_fit, pixels
+        if key == "segmentation":
+            return w.start, pixels
+        for k in range(len(GALLERY_TEXTURES)):
+            viewer.add_image(load(f"gallery{k}"), name=f"gallery {k}", rgb=True)
+        w._image.value = layer
+        return w.start, pixels * (1 + len(GALLERY_TEXTURES))
+    if key == "mammogram":
+        image = load("mammogram")
+        if small:  # the whole breast, block-averaged, rather than a corner of it
+            full = np.load(inputs / "mammogram.npy")
+            step = max(1, full.shape[0] // small)
+            n = (full.shape[0] // step) * step
+            image = full[:n, :n].reshape(n // step, step, n // step, step).mean(axis=(1, 3))
+            image = image.astype(np.uint8)
+        w._image.value = viewer.add_image(image, name="mammogram")
+        return w.start, image.size
+    if key == "restoration":
+        image = load("noisy")
+        w._image.value = viewer.add_image(image, name="noisy", rgb=True)
+        choices = list(w._axis.choices)
+        single = next((c for c in choices if "single" in str(c)), None)
+        if single is not None:
+            w._axis.value = single
+        return w.start, image.shape[0] * image.shape[1]
+    if key == "burst":
+        stack = load("burst", stack=True)
+        w._image.value = viewer.add_image(stack, name="burst", rgb=True)
+        if "axis 0" not in list(w._axis.choices) and hasattr(w, "_guess_axis"):
+            w._guess_axis()  # the picker took the new layer without offering its axes
+            setup.notes.append("burst: 'axis 0' offered only after re-picking the layer")
+        if "axis 0" in list(w._axis.choices):
+            w._axis.value = "axis 0"
+        return w.start, stack.shape[0] * stack.shape[1] * stack.shape[2]
+    frame = load("film")
+    layer = viewer.add_image(frame, name="film", rgb=True)
+    w._image.value = layer
+    if key == "detect":
+        return w.detect, frame.shape[0] * frame.shape[1]
+    mask = viewer.add_labels(load("film_mask"), name="film scratch mask", opacity=0.6)
+    _choose_mask(w, mask)
+    w._image.value = layer
+    return w.start, frame.shape[0] * frame.shape[1]
+
+
+setup.notes = []
+
+
+def recut(case, widget):
+    """Move the re-cut sliders of a finished run; returns the moves made."""
+    moves = []
+    if case.key == "segmentation" and getattr(widget, "result", None) is not None:
+        cut = widget._cut
+        for value in (cut.min, cut.max, (cut.min + cut.max) // 2):
+            moves.append(lambda value=value: setattr(cut, "value", value))
+        for value in (0.3, 0.6, 0.0):
+            moves.append(lambda value=value: setattr(widget._threshold, "value", value))
+    if case.key in ("restoration", "burst") and getattr(widget, "result", None) is not None:
+        for value in (0.2, 0.5, 0.8, 0.1):
+            moves.append(lambda value=value: setattr(widget._kappa, "value", value))
+    return moves
+
+
+def _wait_job(job, timeout):
+    return run_until(lambda: job is None or job.done, timeout)
+
+
+def child(args):
+    """Run one case in this process; print its figures as a ``RESULT`` JSON line."""
+    import importlib
+
+    import napari
+    import psutil
+
+    case = next(c for c in CASES if c.key == args.child)
+    inputs = Path(args.inputs)
+    module = importlib.import_module(f"car_napari._widgets.{case.module}")
+    viewer = napari.Viewer(show=True)
+    widget = getattr(module, case.cls)(viewer)
+    viewer.window.add_dock_widget(widget, name=case.title)
+    settle()
+    out = {"key": case.key, "title": case.title}
+    process = psutil.Process()
+
+    if not args.no_warmup:
+        t0 = time.perf_counter()
+        entry, _ = setup(case, viewer, widget, inputs, small=args.warmup_size)
+        if case.key == "restore":  # a crop of a sparse mask may be empty
+            viewer.layers["film scratch mask"].data[:, args.warmup_size // 2] = 1
+        job = entry()
+        if not _wait_job(job, args.warmup_timeout):
+            widget.cancel()
+            _wait_job(job, args.cancel_timeout)
+        out["warmup_s"] = round(time.perf_counter() - t0, 1)
+        viewer.layers.clear()
+        settle()
+
+    entry, pixels = setup(case, viewer, widget, inputs)
+    settle()
+    gc.collect()
+    before = [layer.name for layer in viewer.layers]
+    baseline = process.memory_info().rss
+    maxrss_before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    monitor = EventLoopMonitor()
+    monitor.start()
+    run_until(lambda: False, 0.2)
+    marks = {}
+    holder = {}
+
+    def begin():
+        marks["start"] = time.perf_counter()
+        holder["job"] = entry()
+        job = holder["job"]
+        if job is not None:
+            job.worker.finished.connect(
+                lambda: marks.setdefault("finished", time.perf_counter()))
+
+    from qtpy.QtCore import QTimer
+
+    QTimer.singleShot(0, begin)  # as a click: inside the event loop
+    run_until(lambda: "start" in marks, 30)
+    job = holder.get("job")
+    button = getattr(widget, case.button)
+    from napari.utils.notifications import notification_manager
+
+    def last_message():
+        records = notification_manager.records
+        return str(records[-1].message) if records else ""
+
+    if job is None:
+        out["error"] = last_message() or "no job started"
+    elif args.complete:
+        done = _wait_job(job, args.timeout)
+        end = marks.get("finished", time.perf_counter())
+        out["seconds"] = round(end - marks["start"], 2) if done else None
+        out["status"] = str(widget._status.value)
+        if done:
+            moves = recut(case, widget)
+            if moves:
+                run_until(lambda: False, 0.3)
+                recuts = EventLoopMonitor()
+                recuts.start()
+                for move in moves:
+                    QTimer.singleShot(0, move)
+                    run_until(lambda: False, 0.3)
+                recuts.stop()
+                out["recut_longest_ms"] = round(recuts.longest_ms(), 1)
+        else:
+            widget.cancel()
+            _wait_job(job, args.cancel_timeout)
+    else:
+        _wait_job(job, args.cancel_after)
+        if job.done:
+            out["finished_before_cancel_s"] = round(marks.get("finished", time.perf_counter())
+                                                    - marks["start"], 2)
+            out["status_after"] = str(widget._status.value)
+            if "fail" in out["status_after"]:
+                out["error"] = last_message()
+        else:
+            out["status_at_cancel"] = str(widget._status.value)
+            out["progress_at_cancel"] = int(widget._progress.value)
+            marks["click"] = time.perf_counter()
+            widget._cancel.native.click()  # the Cancel button, as the user clicks it
+            gone = _wait_job(job, args.cancel_timeout)
+            if gone:
+                end = marks.get("finished", time.perf_counter())
+                out["cancel_s"] = round(end - marks["click"], 3)
+                run_until(lambda: bool(button.enabled), 5)
+                out["button_back_s"] = round(time.perf_counter() - marks["click"], 3) \
+                    if button.enabled else None
+            else:
+                out["cancel_s"] = None  # still running after the timeout
+            out["status_after"] = str(widget._status.value)
+        run_until(lambda: False, 0.2)
+        out["viewer_as_before"] = [layer.name for layer in viewer.layers] == before
+    monitor.stop()
+    at = monitor.longest_at()
+    if at is not None and "start" in marks:
+        out["longest_from_s"] = round(at[0] - marks["start"], 2)
+        if at[0] <= marks["start"] <= at[1]:
+            out["longest_in"] = "start"  # the entry point's own work, on the main thread
+        elif "click" in marks and at[1] >= marks["click"]:
+            out["longest_in"] = "cancel"
+        elif "finished" in marks and at[1] >= marks["finished"]:
+            out["longest_in"] = "result"
+        else:
+            out["longest_in"] = "run"
+    if setup.notes:
+        out["notes"] = setup.notes
+    maxrss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    peak = max(monitor.peak_rss, maxrss if maxrss > maxrss_before else 0)
+    out.update(
+        longest_ms=round(monitor.longest_ms(), 1), p99_ms=round(monitor.p99_ms(), 1),
+        ticks=len(monitor.gaps), peak_gb=round((peak - baseline) / 1e9, 3),
+        bytes_per_pixel=round((peak - baseline) / pixels, 1), pixels=int(pixels),
+        baseline_gb=round(baseline / 1e9, 3),
+    )
+    print("RESULT " + json.dumps(out), flush=True)
+    sys.stdout.flush()
+    os._exit(0)  # a worker that would not stop dies with the process
+
+
+# --- the parent --------------------------------------------------------------------------
+
+def run_child(case, args, inputs, cancel_after):
+    """Run one case in a fresh process, killed above the memory limit."""
+    import psutil
+
+    command = [sys.executable, __file__, "--child", case.key, "--inputs", str(inputs),
+               "--cancel-after", str(cancel_after),
+               "--cancel-timeout", str(args.cancel_timeout), "--timeout", str(args.timeout),
+               "--warmup-size", str(args.warmup_size),
+               "--warmup-timeout", str(args.warmup_timeout)]
+    command += ["--complete"] * args.complete + ["--no-warmup"] * args.no_warmup
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    with tempfile.TemporaryFile("w+") as stdout, tempfile.TemporaryFile("w+") as stderr:
+        proc = subprocess.Popen(command, stdout=stdout, stderr=stderr, env=env, cwd=ROOT)
+        ps = psutil.Process(proc.pid)
+        limit = args.mem_limit * 1e9
+        deadline = time.perf_counter() + args.warmup_timeout + args.timeout + 300
+        killed = None
+        while proc.poll() is None:
+            try:
+                rss = ps.memory_info().rss
+            except psutil.NoSuchProcess:
+                break
+            if rss > limit:
+                killed = f"killed above {args.mem_limit:g} GB"
+            elif time.perf_counter() > deadline:
+                killed = "killed: no result in time"
+            if killed:
+                proc.kill()
+                break
+            time.sleep(0.2)
+        proc.wait()
+        stdout.seek(0)
+        stderr.seek(0)
+        lines = [line for line in stdout.read().splitlines() if line.startswith("RESULT ")]
+        if lines:
+            return json.loads(lines[-1][len("RESULT "):])
+        tail = stderr.read().strip().splitlines()[-8:]
+        return {"key": case.key, "title": case.title,
+                "error": killed or f"exit {proc.returncode}: " + " | ".join(tail)}
+
+
+def _fmt(value, digits=1, none="-"):
+    return none if value is None else f"{value:.{digits}f}"
+
+
+def table(results, args):
+    if args.complete:
+        lines = ["| widget | seconds | longest pause (ms) | in | p99 (ms) | peak memory (GB) "
+                 "| B/px | re-cut longest pause (ms) |",
+                 "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+    else:
+        lines = ["| widget | longest pause (ms) | in | p99 (ms) | cancel latency (s) "
+                 "| Run back (s) | peak memory (GB) | B/px | viewer as before |",
+                 "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for r in results:
+        if "error" in r:
+            cells = [r["title"], f"error: {r['error']}"]
+            if "longest_ms" in r:
+                cells.append(f"(longest pause {r['longest_ms']:.0f} ms)")
+            lines.append("| " + " | ".join(cells) + " |")
+            continue
+        common = [_fmt(r["longest_ms"]), r.get("longest_in", "-"), _fmt(r["p99_ms"])]
+        memory = [_fmt(r["peak_gb"], 2), _fmt(r["bytes_per_pixel"], 0)]
+        if args.complete:
+            seconds = _fmt(r.get("seconds"), 1, none=f"> {args.timeout:g}")
+            cells = [r["title"], seconds, *common, *memory, _fmt(r.get("recut_longest_ms"))]
+        else:
+            if "finished_before_cancel_s" in r:
+                cancel = f"finished in {r['finished_before_cancel_s']:.2f} s"
+                back = before = "-"
+            else:
+                cancel = _fmt(r.get("cancel_s"), 2, none=f"> {args.cancel_timeout:g}")
+                back = _fmt(r.get("button_back_s"), 2, none="no")
+                before = "yes" if r.get("viewer_as_before") else "NO"
+            cells = [r["title"], *common, cancel, back, *memory, before]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--size", type=int, default=None,
+                        help="height and width of the inputs (default 4000; 1024 with "
+                             "--complete)")
+    parser.add_argument("--only", default=None,
+                        help="comma-separated keys or words of titles: "
+                             + ", ".join(c.key for c in CASES))
+    parser.add_argument("--complete", action="store_true", help="run each job to its end")
+    parser.add_argument("--cancel-after", default="3",
+                        help="seconds before Cancel; several (3,20): one run each")
+    parser.add_argument("--cancel-timeout", type=float, default=60.0)
+    parser.add_argument("--timeout", type=float, default=600.0, help="--complete: per job")
+    parser.add_argument("--mem-limit", type=float, default=8.0, help="GB; the child is killed")
+    parser.add_argument("--warmup-size", type=int, default=160)
+    parser.add_argument("--warmup-timeout", type=float, default=120.0)
+    parser.add_argument("--no-warmup", action="store_true")
+    parser.add_argument("--cache", default=str(Path(tempfile.gettempdir()) / "car_bench_gui"))
+    parser.add_argument("--json", default=None, help="also write the rows to this file")
+    parser.add_argument("--child", default=None, help=argparse.SUPPRESS)
+    parser.add_argument("--inputs", default=None, help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    if args.child:
+        args.cancel_after = float(args.cancel_after)
+        return child(args)
+    delays = [float(t) for t in str(args.cancel_after).split(",") if t.strip()]
+    if args.complete:
+        delays = delays[:1]
+    size = args.size or (1024 if args.complete else 4000)
+    cases = CASES
+    if args.only:
+        words = [w.strip().lower() for w in args.only.split(",") if w.strip()]
+        keys = {c.key for c in CASES}
+        cases = [c for c in CASES
+                 if any(w == c.key or (w not in keys and w in c.title.lower()) for w in words)]
+    print(f"inputs {size}x{size} in {args.cache}", file=sys.stderr)
+    inputs = make_inputs(size, args.cache)
+    results = []
+    for case in cases:
+        for delay in delays:
+            t0 = time.perf_counter()
+            result = run_child(case, args, inputs, delay)
+            if len(delays) > 1:
+                result["title"] += f" @ {delay:g} s"
+            print(f"  {result['title']}: {json.dumps(result)} ({time.perf_counter() - t0:.0f} s)",
+                  file=sys.stderr, flush=True)
+            results.append(result)
+    mode = ("run to completion" if args.complete
+            else f"Cancel clicked after {', '.join(f'{t:g}' for t in delays)} s")
+    print(f"\nGUI benchmark, {size}x{size} (mammogram {1024 * max(1, round(size / 1000))}"
+          f"x{1024 * max(1, round(size / 1000))} grey), {mode}, {os.cpu_count()} cores\n")
+    print(table(results, args))
+    if args.json:
+        Path(args.json).write_text(json.dumps(results, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
