@@ -24,15 +24,17 @@ NOT_A_STACK = "it is not a stack (images along the first axis); choose 'single t
 MODEL_FILTER = "Texture model (*.npz)"
 
 
-def ask_save_path(parent, start):
-    """Ask for the file to save a model to (a save dialog).
+def ask_model_path(parent, start, *, save):
+    """Ask for a model file: a save dialog (``save=True``) or an open one.
 
     Parameters
     ----------
     parent : QWidget or None
         The dialog's parent.
     start : str
-        The proposed path.
+        The proposed path, or the folder to start in.
+    save : bool
+        Ask where to save (True) or what to load (False).
 
     Returns
     -------
@@ -41,29 +43,21 @@ def ask_save_path(parent, start):
     """
     from qtpy.QtWidgets import QFileDialog
 
-    path, _ = QFileDialog.getSaveFileName(parent, "Save texture model", start, MODEL_FILTER)
+    if save:
+        path, _ = QFileDialog.getSaveFileName(parent, "Save texture model", start, MODEL_FILTER)
+    else:
+        path, _ = QFileDialog.getOpenFileName(parent, "Load texture model", start, MODEL_FILTER)
     return path or None
+
+
+def ask_save_path(parent, start):
+    """The save dialog of :func:`ask_model_path` (tests replace it)."""
+    return ask_model_path(parent, start, save=True)
 
 
 def ask_open_path(parent, start):
-    """Ask for a model file to load (an open dialog).
-
-    Parameters
-    ----------
-    parent : QWidget or None
-        The dialog's parent.
-    start : str
-        The folder to start in.
-
-    Returns
-    -------
-    str or None
-        The chosen file; None when the user closed the dialog.
-    """
-    from qtpy.QtWidgets import QFileDialog
-
-    path, _ = QFileDialog.getOpenFileName(parent, "Load texture model", start, MODEL_FILTER)
-    return path or None
+    """The open dialog of :func:`ask_model_path` (tests replace it)."""
+    return ask_model_path(parent, start, save=False)
 
 
 def _fallback_notes(model):
