@@ -19,6 +19,38 @@ from .statistics import data_statistics, estimate_parameters
 __all__ = ["illumination_invariants"]
 
 
+# A texture that its neighbours predict exactly (a ramp, stripes, a checkerboard,
+# a step) has a singular data matrix. The fallback prior is then a small multiple
+# of kron(I, S), S the channels' scatter: each d x d block transforms as
+# B S B^T, so the features stay exactly invariant.
+_DEGENERATE_PRIOR = 1e-9
+
+
+def _unit_scale(data):
+    """``data`` times a power of two that brings its spread near 1 when it is
+    far from it (an exact scaling, to which every feature is invariant), so
+    that squares neither overflow nor underflow; ordinary images are left as
+    they are (bit for bit)."""
+    spread = float(np.max(data) - np.min(data))
+    exponent = int(np.round(np.log2(spread)))
+    if abs(exponent) <= 64:
+        return data
+    return np.ldexp(data, -exponent)
+
+
+def _estimate(V, count, m, d, scatter):
+    """The estimates with the covariant prior of one pixel's scatter; with the
+    degenerate-texture prior added where that is singular."""
+    prior_V = V / count
+    try:
+        est = estimate_parameters(V + prior_V, count, m, d, np.zeros(m + d))
+        np.linalg.cholesky(est.lam)
+        return est, prior_V
+    except np.linalg.LinAlgError:
+        prior_V = prior_V + _DEGENERATE_PRIOR * np.kron(np.eye(m // d + 1), scatter)
+        return estimate_parameters(V + prior_V, count, m, d, np.zeros(m + d)), prior_V
+
+
 def _level_features(level, offsets):
     d = level.shape[2]
     centred = level - level.mean(axis=(0, 1))
@@ -26,7 +58,8 @@ def _level_features(level, offsets):
     check_size(centred, ctx.reach, minimum_pixels=ctx.n_regressors + d + 2,
                name="pyramid level")
     flat = centred.reshape(-1, d)
-    evals = np.linalg.eigvalsh(flat.T @ flat)
+    scatter = flat.T @ flat
+    evals = np.linalg.eigvalsh(scatter)
     if evals[0] <= 1e-10 * evals[-1]:
         raise ValueError(
             "the image's channels are linearly dependent (e.g. a grey image stored as "
@@ -36,9 +69,7 @@ def _level_features(level, offsets):
     V, count = data_statistics(centred, ctx)
     m = ctx.n_regressors
     # Covariant prior: one pixel's worth of the data's own scatter.
-    prior_V = V / count
-    Vp = V + prior_V
-    gamma, lam, _, _, _ = estimate_parameters(Vp, count, m, d, np.zeros(m + d))
+    (gamma, lam, _, _, _), prior_V = _estimate(V, count, m, d, scatter / flat.shape[0])
     A = gamma.reshape(d, len(offsets), d).transpose(1, 0, 2)
     traces = np.trace(A, axis1=1, axis2=2)
     eig = np.linalg.eigvals(A)  # (eta, d)
@@ -80,6 +111,10 @@ def illumination_invariants(image, neighbourhood=2, *, levels=1, channel_axis=-1
     5. ``sqrt(sum_r (Y_r - mu)^T lambda^{-1} (Y_r - mu))``.
 
     All are exactly invariant to ``Y -> B Y`` for any invertible ``B``.
+    A texture that its neighbours predict exactly (a ramp, stripes, a
+    checkerboard, a step edge) gets a regularised estimate (a covariant prior
+    of ``1e-9`` times the channels' scatter), so its features are finite, and
+    the magnitude of the values never decides success.
 
     Parameters
     ----------
@@ -120,6 +155,7 @@ def illumination_invariants(image, neighbourhood=2, *, levels=1, channel_axis=-1
     """
     data = as_channel_last_float(image, channel_axis=channel_axis)
     check_not_constant(data)
+    data = _unit_scale(data)
     offsets, _ = as_offsets(neighbourhood)
     if not isinstance(levels, (int, np.integer)) or levels < 1:
         raise ValueError(f"levels must be a positive int; got {levels!r}.")
