@@ -14,6 +14,7 @@ from ._images import _as_grey, _block_mean, _grey01, _upsample_mask
 __all__ = ["BreastDetection", "detect_breast"]
 
 _WORK_SIDE = 256  # breast detection resolution (longest side, pixels)
+_MIN_WORK_SIDE = 16  # a thinner strip has no breast shape to find
 
 
 class BreastDetection(NamedTuple):
@@ -178,7 +179,16 @@ def _background(grey):
     from scipy import ndimage
 
     factor = max(1, round(max(grey.shape) / _WORK_SIDE))
-    smooth = ndimage.gaussian_filter(_block_mean(grey, factor), 1.0)
+    small = _block_mean(grey, factor)
+    if min(small.shape) < _MIN_WORK_SIDE:
+        h, w = grey.shape
+        raise ValueError(
+            f"image {h}x{w} is too thin for breast detection: at its working resolution "
+            f"(1/{factor}) the short side is {min(small.shape)} pixels and at least "
+            f"{_MIN_WORK_SIDE} are needed. Pass the whole mammogram (short side at least "
+            f"{_MIN_WORK_SIDE * factor} pixels at this length)."
+        )
+    smooth = ndimage.gaussian_filter(small, 1.0)
     b, p99 = np.percentile(smooth, [5, 99])
     if p99 <= b:
         raise ValueError(

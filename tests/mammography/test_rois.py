@@ -340,3 +340,12 @@ def test_dicom_without_pydicom_is_a_clear_error(monkeypatch, tmp_path):
     monkeypatch.setitem(sys.modules, "pydicom", None)
     with pytest.raises(ImportError, match="pip install pydicom"):
         read_dicom(tmp_path / "missing.dcm")
+
+
+@pytest.mark.parametrize("shape", [(3, 2000), (2000, 3), (30, 2000)])
+def test_thin_image_is_a_clear_error(shape):
+    image = np.random.default_rng(0).random(shape)
+    with pytest.raises(ValueError, match="too thin for breast detection"):
+        detect_mammogram_rois(image)
+    with pytest.raises(ValueError, match="too thin"):
+        detect_breast(image)
