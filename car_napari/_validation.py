@@ -99,13 +99,34 @@ def as_channel_last_float(image, *, channel_axis=-1, name="image", with_summary=
             "axis right? Pass channel_axis=None for a grey image or the correct axis."
         )
     summary = summarize(out)
+    check_values(summary, name=name)
+    return (out, summary) if with_summary else out
+
+
+# The models square the values (covariances, data matrices): beyond this
+# magnitude the squares leave float64's range (about 1e-308 to 1e308).
+MAGNITUDE_LIMIT = 1e150
+
+
+def check_values(summary, *, name="image"):
+    """Finite values of a magnitude whose squares float64 holds (from
+    :func:`summarize`), or a ValueError that says what to do."""
     if summary.nonfinite.any():
         bad = int(summary.nonfinite.sum())
         raise ValueError(
             f"{name} contains {bad} NaN or infinite values; fill or mask them first "
             "(e.g. np.nan_to_num, or restrict the fit to a finite rectangle)."
         )
-    return (out, summary) if with_summary else out
+    largest = float(np.max(np.maximum(np.abs(summary.min), np.abs(summary.max))))
+    spread = summary.max - summary.min
+    smallest = float(np.min(spread[spread > 0])) if np.any(spread > 0) else None
+    if largest > MAGNITUDE_LIMIT or (smallest is not None and smallest < 1 / MAGNITUDE_LIMIT):
+        size = largest if largest > MAGNITUDE_LIMIT else smallest
+        raise ValueError(
+            f"{name} has values of magnitude {size:.3g}: the model's variances (their "
+            "squares) would leave float64's range. Rescale it to a moderate range first "
+            f"(e.g. divide by {size:.3g}) and scale the result back."
+        )
 
 
 Summary = namedtuple("Summary", "min max mean var nonfinite")

@@ -8,6 +8,7 @@ from car_napari import (
     illumination_invariants,
     local_parameters,
     predict,
+    restore,
     select_support,
 )
 
@@ -29,6 +30,20 @@ def test_nan_or_inf(call, bad):
     img[3, 4, 1] = bad
     with pytest.raises(ValueError, match="NaN or infinite"):
         call(img)
+
+
+@pytest.mark.parametrize("call", ENTRY_POINTS + [
+    lambda im, **kw: predict(fit_car(GOOD, 1), im, **kw),
+    lambda im, **kw: restore(im, **kw),
+    lambda im, **kw: restore(im, estimator="recursive", **kw),
+])
+@pytest.mark.parametrize("scale", [1e-300, 1e-160, 1e160, 1e300])
+def test_extreme_magnitude_is_a_clear_error(call, scale):
+    # their squares leave float64: a message, never NaN output or LinAlgError
+    img = GOOD * scale
+    with pytest.raises(ValueError, match="magnitude .* Rescale"):
+        call(img)
+    np.testing.assert_array_equal(img, GOOD * scale)  # the input is untouched
 
 
 @pytest.mark.parametrize("call", ENTRY_POINTS)

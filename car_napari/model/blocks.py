@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._progress import Progress
-from .._validation import as_channel_last_float, summarize
+from .._validation import as_channel_last_float, check_values, summarize
 
 __all__ = ["BLOCK_VALUES", "iter_centre", "iter_channel_last_float", "row_ranges"]
 
@@ -122,12 +122,7 @@ def iter_channel_last_float(image, *, channel_axis=-1, name="image", stage="prep
                 np.maximum(part, -1.0, out=part)
         yield Progress(stage, k / (len(blocks) + 1), f"{name}: rows {stop}/{h}")
     summary = summarize(out)
-    if summary.nonfinite.any():
-        bad = int(summary.nonfinite.sum())
-        raise ValueError(
-            f"{name} contains {bad} NaN or infinite values; fill or mask them first "
-            "(e.g. np.nan_to_num, or restrict the fit to a finite rectangle)."
-        )
+    check_values(summary, name=name)
     yield Progress(stage, 1.0, f"{name}: summarised")
     return out, summary
 
