@@ -21,7 +21,7 @@ from . import (
     _segment,
     _synthesize,
 )
-from ._common import expand_inputs
+from ._common import INPUT_ERRORS, BatchFailed, expand_inputs
 
 __all__ = ["build_parser", "expand_inputs", "main"]
 
@@ -65,8 +65,9 @@ def main(argv=None):
     Returns
     -------
     status : int
-        0 on success, 2 when the inputs are wrong (the reason is printed to
-        stderr as ``car-napari: ...``).
+        0 on success; for a batch, 1 when some inputs failed (each reported
+        on one line, the others done); 2 when the inputs are wrong or none
+        succeeded (the reason is printed to stderr as ``car-napari: ...``).
 
     Raises
     ------
@@ -80,8 +81,7 @@ def main(argv=None):
     """
     args = build_parser().parse_args(argv)
     try:
-        args.run(args)
-    except (ValueError, TypeError, OSError) as exc:
+        return args.run(args) or 0
+    except (BatchFailed, *INPUT_ERRORS) as exc:
         print(f"car-napari: {exc}", file=sys.stderr)
         return 2
-    return 0

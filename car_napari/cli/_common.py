@@ -1,5 +1,6 @@
-"""What the commands share: the input walk, the progress bar, argument types
-and the conversion of results back to file types."""
+"""What the commands share: the input walk (one failure per line, the batch
+goes on), the progress bar, argument types and the conversion of results back
+to file types."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io.images import IMAGE_SUFFIXES, write_image
+from ..io.images import IMAGE_SUFFIXES, is_colour, write_image
 
 
 def expand_inputs(items):
@@ -64,23 +65,118 @@ def output_folder(path):
     return out
 
 
-def each_input(inputs):
-    """(input path, progress bar) for every input image of :func:`expand_inputs`.
+class BatchFailed(Exception):
+    """Raised by :func:`run_batch` when no input succeeded (exit status 2)."""
 
-    The inputs are expanded at once (so that a command fails before it
-    writes anything when there are none); the bar on stderr advances by one
-    input per image, and within one through ``bar.on_progress``.
+
+#: What a failure of one input raises: reported on one line, the batch goes on.
+INPUT_ERRORS = (ValueError, TypeError, OSError)
+
+
+def run_batch(paths, process, *, quiet=False, unit="image"):
+    """Run ``process(path, bar)`` on every input, one failure reported per line.
+
+    Parameters
+    ----------
+    paths : list of pathlib.Path
+        The input files (from :func:`expand_inputs`, called first so that a
+        command with no inputs fails before it writes anything).
+    process : callable
+        ``process(path, bar)`` does one input and returns a short line on
+        it (or None); a ValueError, TypeError or OSError it raises is that
+        input's failure.
+    quiet : bool, optional
+        Send the per-input lines to stderr instead of stdout.
+    unit : str, optional
+        What the progress bar counts.
+
+    Returns
+    -------
+    status : int
+        0 when every input succeeded, 1 when some failed.
+
+    Raises
+    ------
+    BatchFailed
+        When every input failed (the command's exit status is then 2).
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> folder = Path(tempfile.mkdtemp())
+    >>> for name in ("a.png", "b.png"):
+    ...     _ = (folder / name).write_bytes(b"")
+    >>> def size(path, bar):
+    ...     if path.name == "b.png":
+    ...         raise ValueError("not an image")
+    ...     return "fine"
+    >>> run_batch(expand_inputs([str(folder)]), size)
+    a.png: fine
+    1
     """
-    paths = expand_inputs(inputs)
+    failed = 0
+    with ProgressBar(len(paths), unit=unit) as bar:
+        for i, path in enumerate(paths):
+            bar.begin(i, path.name)
+            try:
+                line = process(path, bar)
+            except INPUT_ERRORS as exc:
+                failed += 1
+                bar.write(f"{path.name}: failed: {exc}", err=True)
+                continue
+            if line:
+                bar.write(f"{path.name}: {line}", err=quiet)
+        bar.begin(len(paths), "done")
+    if failed and failed == len(paths):
+        raise BatchFailed(f"no input could be processed ({failed} failed; see above).")
+    if failed:
+        bar.write(f"{failed} of {len(paths)} inputs failed (see above).", err=True)
+    return 1 if failed else 0
 
-    def walk():
-        with ProgressBar(len(paths), unit="image") as bar:
-            for i, path in enumerate(paths):
-                bar.begin(i, path.name)
-                yield path, bar
-            bar.begin(len(paths), "done")
 
-    return walk()
+def one_image(image, path):
+    """``image`` if it is one grey or colour image; a stack (a multi-page
+    TIFF) is a ValueError that says what to do."""
+    if image.ndim == 2 or is_colour(image):
+        return image
+    raise ValueError(
+        f"{Path(path).name} holds a stack of shape {image.shape}, not one image; this "
+        "command takes one image per file (split the stack into files, or for versions "
+        "of one scene use 'car-napari restore --stack-axis 0').")
+
+
+def image_suffix(image):
+    """The file suffix that holds ``image``'s pixels: .png for 8-bit and
+    16-bit grey, .tif for everything else (floats, 16-bit colour)."""
+    if image.dtype == np.uint8 or (image.dtype == np.uint16 and image.ndim == 2):
+        return ".png"
+    return ".tif"
+
+
+def positive_int(text):
+    """argparse type: an integer >= 1."""
+    return _number(text, int, 1, "a positive integer")
+
+
+def non_negative_int(text):
+    """argparse type: an integer >= 0."""
+    return _number(text, int, 0, "an integer >= 0")
+
+
+def non_negative_float(text):
+    """argparse type: a finite number >= 0."""
+    return _number(text, float, 0.0, "a finite number >= 0")
+
+
+def _number(text, kind, lowest, what):
+    try:
+        value = kind(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be {what}; got {text!r}") from None
+    if not np.isfinite(value) or value < lowest:
+        raise argparse.ArgumentTypeError(f"must be {what}; got {text!r}")
+    return value
 
 
 class ProgressBar:
@@ -127,7 +223,9 @@ class ProgressBar:
 
 def channel_axis(image, *, stack=False):
     """-1 for colour (a trailing channel axis), None for grey."""
-    return -1 if image.ndim == (4 if stack else 3) else None
+    if not stack:
+        return -1 if is_colour(image) else None
+    return -1 if image.ndim == 4 else None
 
 
 def order_type(text):
@@ -177,3 +275,10 @@ def from_unit(values, dtype):
 def write_labels(path, labels):
     """A label image as an 8-bit PNG (16-bit beyond 255 labels)."""
     write_image(path, labels.astype(np.uint8 if labels.max() < 256 else np.uint16))
+
+
+def print_note(text):
+    """A one-line note on stderr (``read_image``'s ``on_note``), above any bar."""
+    from tqdm import tqdm
+
+    tqdm.write(f"note: {text}", file=sys.stderr)

@@ -6,7 +6,7 @@ import json
 import sys
 
 from ..io.images import read_image
-from ._common import add_order, channel_axis
+from ._common import add_order, channel_axis, one_image, print_note
 
 
 def add_parser(sub):
@@ -19,7 +19,7 @@ def add_parser(sub):
 def run(args):
     from ..model import fit_car
 
-    image = read_image(args.image)
+    image = one_image(read_image(args.image, on_note=print_note), args.image)
     model = fit_car(image, args.order, channel_axis=channel_axis(image))
     json.dump(model.to_dict(), sys.stdout, indent=2)
     sys.stdout.write("\n")

@@ -8,7 +8,7 @@ import time
 import numpy as np
 
 from ..io.images import read_image, write_image
-from ._common import add_output, channel_axis
+from ._common import add_output, channel_axis, one_image, print_note
 
 
 def add_parser(sub):
@@ -37,7 +37,7 @@ def read_mask(path, shape):
 def run(args):
     from ..inpainting import inpaint
 
-    image = read_image(args.image)
+    image = one_image(read_image(args.image, on_note=print_note), args.image)
     mask = read_mask(args.mask, image.shape[:2])
     t0 = time.perf_counter()
     out = inpaint(image, mask, channel_axis=channel_axis(image))

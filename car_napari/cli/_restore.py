@@ -14,9 +14,13 @@ from ._common import (
     add_inputs,
     add_quiet,
     channel_axis,
-    each_input,
+    expand_inputs,
     from_unit,
+    image_suffix,
+    one_image,
     output_folder,
+    print_note,
+    run_batch,
 )
 
 
@@ -50,11 +54,14 @@ def kappa_type(text):
 def run(args):
     from ..restoration import DEFAULT_KAPPA, iter_restore, iter_restore_multichannel
 
+    paths = expand_inputs(args.inputs)
     out = output_folder(args.output)
-    for path, bar in each_input(args.inputs):
+
+    def process(path, bar):
         t0 = time.perf_counter()
-        image = read_image(path)
+        image = read_image(path, on_note=print_note)
         if args.stack_axis is None:
+            image = one_image(image, path)
             job = iter_restore(image, kappa=args.kappa or 0.0, channel_axis=channel_axis(image),
                                return_result=True)
         else:
@@ -67,11 +74,11 @@ def run(args):
         if restored.ndim == 3 and restored.shape[2] == 1:
             restored = restored[..., 0]
         restored = from_unit(restored, image.dtype)  # a stack's versions share its dtype
-        suffix = ".tif" if restored.dtype == np.float32 else ".png"
-        write_image(out / f"{path.stem}_restored{suffix}", restored)
+        write_image(out / f"{path.stem}_restored{image_suffix(restored)}", restored)
         if args.probability:
             write_image(out / f"{path.stem}_probability.tif",
                         result.probability.astype(np.float32))
         ref = "" if result.reference is None else f", reference version {result.reference}"
-        bar.write(f"{path.name}: restored{ref}, {time.perf_counter() - t0:.1f} s",
-                  err=args.quiet)
+        return f"restored{ref}, {time.perf_counter() - t0:.1f} s"
+
+    return run_batch(paths, process, quiet=args.quiet)

@@ -6,8 +6,8 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from ..io.images import DICOM_SUFFIXES, IMAGE_SUFFIXES, read_image
-from ._common import channel_axis
+from ..io.images import DICOM_SUFFIXES, IMAGE_SUFFIXES, is_colour, read_image
+from ._common import INPUT_ERRORS, channel_axis, one_image, positive_int, print_note
 
 
 def add_parser(sub):
@@ -15,24 +15,29 @@ def add_parser(sub):
                                         "distance to a query")
     p.add_argument("query", help="query texture")
     p.add_argument("gallery", help="folder of images")
-    p.add_argument("--top", type=int, default=None, help="print only the N nearest")
+    p.add_argument("--top", type=positive_int, default=None, help="print only the N nearest")
     p.set_defaults(run=run)
 
 
 def run(args):
     from ..texture.retrieval import rank
 
-    query = read_image(args.query)
+    query = one_image(read_image(args.query, on_note=print_note), args.query)
     folder = Path(args.gallery)
     if not folder.is_dir():
         raise ValueError(f"{folder} is not a folder of images.")
-    colour = query.ndim == 3
-    paths, images, skipped = [], [], []
+    colour = is_colour(query)
+    paths, images, skipped, failed = [], [], [], 0
     for path in sorted(folder.iterdir()):
         if path.suffix.lower() not in IMAGE_SUFFIXES - DICOM_SUFFIXES:
             continue
-        image = read_image(path)
-        if (image.ndim == 3) != colour:
+        try:
+            image = one_image(read_image(path, on_note=print_note), path)
+        except INPUT_ERRORS as exc:  # one bad file must not lose the others
+            failed += 1
+            print(f"{path.name}: failed: {exc}", file=sys.stderr)
+            continue
+        if is_colour(image) != colour:
             skipped.append(path.name)
             continue
         paths.append(path)
@@ -46,3 +51,4 @@ def run(args):
     if skipped:
         print(f"skipped ({'grey' if colour else 'colour'}, the query is "
               f"{'colour' if colour else 'grey'}): {', '.join(skipped)}", file=sys.stderr)
+    return 1 if failed else 0

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from ..io.images import write_image
-from ._common import add_order, add_output, from_unit
+from ._common import add_order, add_output, from_unit, non_negative_int, positive_int
 from ._fit_texture import texture_model
 
 
@@ -18,10 +18,10 @@ def add_parser(sub):
                                           "file or an example image")
     p.add_argument("source", help="model file (.npz from fit-texture) or example texture")
     add_output(p, "output image (.png/.jpg: 8-bit; .tif: float)")
-    p.add_argument("--size", nargs=2, type=int, metavar=("H", "W"), default=(256, 256))
-    p.add_argument("--seed", type=int, default=None)
+    p.add_argument("--size", nargs=2, type=positive_int, metavar=("H", "W"), default=(256, 256))
+    p.add_argument("--seed", type=non_negative_int, default=None)
     p.add_argument("--tileable", action="store_true", help="wrap seamlessly (toroidal)")
-    p.add_argument("--levels", type=int, default=3, help="pyramid levels when fitting")
+    p.add_argument("--levels", type=positive_int, default=3, help="pyramid levels when fitting")
     add_order(p, help="neighbourhood order when fitting, or 'auto' (default)")
     p.set_defaults(run=run)
 
@@ -36,13 +36,14 @@ def run(args):
 
 
 def write_texture(path, sample, *, uint16=False):
-    """PNG/JPEG/BMP: 8-bit (16-bit PNG with ``uint16``) of values in [0, 1];
-    TIFF: float32 as is."""
+    """PNG/JPEG/BMP: 8-bit (16-bit grey PNG with ``uint16``) of values in
+    [0, 1]; TIFF: float32 as is."""
     suffix = Path(path).suffix.lower()
     if suffix in (".tif", ".tiff"):
         out = from_unit(sample, np.float32)
     elif suffix in (".png", ".jpg", ".jpeg", ".bmp"):
-        out = from_unit(sample, np.uint16 if uint16 and suffix == ".png" else np.uint8)
+        grey16 = uint16 and suffix == ".png" and sample.ndim == 2  # PNG writers: 16-bit grey only
+        out = from_unit(sample, np.uint16 if grey16 else np.uint8)
     else:
         raise ValueError(f"cannot write {path}: use .png, .jpg, .bmp (8-bit) or .tif (float).")
     write_image(path, out)

@@ -10,6 +10,8 @@ float32 image in [0, 1], bright = dense, as the rest of car-napari expects.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 #: Suffixes (lower case) of DICOM files.
@@ -70,7 +72,14 @@ def read_dicom(path):
     pydicom = _pydicom()
     from pydicom.pixels import apply_modality_lut, apply_voi_lut
 
-    ds = pydicom.dcmread(str(path))
+    try:
+        ds = pydicom.dcmread(str(path))
+    except (pydicom.errors.InvalidDicomError, EOFError, OSError) as exc:
+        empty = Path(path).stat().st_size == 0 if Path(path).exists() else False
+        reason = "the file is empty" if empty else f"{type(exc).__name__}: no DICOM header"
+        raise ValueError(f"cannot read {path} as DICOM ({reason}). Check that it is a DICOM "
+                         "file (a 128-byte preamble and 'DICM'), not another file renamed.") \
+            from None
     if "PixelData" not in ds:
         raise ValueError(f"{path} has no pixel data.")
     photometric = str(ds.get("PhotometricInterpretation", "MONOCHROME2"))

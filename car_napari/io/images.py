@@ -10,16 +10,21 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 from .dicom import DICOM_SUFFIXES, read_dicom
 
-__all__ = ["DICOM_SUFFIXES", "IMAGE_SUFFIXES", "read_image", "write_image"]
+__all__ = ["DICOM_SUFFIXES", "IMAGE_SUFFIXES", "is_colour", "read_image", "write_image"]
+
+# formats that hold 8-bit pixels only (PNG also 16-bit grey)
+_EIGHT_BIT = frozenset({".png", ".jpg", ".jpeg", ".bmp", ".gif"})
 
 #: Suffixes (lower case) of the image files car-napari reads, DICOM included.
 IMAGE_SUFFIXES = frozenset({".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm", ".ppm",
                             ".gif", *DICOM_SUFFIXES})
 
 
-def read_image(path):
+def read_image(path, *, on_note=None):
     """Read an image file as an array.
 
     Parameters
@@ -28,12 +33,16 @@ def read_image(path):
         An image file. DICOM files (``.dcm``, ``.dicom``) are read with
         :func:`~car_napari.io.dicom.read_dicom` (needs ``pydicom``); any other
         file with :func:`skimage.io.imread`.
+    on_note : callable, optional
+        Called with a one-line note when something was dropped (an alpha
+        channel).
 
     Returns
     -------
     image : ndarray
         The pixels as stored: ``(H, W)`` grey, ``(H, W, 3)`` colour (an alpha
-        channel is dropped), or a stack as a multi-page TIFF holds it. A DICOM
+        channel is dropped, grey + alpha gives grey), or a stack as a
+        multi-page TIFF holds it (pages first; see :func:`is_colour`). A DICOM
         file gives its display-ready ``(H, W)`` float32 image in [0, 1].
 
     Raises
@@ -66,12 +75,70 @@ def read_image(path):
     from skimage import io
 
     try:
-        image = io.imread(str(path))
+        if path.suffix.lower() in (".tif", ".tiff"):
+            image = _read_tiff(path)
+        else:
+            image = io.imread(str(path))
     except Exception as exc:
-        raise ValueError(f"cannot read {path} as an image: {exc}") from None
-    if image.ndim == 3 and image.shape[2] == 4:
-        image = image[..., :3]  # drop alpha: the models see colour only
+        # the first line only: imageio appends install hints for other formats
+        reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        if "backend" in reason:  # imageio: no plugin could decode the bytes
+            reason = f"not a valid {path.suffix or 'image'} file"
+        raise ValueError(f"cannot read {path} as an image ({reason}); is it an image file "
+                         "with the right suffix?") from None
+    if image.ndim == 3 and image.shape[2] in (2, 4) and not _is_stack(path):
+        image = image[..., :-1]  # drop alpha: the models see grey or colour only
+        if image.shape[2] == 1:
+            image = image[..., 0]
+        if on_note is not None:
+            on_note(f"{path.name}: alpha channel dropped")
     return image
+
+
+def _is_stack(path):
+    """A TIFF of several pages or frames (its trailing 2 or 4 are not channels)."""
+    if path.suffix.lower() not in (".tif", ".tiff"):
+        return False
+    import tifffile
+
+    with tifffile.TiffFile(str(path)) as tif:
+        return "S" not in tif.series[0].axes
+
+
+def _read_tiff(path):
+    """A TIFF's first series with its samples (colour) axis last: pages, or
+    frames of an ImageJ/OME stack, stay first."""
+    import tifffile
+
+    with tifffile.TiffFile(str(path)) as tif:
+        series = tif.series[0]
+        image = series.asarray()
+        if "S" in series.axes:
+            image = np.moveaxis(image, series.axes.index("S"), -1)
+    return image
+
+
+def is_colour(image):
+    """Whether an array from :func:`read_image` is one colour image (H, W, 3);
+    any other 3-D array (a multi-page TIFF) is a stack of grey frames.
+
+    Parameters
+    ----------
+    image : ndarray
+        An image as :func:`read_image` returns it.
+
+    Returns
+    -------
+    bool
+        True for ``(H, W, 3)``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> is_colour(np.zeros((8, 8, 3))), is_colour(np.zeros((3, 8, 8))), is_colour(np.zeros((8, 8)))
+    (True, False, False)
+    """
+    return image.ndim == 3 and image.shape[2] == 3
 
 
 def write_image(path, image):
@@ -106,4 +173,16 @@ def write_image(path, image):
     """
     from skimage import io
 
-    io.imsave(str(path), image, check_contrast=False)
+    path = Path(path)
+    image = np.asarray(image)
+    suffix = path.suffix.lower()
+    grey16_png = suffix == ".png" and image.dtype == np.uint16 and image.ndim == 2
+    if suffix in _EIGHT_BIT and image.dtype not in (np.uint8, np.bool_) and not grey16_png:
+        holds = "8-bit pixels (or 16-bit grey)" if suffix == ".png" else "8-bit pixels"
+        kind = "colour" if image.ndim == 3 else "grey"
+        raise ValueError(f"cannot write {image.dtype} {kind} pixels to {path.name}: "
+                         f"{path.suffix} holds {holds}. Write a .tif instead.")
+    try:
+        io.imsave(str(path), image, check_contrast=False)
+    except (ValueError, TypeError, KeyError) as exc:
+        raise ValueError(f"cannot write {path}: {exc}. Write a .tif instead.") from None

@@ -7,6 +7,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 from skimage import data as skdata
 from skimage import io
 
@@ -97,9 +98,9 @@ def test_mammo_writes_labels_and_one_table(tmp_path, capsys):
     inputs.append(str(src / "mdb001.dcm"))
     out = tmp_path / "out"
     assert main(["mammo", *inputs, "-o", str(out), "--max-regions", "0",
-                 "--tolerance", "0.3"]) == 0
+                 "--tolerance", "0.3"]) == 1  # some inputs failed (black.png)
     err = capsys.readouterr().err
-    assert "black.png: skipped" in err and "constant" in err
+    assert "black.png: failed" in err and "constant" in err
     labels = io.imread(out / "mdb001_rois.png")
     assert labels.shape == small.shape and labels.max() >= 1
     with open(out / "rois.csv") as fh:
@@ -257,3 +258,89 @@ def test_restore_drives_the_bar_to_the_end(tmp_path, monkeypatch):
     percents = [int(p) for p in re.findall(r"(\d+)%\|", err.getvalue())]
     assert percents[-1] == 100
     assert (tmp_path / "out" / "noisy_restored.png").exists()
+
+
+# --- bad input: one line per failed file, the batch goes on (issue 15) -------------------
+
+def _noise_png(path, seed=0, shape=(64, 64)):
+    io.imsave(path, (np.random.default_rng(seed).random(shape) * 255).astype(np.uint8))
+
+
+def test_a_bad_file_is_reported_and_the_batch_goes_on(tmp_path, capsys):
+    _noise_png(tmp_path / "a.png")
+    (tmp_path / "b.png").write_text("not an image")
+    _noise_png(tmp_path / "c.png", seed=1)
+    out = tmp_path / "out"
+    assert main(["segment", str(tmp_path / "*.png"), "-o", str(out), "--segments", "2",
+                 "--levels", "1"]) == 1
+    err = capsys.readouterr().err
+    assert re.search(r"b\.png: failed: cannot read .*b\.png", err)
+    assert "pip install" not in err  # imageio's install hints are not the user's problem
+    assert sorted(p.name for p in out.iterdir()) == ["a_segments.png", "c_segments.png"]
+
+
+def test_a_batch_where_nothing_succeeds_exits_2(tmp_path, capsys):
+    (tmp_path / "fake.dcm").write_bytes(b"not a dicom")
+    (tmp_path / "empty.dcm").write_bytes(b"")
+    assert main(["segment", str(tmp_path), "-o", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "empty.dcm: failed: cannot read" in err and "the file is empty" in err
+    assert "fake.dcm: failed: cannot read" in err and "no input could be processed" in err
+
+
+def test_a_multipage_tiff_is_a_stack_not_colour(tmp_path, capsys):
+    import tifffile
+
+    from car_napari.io.images import read_image
+
+    frames = (np.random.default_rng(0).random((3, 48, 40)) * 255).astype(np.uint8)
+    path = tmp_path / "stack.tif"
+    tifffile.imwrite(path, frames, photometric="minisblack")
+    np.testing.assert_array_equal(read_image(path), frames)
+    assert main(["segment", str(path), "-o", str(tmp_path / "out")]) == 2
+    assert "holds a stack of shape (3, 48, 40)" in capsys.readouterr().err
+
+
+def test_grey_plus_alpha_is_grey_with_a_note(tmp_path, capsys):
+    from car_napari.io.images import read_image
+
+    grey = (np.random.default_rng(0).random((32, 32)) * 255).astype(np.uint8)
+    path = tmp_path / "ga.png"
+    io.imsave(path, np.dstack([grey, np.full_like(grey, 255)]))
+    notes = []
+    np.testing.assert_array_equal(read_image(path, on_note=notes.append), grey)
+    assert notes == ["ga.png: alpha channel dropped"]
+
+
+def test_outputs_go_to_a_format_that_holds_them(tmp_path):
+    from car_napari.cli._common import image_suffix
+    from car_napari.io.images import read_image, write_image
+
+    rgb16 = np.random.default_rng(0).integers(0, 65535, (8, 8, 3)).astype(np.uint16)
+    assert image_suffix(rgb16) == ".tif" and image_suffix(rgb16[..., 0]) == ".png"
+    with pytest.raises(ValueError, match="Write a .tif instead"):
+        write_image(tmp_path / "x.png", rgb16)
+    write_image(tmp_path / "x.tif", rgb16)
+    np.testing.assert_array_equal(read_image(tmp_path / "x.tif"), rgb16)
+
+
+@pytest.mark.parametrize("argv, match", [
+    (["mammo", "{img}", "-o", "{out}", "--tolerance", "-1"], "--tolerance: must be"),
+    (["mammo", "{img}", "-o", "{out}", "--max-regions", "-1"], "--max-regions: must be"),
+    (["retrieve", "{img}", "{dir}", "--top", "-1"], "--top: must be a positive"),
+    (["segment", "{img}", "-o", "{out}", "--levels", "0"], "--levels: must be a positive"),
+    (["synthesize", "{img}", "-o", "{out}.png", "--size", "0", "5"], "--size: must be"),
+])
+def test_option_values_are_checked_before_any_work(tmp_path, capsys, argv, match):
+    _noise_png(tmp_path / "q.png")
+    args = [a.format(img=tmp_path / "q.png", out=tmp_path / "out", dir=tmp_path) for a in argv]
+    with pytest.raises(SystemExit) as exit_info:
+        main(args)
+    assert exit_info.value.code == 2 and match in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
+def test_fit_texture_of_a_model_file_says_what_to_do(tmp_path, capsys):
+    (tmp_path / "m.npz").write_bytes(b"")
+    assert main(["fit-texture", str(tmp_path / "m.npz"), "-o", str(tmp_path / "n.npz")]) == 2
+    assert "is a model file" in capsys.readouterr().err
