@@ -175,3 +175,27 @@ def output_shape(shape):
     if h < 1 or w < 1:
         raise ValueError(f"shape must be positive; got {(h, w)}.")
     return h, w
+
+
+def check_real(value, name, *, low=None, high=None, low_open=False, high_open=False,
+               integer=False):
+    """``value`` as a float (an int with ``integer``) within its range, or a
+    TypeError / ValueError that names the argument and says what is allowed.
+    Checked before any work, so that a bad option never costs a pass over
+    the image."""
+    kind = "an integer" if integer else "a number"
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.number)):
+        raise TypeError(f"{name} must be {kind}; got {value!r}.")
+    if integer and not float(value).is_integer():
+        raise ValueError(f"{name} must be {kind}; got {value!r}.")
+    number = int(value) if integer else float(value)
+    if not math.isfinite(number):
+        raise ValueError(f"{name} must be a finite number; got {value!r}.")
+    below = low is not None and (number <= low if low_open else number < low)
+    above = high is not None and (number >= high if high_open else number > high)
+    if below or above:
+        left = "(" if low_open else "["
+        right = ")" if high_open else "]"
+        span = f"{left}{'-inf' if low is None else low}, {'inf' if high is None else high}{right}"
+        raise ValueError(f"{name} must be in {span}; got {value!r}.")
+    return number

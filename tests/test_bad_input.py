@@ -115,3 +115,15 @@ def test_channel_axis_first():
     a = fit_car(GOOD, 1)
     b = fit_car(np.moveaxis(GOOD, -1, 0), 1, channel_axis=0)
     np.testing.assert_allclose(a.gamma, b.gamma)
+
+
+@pytest.mark.parametrize("option, value, error", [
+    ("forgetting", np.nan, ValueError), ("forgetting", 0.0, ValueError),
+    ("forgetting", 1.5, ValueError), ("forgetting", "0.9", TypeError),
+    ("prior", np.inf, ValueError), ("prior", -1.0, ValueError), ("prior", None, TypeError),
+    ("warm_start", "yes", TypeError),
+])
+def test_local_parameters_options_checked_first(option, value, error):
+    # a string image would fail too: the option's message must come first
+    with pytest.raises(error, match=option):
+        local_parameters("not an image", 1, **{option: value})

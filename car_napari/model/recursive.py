@@ -8,7 +8,13 @@ from typing import NamedTuple
 import numpy as np
 
 from .._progress import Progress, drain
-from .._validation import as_channel_last_float, check_not_constant, check_size, summarize
+from .._validation import (
+    as_channel_last_float,
+    check_not_constant,
+    check_real,
+    check_size,
+    summarize,
+)
 from ._kernels import finish_factor, recursive_scan
 from .directions import DIRECTIONS, scan_shape, scan_view, unscan_view
 from .neighbourhood import Context, as_offsets
@@ -849,14 +855,14 @@ def iter_local_parameters(
     >>> bool(np.array_equal(gamma, local_parameters(image, 1)))
     True
     """
-    data = as_channel_last_float(image, channel_axis=channel_axis)
-    offsets, _ = as_offsets(neighbourhood)
-    if not (0.0 < float(forgetting) <= 1.0):
-        raise ValueError(f"forgetting must be in (0, 1]; got {forgetting}.")
+    offsets, _ = as_offsets(neighbourhood)  # the options first: no pass over a bad call
+    forgetting = check_real(forgetting, "forgetting", low=0.0, high=1.0, low_open=True)
     if direction not in DIRECTIONS:
         raise ValueError(f"direction must be one of {DIRECTIONS}; got {direction!r}.")
-    if not prior > 0:
-        raise ValueError(f"prior must be positive; got {prior}.")
+    prior = check_real(prior, "prior", low=0.0, low_open=True)
+    if not isinstance(warm_start, (bool, np.bool_)):
+        raise TypeError(f"warm_start must be True or False; got {warm_start!r}.")
+    data = as_channel_last_float(image, channel_axis=channel_axis)
     context = Context.spatial(offsets, data.shape[2])
     check_size(np.empty(scan_shape(data.shape, direction)), context.reach)
     summary = summarize(data)
