@@ -9,6 +9,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .._progress import Progress, drain
+from .._validation import check_real
 from ._images import _as_grey, _block_mean, _grey01, _upsample_mask
 
 __all__ = [
@@ -267,7 +268,7 @@ def filter_regions(image, segments, *, reference=None, tolerance=None, max_regio
     >>> int(rois.labels.max()), rois.table["area"].tolist()
     (1, [1596])
     """
-    _check_filter_options(reference, tolerance, max_regions)
+    _check_filter_options(reference, tolerance, max_regions, min_area)
     grey_full = _grey01(_as_grey(image, channel_axis), name="mammogram")
     return drain(_iter_filter(
         grey_full, segments, reference=reference, tolerance=tolerance,
@@ -275,13 +276,16 @@ def filter_regions(image, segments, *, reference=None, tolerance=None, max_regio
         split_sigmas=split_sigmas, split_delta=split_delta))
 
 
-def _check_filter_options(reference, tolerance, max_regions):
-    reference = REFERENCE_GREY if reference is None else float(reference)
-    tolerance = REFERENCE_TOLERANCE if tolerance is None else float(tolerance)
-    if tolerance <= 0:
-        raise ValueError(f"tolerance must be positive; got {tolerance}.")
-    if max_regions is not None and (int(max_regions) != max_regions or max_regions < 1):
-        raise ValueError(f"max_regions must be a positive int or None; got {max_regions!r}.")
+def _check_filter_options(reference, tolerance, max_regions, min_area=None):
+    """The region filter's options, checked before any work."""
+    reference = (REFERENCE_GREY if reference is None
+                 else check_real(reference, "reference", low=0.0, high=1.0))
+    tolerance = (REFERENCE_TOLERANCE if tolerance is None
+                 else check_real(tolerance, "tolerance", low=0.0, low_open=True))
+    if max_regions is not None:
+        check_real(max_regions, "max_regions (a positive int or None)", low=1, integer=True)
+    if min_area is not None:
+        check_real(min_area, "min_area (pixels, or None)", low=0.0)
     return reference, tolerance
 
 
@@ -311,7 +315,7 @@ def _iter_filter(grey_full, segments, *, reference=None, tolerance=None, max_reg
     records between the steps (a Cancel is seen soon on a large image)."""
     from scipy import ndimage
 
-    reference, tolerance = _check_filter_options(reference, tolerance, max_regions)
+    reference, tolerance = _check_filter_options(reference, tolerance, max_regions, min_area)
     H, W = grey_full.shape
     if isinstance(segments, (list, tuple)) and segments and np.ndim(segments[0]) == 2:
         labellings = [np.asarray(s) for s in segments]  # (np.ndim(segments) copies them all)

@@ -18,6 +18,7 @@ import numpy as np
 
 from .._docstrings import shared_parameters
 from .._progress import Progress, drain, stage
+from .._validation import check_real
 from ..segmentation import iter_segment, pseudo_colour
 from ._breast import _iter_detect
 from ._images import _STRIP, _block_mean, _iter_grey
@@ -186,6 +187,7 @@ def iter_segment_breast(image, *, breast=None, n_segments=None, levels=3, neighb
     'breast'
     >>> job.close()
     """
+    _check_segment_options(levels, work_side, seed)
     work = _work(np.size(image), len(pool or ()) + 1)
     spans = _spans(work, ("reading", "breast", "segmentation", "pooling"))
     grey = yield from stage(_iter_grey(image, channel_axis), *spans["reading"])
@@ -203,6 +205,15 @@ def _block_fraction(mask, factor):
     counts = mask[:h, :w].reshape(h // factor, factor, w // factor, factor).sum(
         axis=(1, 3), dtype=np.int64)
     return counts / float(factor * factor)
+
+
+def _check_segment_options(levels, work_side, seed):
+    """The breast segmentation's own options, checked before any work (the
+    segmentation checks the rest)."""
+    check_real(levels, "levels", low=1, high=6, integer=True)
+    check_real(work_side, "work_side (pixels)", low=64, high=8192, integer=True)
+    if seed is not None:
+        check_real(seed, "seed", low=0, integer=True)
 
 
 def _iter_segment_grey(grey, *, breast, n_segments, levels, neighbourhood, n_init, work_side,
@@ -388,7 +399,8 @@ def iter_detect_mammogram_rois(image, *, reference=None, tolerance=None, levels=
     >>> records[0].stage, records[-1].stage, records[-1].fraction
     ('breast', 'regions', 1.0)
     """
-    _check_filter_options(reference, tolerance, max_regions)
+    _check_filter_options(reference, tolerance, max_regions, min_area)
+    _check_segment_options(levels, work_side, seed)
     pool = None if n_segments is not None else pool
     spans = _spans(_work(np.size(image), len(pool or ()) + 1),
                    ("reading", "breast", "segmentation", "pooling", "regions"))

@@ -349,3 +349,17 @@ def test_thin_image_is_a_clear_error(shape):
         detect_mammogram_rois(image)
     with pytest.raises(ValueError, match="too thin"):
         detect_breast(image)
+
+
+@pytest.mark.parametrize("option, value, error", [
+    ("reference", np.nan, ValueError), ("reference", 2.5, ValueError),
+    ("tolerance", np.inf, ValueError), ("tolerance", 0.0, ValueError),
+    ("max_regions", np.inf, ValueError), ("max_regions", 2.5, ValueError),
+    ("min_area", -1, ValueError), ("min_area", "a", TypeError),
+    ("levels", 10**9, ValueError), ("work_side", 0, ValueError), ("seed", -1, ValueError),
+])
+def test_options_are_checked_before_any_work(option, value, error):
+    image = np.zeros((4096, 4096), np.uint8)  # would take seconds to read: not read at all
+    job = mm.iter_detect_mammogram_rois(image, **{option: value})
+    with pytest.raises(error, match=option):
+        next(job)
