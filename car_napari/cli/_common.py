@@ -73,8 +73,9 @@ class BatchFailed(Exception):
 INPUT_ERRORS = (ValueError, TypeError, OSError)
 
 
-def run_batch(paths, process, *, quiet=False, unit="image"):
-    """Run ``process(path, bar)`` on every input, one failure reported per line.
+def run_batch(paths, process, *, outputs=None, on_done=None, options=None, quiet=False,
+              unit="image"):
+    """Run ``process(path, on_progress)`` on every input, each failure on one line.
 
     Parameters
     ----------
@@ -82,9 +83,20 @@ def run_batch(paths, process, *, quiet=False, unit="image"):
         The input files (from :func:`expand_inputs`, called first so that a
         command with no inputs fails before it writes anything).
     process : callable
-        ``process(path, bar)`` does one input and returns a short line on
-        it (or None); a ValueError, TypeError or OSError it raises is that
-        input's failure.
+        ``process(path, on_progress)`` does one input (writing its outputs)
+        and returns a short line on it, or ``(line, payload)``; a
+        ValueError, TypeError or OSError it raises is that input's failure.
+        ``on_progress`` takes the job's Progress records. On a cluster it
+        runs in a worker process, so it must not hold open files.
+    outputs : callable, optional
+        ``outputs(path)``: the files the input writes. When all exist the
+        input is skipped, unless ``options.overwrite``.
+    on_done : callable, optional
+        ``on_done(path, payload)`` in this process, in the order inputs
+        finish (e.g. to write a shared table).
+    options : argparse.Namespace, optional
+        ``workers``, ``scheduler``, ``overwrite`` (:func:`add_cluster`); none:
+        one input after another in this process.
     quiet : bool, optional
         Send the per-input lines to stderr instead of stdout.
     unit : str, optional
@@ -93,7 +105,7 @@ def run_batch(paths, process, *, quiet=False, unit="image"):
     Returns
     -------
     status : int
-        0 when every input succeeded, 1 when some failed.
+        0 when every input succeeded (or was skipped), 1 when some failed.
 
     Raises
     ------
@@ -107,7 +119,7 @@ def run_batch(paths, process, *, quiet=False, unit="image"):
     >>> folder = Path(tempfile.mkdtemp())
     >>> for name in ("a.png", "b.png"):
     ...     _ = (folder / name).write_bytes(b"")
-    >>> def size(path, bar):
+    >>> def size(path, on_progress):
     ...     if path.name == "b.png":
     ...         raise ValueError("not an image")
     ...     return "fine"
@@ -115,24 +127,102 @@ def run_batch(paths, process, *, quiet=False, unit="image"):
     a.png: fine
     1
     """
+    overwrite = bool(getattr(options, "overwrite", False))
+    todo = [p for p in paths
+            if overwrite or outputs is None or not all(f.exists() for f in outputs(p))]
+    skipped = len(paths) - len(todo)
     failed = 0
     with ProgressBar(len(paths), unit=unit) as bar:
-        for i, path in enumerate(paths):
-            bar.begin(i, path.name)
-            try:
-                line = process(path, bar)
-            except INPUT_ERRORS as exc:
+        if skipped:
+            bar.write(f"{skipped} of {len(paths)} inputs skipped: their outputs exist "
+                      "(--overwrite to redo them).", err=True)
+        bar.skip(skipped)
+        for path, result in _results(todo, process, options, bar):
+            if isinstance(result, BaseException):
                 failed += 1
-                bar.write(f"{path.name}: failed: {exc}", err=True)
+                bar.write(f"{path.name}: failed: {result}", err=True)
                 continue
+            line, payload = result if isinstance(result, tuple) else (result, None)
+            if on_done is not None:
+                on_done(path, payload)
             if line:
                 bar.write(f"{path.name}: {line}", err=quiet)
         bar.begin(len(paths), "done")
     if failed and failed == len(paths):
         raise BatchFailed(f"no input could be processed ({failed} failed; see above).")
     if failed:
-        bar.write(f"{failed} of {len(paths)} inputs failed (see above).", err=True)
+        bar.write(f"{failed} of {len(todo)} inputs failed (see above).", err=True)
     return 1 if failed else 0
+
+
+def _results(paths, process, options, bar):
+    """(path, result or the exception it raised), as the inputs finish."""
+    workers = getattr(options, "workers", 1) or 1
+    scheduler = getattr(options, "scheduler", None)
+    if scheduler is None and workers <= 1:
+        for i, path in enumerate(paths):
+            bar.begin(bar.position(i), path.name)
+            try:
+                yield path, process(path, bar.on_progress)
+            except INPUT_ERRORS as exc:
+                yield path, exc
+        return
+    yield from _cluster_results(paths, process, workers, scheduler, bar)
+
+
+def _run_one(process, path):
+    """One input on a worker: its result, or the input error it raised (sent
+    back as a value, so that the others go on)."""
+    try:
+        return process(path, _ignore)
+    except INPUT_ERRORS as exc:
+        return exc
+
+
+def _ignore(record):
+    """A worker's Progress records stay on the worker (the bar counts inputs)."""
+
+
+def _cluster_results(paths, process, workers, scheduler, bar):
+    try:
+        from dask.distributed import Client, LocalCluster, as_completed
+    except ImportError:
+        raise ValueError("--workers and --scheduler need dask.distributed: "
+                         "pip install 'car-napari[cluster]'.") from None
+    import contextlib
+    import logging
+
+    with contextlib.ExitStack() as stack:
+        # a worker slow to stop under load is killed with a warning: not the user's concern
+        quiet_log = logging.getLogger("distributed")
+        stack.callback(quiet_log.setLevel, quiet_log.level)
+        quiet_log.setLevel(logging.ERROR)
+        if scheduler is not None:
+            client = stack.enter_context(Client(scheduler))
+        else:
+            # one single-threaded process per core: the core's kernels are
+            # serial and BLAS is limited to a thread, so N workers use N cores
+            cluster = stack.enter_context(LocalCluster(
+                n_workers=workers, threads_per_worker=1, processes=True,
+                dashboard_address=None))
+            client = stack.enter_context(Client(cluster))
+        futures = {client.submit(_run_one, process, path, pure=False): path for path in paths}
+        done = 0
+        for future in as_completed(futures):
+            done += 1
+            bar.begin(bar.position(done - 1), futures[future].name)
+            yield futures[future], future.result()
+
+
+def add_cluster(parser):
+    """The --workers, --scheduler and --overwrite options of a batch command."""
+    parser.add_argument("--workers", type=positive_int, default=1,
+                        help="worker processes on this machine (a dask LocalCluster when "
+                             "more than 1; default 1: in this process)")
+    parser.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                        help="submit to a running dask scheduler (e.g. tcp://host:8786)")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="redo inputs whose outputs exist (default: skip them)")
 
 
 def one_image(image, path):
@@ -192,8 +282,11 @@ class ProgressBar:
 
         self._tqdm = tqdm
         self._bar = tqdm(total=total, unit=unit, file=sys.stderr, disable=None,
-                         dynamic_ncols=True, bar_format="{percentage:3.0f}%|{bar}| {postfix}")
+                         dynamic_ncols=True,
+                         bar_format="{percentage:3.0f}%|{bar}| {n:.1f}/{total} "
+                                    "[{elapsed}<{remaining}, {rate_fmt}] {postfix}")
         self._total = total
+        self._offset = 0
         self._start, self._span = 0, 1
 
     def __enter__(self):
@@ -208,6 +301,15 @@ class ProgressBar:
         self._bar.set_postfix_str(f"{min(index + 1, self._total)}/{self._total} {label[:40]}",
                                   refresh=False)
         self._move(index)
+
+    def position(self, index):
+        """Where item ``index`` of the work to do starts, after the skipped ones."""
+        return self._offset + index
+
+    def skip(self, count):
+        """``count`` items are already done (their outputs exist)."""
+        self._offset = count
+        self._move(count)
 
     def on_progress(self, record):
         """:func:`car_napari._progress.drain`'s callback: a job's Progress record."""

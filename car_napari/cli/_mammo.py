@@ -9,8 +9,10 @@ import time
 
 import numpy as np
 
+from .._progress import drain
 from ..io.images import read_image
 from ._common import (
+    add_cluster,
     add_inputs,
     add_quiet,
     channel_axis,
@@ -35,33 +37,54 @@ def add_parser(sub):
     p.add_argument("--max-regions", type=non_negative_int, default=None,
                    help="regions kept per image, best first (default: learned; 0: all)")
     add_quiet(p)
+    add_cluster(p)
     p.set_defaults(run=run)
 
 
 def run(args):
-    from ..mammography import DEFAULT_MAX_REGIONS, TABLE_COLUMNS, detect_mammogram_rois
+    from ..mammography import DEFAULT_MAX_REGIONS, TABLE_COLUMNS, iter_detect_mammogram_rois
 
     paths = expand_inputs(args.inputs)
     out = output_folder(args.output)
     table_path = out / "rois.csv"
     max_regions = DEFAULT_MAX_REGIONS if args.max_regions is None else args.max_regions or None
-    with open(table_path, "w", newline="") as fh:
-        writer = csv.writer(fh)
-        writer.writerow(("image", *TABLE_COLUMNS))
 
-        def process(path, bar):
-            t0 = time.perf_counter()
-            image = one_image(read_image(path, on_note=print_note), path)
-            labels, table = detect_mammogram_rois(
-                image, reference=args.reference, tolerance=args.tolerance,
-                max_regions=max_regions, channel_axis=channel_axis(image))
-            write_labels(out / f"{path.stem}_rois.png", labels)
-            for row in zip(*(np.asarray(table[k]).tolist() for k in TABLE_COLUMNS), strict=True):
-                writer.writerow((path.name, *row))
-            fh.flush()
-            return f"{len(table['label'])} regions, {time.perf_counter() - t0:.1f} s"
+    def process(path, on_progress):
+        t0 = time.perf_counter()
+        image = one_image(read_image(path, on_note=print_note), path)
+        labels, table = drain(iter_detect_mammogram_rois(
+            image, reference=args.reference, tolerance=args.tolerance,
+            max_regions=max_regions, channel_axis=channel_axis(image)), on_progress)
+        write_labels(out / f"{path.stem}_rois.png", labels)
+        rows = list(zip(*(np.asarray(table[k]).tolist() for k in TABLE_COLUMNS), strict=True))
+        return f"{len(rows)} regions, {time.perf_counter() - t0:.1f} s", rows
 
-        try:
-            return run_batch(paths, process, quiet=args.quiet)
-        finally:
-            print(f"table: {table_path}", file=sys.stderr)
+    def outputs(path):
+        return [out / f"{path.stem}_rois.png"]
+
+    # one table for the whole batch, in input order whatever order the inputs finish
+    # in; the rows of inputs skipped on a rerun come from the table already there
+    rows = {} if args.overwrite else _table_rows(table_path, paths)
+    try:
+        return run_batch(paths, process, outputs=outputs,
+                         on_done=lambda path, r: rows.__setitem__(path, r),
+                         options=args, quiet=args.quiet)
+    finally:
+        with open(table_path, "w", newline="") as fh:
+            writer = csv.writer(fh)
+            writer.writerow(("image", *TABLE_COLUMNS))
+            for path in paths:
+                for row in rows.get(path, ()):
+                    writer.writerow((path.name, *row))
+        print(f"table: {table_path}", file=sys.stderr)
+
+
+def _table_rows(table_path, paths):
+    """The rows an earlier run wrote for ``paths`` (by file name), if any."""
+    if not table_path.exists():
+        return {}
+    by_name = {}
+    with open(table_path, newline="") as fh:
+        for row in list(csv.reader(fh))[1:]:
+            by_name.setdefault(row[0], []).append(row[1:])
+    return {path: by_name[path.name] for path in paths if path.name in by_name}

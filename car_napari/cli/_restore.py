@@ -11,6 +11,7 @@ import numpy as np
 from .._progress import drain
 from ..io.images import read_image, write_image
 from ._common import (
+    add_cluster,
     add_inputs,
     add_quiet,
     channel_axis,
@@ -36,6 +37,7 @@ def add_parser(sub):
     p.add_argument("--probability", action="store_true",
                    help="also write <name>_probability.tif (prediction probability)")
     add_quiet(p)
+    add_cluster(p)
     p.set_defaults(run=run)
 
 
@@ -57,7 +59,13 @@ def run(args):
     paths = expand_inputs(args.inputs)
     out = output_folder(args.output)
 
-    def process(path, bar):
+    def outputs(path):
+        # the restored image's suffix depends on its dtype: either one counts
+        done = [out / f"{path.stem}_restored{sfx}" for sfx in (".png", ".tif")]
+        first = next((f for f in done if f.exists()), done[0])
+        return [first] + ([out / f"{path.stem}_probability.tif"] if args.probability else [])
+
+    def process(path, on_progress):
         t0 = time.perf_counter()
         image = read_image(path, on_note=print_note)
         if args.stack_axis is None:
@@ -69,7 +77,7 @@ def run(args):
             job = iter_restore_multichannel(image, axis=args.stack_axis, kappa=kappa,
                                             channel_axis=channel_axis(image, stack=True),
                                             return_result=True)
-        result = drain(job, bar.on_progress)
+        result = drain(job, on_progress)
         restored = result.restored()
         if restored.ndim == 3 and restored.shape[2] == 1:
             restored = restored[..., 0]
@@ -81,4 +89,4 @@ def run(args):
         ref = "" if result.reference is None else f", reference version {result.reference}"
         return f"restored{ref}, {time.perf_counter() - t0:.1f} s"
 
-    return run_batch(paths, process, quiet=args.quiet)
+    return run_batch(paths, process, outputs=outputs, options=args, quiet=args.quiet)

@@ -5,8 +5,10 @@ from __future__ import annotations
 
 import time
 
+from .._progress import drain
 from ..io.images import read_image
 from ._common import (
+    add_cluster,
     add_inputs,
     add_quiet,
     channel_axis,
@@ -27,21 +29,25 @@ def add_parser(sub):
                    help="number of segments (default: found automatically)")
     p.add_argument("--levels", type=positive_int, default=3, help="resolutions (default 3)")
     add_quiet(p)
+    add_cluster(p)
     p.set_defaults(run=run)
 
 
 def run(args):
-    from ..segmentation import segment
+    from ..segmentation import iter_segment
 
     paths = expand_inputs(args.inputs)
     out = output_folder(args.output)
 
-    def process(path, bar):
+    def outputs(path):
+        return [out / f"{path.stem}_segments.png"]
+
+    def process(path, on_progress):
         image = one_image(read_image(path, on_note=print_note), path)
         t0 = time.perf_counter()
-        result = segment(image, n_segments=args.segments, levels=args.levels,
-                         channel_axis=channel_axis(image))
-        write_labels(out / f"{path.stem}_segments.png", result.labels)
+        result = drain(iter_segment(image, n_segments=args.segments, levels=args.levels,
+                                    channel_axis=channel_axis(image)), on_progress)
+        write_labels(outputs(path)[0], result.labels)
         return f"{result.n_segments} segments, {time.perf_counter() - t0:.1f} s"
 
-    return run_batch(paths, process, quiet=args.quiet)
+    return run_batch(paths, process, outputs=outputs, options=args, quiet=args.quiet)

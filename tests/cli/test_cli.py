@@ -134,7 +134,8 @@ def test_restore_single_and_stack(tmp_path, capsys):
     restored = tifffile.imread(out / "burst_restored.tif")
     assert restored.shape == (64, 64) and restored.dtype == np.float32
     assert "reference version" in capsys.readouterr().out
-    assert main(["restore", str(src / "noisy.png"), "-o", str(out), "--stack-axis", "0"]) == 2
+    assert main(["restore", str(src / "noisy.png"), "-o", str(out), "--stack-axis", "0",
+                 "--overwrite"]) == 2
     assert "stack" in capsys.readouterr().err
 
 
@@ -344,3 +345,61 @@ def test_fit_texture_of_a_model_file_says_what_to_do(tmp_path, capsys):
     (tmp_path / "m.npz").write_bytes(b"")
     assert main(["fit-texture", str(tmp_path / "m.npz"), "-o", str(tmp_path / "n.npz")]) == 2
     assert "is a model file" in capsys.readouterr().err
+
+
+# --- batches on a dask cluster (issue 16) -------------------------------------------------
+
+def _mosaics(folder, count=3):
+    folder.mkdir()
+    textures = [skdata.brick(), skdata.grass(), skdata.gravel()]
+    for k in range(count):
+        a, b = textures[k % 3], textures[(k + 1) % 3]
+        io.imsave(folder / f"m{k}.png", np.concatenate([a[:64, :32], b[:64, :32]], axis=1))
+
+
+def test_a_local_cluster_writes_what_the_serial_run_writes(tmp_path, capsys):
+    pytest.importorskip("dask.distributed")
+    _mosaics(tmp_path / "in")
+    (tmp_path / "in" / "broken.png").write_text("not an image")
+    options = ["--segments", "2", "--levels", "1"]
+    assert main(["segment", str(tmp_path / "in"), "-o", str(tmp_path / "serial"), *options]) == 1
+    assert main(["segment", str(tmp_path / "in"), "-o", str(tmp_path / "cluster"), *options,
+                 "--workers", "2"]) == 1
+    err = capsys.readouterr().err
+    assert err.count("broken.png: failed: cannot read") == 2  # reported, the rest went on
+    serial = sorted(p.name for p in (tmp_path / "serial").iterdir())
+    assert serial == ["m0_segments.png", "m1_segments.png", "m2_segments.png"]
+    for name in serial:
+        np.testing.assert_array_equal(io.imread(tmp_path / "cluster" / name),
+                                      io.imread(tmp_path / "serial" / name))
+
+
+def test_a_rerun_skips_what_exists_unless_overwrite(tmp_path, capsys):
+    _mosaics(tmp_path / "in", count=2)
+    out = tmp_path / "out"
+    options = ["segment", str(tmp_path / "in"), "-o", str(out), "--segments", "2", "--levels", "1"]
+    assert main(options) == 0
+    first = (out / "m0_segments.png").stat().st_mtime_ns
+    capsys.readouterr()
+    assert main(options) == 0
+    assert "2 of 2 inputs skipped" in capsys.readouterr().err
+    assert (out / "m0_segments.png").stat().st_mtime_ns == first
+    assert main([*options, "--overwrite"]) == 0
+    assert (out / "m0_segments.png").stat().st_mtime_ns > first
+
+
+def test_cluster_options_without_dask_say_what_to_install(tmp_path, capsys, monkeypatch):
+    import builtins
+
+    real_import = builtins.__import__
+
+    def no_dask(name, *args, **kwargs):
+        if name.startswith("dask"):
+            raise ImportError(name)
+        return real_import(name, *args, **kwargs)
+
+    _mosaics(tmp_path / "in", count=1)
+    monkeypatch.setattr(builtins, "__import__", no_dask)
+    assert main(["segment", str(tmp_path / "in"), "-o", str(tmp_path / "out"),
+                 "--workers", "2"]) == 2
+    assert "pip install 'car-napari[cluster]'" in capsys.readouterr().err
