@@ -33,7 +33,10 @@ the table gives its seconds; the segmentation's "show K" / "min probability"
 sliders and the restoration's kappa slider are then moved a few times and the
 longest pause of those re-cuts is reported.
 
-Columns: longest pause and 99th percentile of the pauses (ms) over the whole
+Columns: longest pause, the main thread's CPU time within it ("its CPU": about
+what the pause would be on an idle machine; the wall-clock pause grows with
+the load of other processes, "load" is the 1-minute load average at the end)
+and 99th percentile of the pauses (ms) over the whole
 measured window (start, run, cancel, until the worker has gone); "in" says
 where the longest pause fell: "start" (the entry point's own work on the main
 thread, before the worker runs), "run", "cancel" (after the click) or
@@ -56,6 +59,10 @@ Inputs, made once from real data and cached in ``--cache`` (``.npy``):
   noise, ``(4, size, size, 3)``: restoration of a burst;
 * grey ``4096x4096`` (``1024 * round(size / 1000)``): the shipped mini-MIAS
   mammogram mdb001 upsampled (bilinear): Mammogram ROI;
+* Texture synthesis / CAR model "Synthesize": a model fitted (beforehand, not
+  measured) on the mosaic's top-left 256x256 corner (CAR: max order 2), then
+  a ``size x size`` sample synthesised through the Synthesize button's method
+  (``start_synthesis``); B/px per output pixel;
 * the real damaged film scan ``film-damage/cinestill50d_half_1/damaged.jpg``
   resized to ``size x size`` with its real damage mask (``mask.png``,
   nearest-neighbour): scratch detection, and restoration with that mask as a
@@ -209,21 +216,26 @@ class EventLoopMonitor:
         self._timer.timeout.connect(self._tick)
         self.gaps = []
         self.times = []  # perf_counter at the end of each gap
+        self.cpu = []  # the main thread's CPU time in each gap (s)
         self.peak_rss = 0
         self._last = None
+        self._last_cpu = None
 
     def start(self):
         self.gaps = []
         self.times = []
+        self.cpu = []
         self.peak_rss = self._process.memory_info().rss
         self._last = time.perf_counter()
+        self._last_cpu = time.thread_time()
         self._timer.start()
 
     def _tick(self):
-        now = time.perf_counter()
+        now, cpu = time.perf_counter(), time.thread_time()
         self.gaps.append(now - self._last)
         self.times.append(now)
-        self._last = now
+        self.cpu.append(cpu - self._last_cpu)
+        self._last, self._last_cpu = now, cpu
         rss = self._process.memory_info().rss
         if rss > self.peak_rss:
             self.peak_rss = rss
@@ -243,6 +255,13 @@ class EventLoopMonitor:
     def p99_ms(self):
         pauses = self.pauses_ms()
         return float(np.percentile(pauses, 99)) if pauses.size else 0.0
+
+    def longest_cpu_ms(self):
+        """The main thread's CPU time in the longest pause (ms): the pause on
+        an idle machine, near enough, when other processes share the cores."""
+        if not self.gaps:
+            return 0.0
+        return 1000.0 * self.cpu[int(np.argmax(self.gaps))]
 
     def longest_at(self):
         """(start, end) perf_counter times of the longest pause."""
@@ -309,7 +328,11 @@ CASES = [
     Case("restore", "Scratch restoration: Restore", "inpainting", "InpaintingWidget", "_run"),
     Case("texture", "Texture synthesis fit", "texture", "TextureSynthesisWidget", "_fit"),
     Case("retrieval", "Texture retrieval", "retrieval", "TextureRetrievalWidget", "_run"),
+    Case("synthesis", "Texture synthesis: Synthesize", "texture", "TextureSynthesisWidget",
+         "_synth"),
+    Case("car-synthesis", "CAR model: Synthesize", "car_model", "CARModelWidget", "_synth"),
 ]
+SYNTHESIS_CROP = 256  # the synthesis cases fit their model on this corner of the mosaic
 
 
 def _crop(array, n, stack=False):
@@ -335,6 +358,8 @@ def setup(case, viewer, widget, inputs, small=None):
 
     w = widget
     key = case.key
+    if key in ("synthesis", "car-synthesis"):
+        return _fitted_synthesis(case, viewer, w, load("mosaic"), small)
     if key in ("car", "segmentation", "texture", "retrieval"):
         image = load("mosaic")
         layer = viewer.add_image(image, name="mosaic", rgb=True)
@@ -390,6 +415,27 @@ def setup(case, viewer, widget, inputs, small=None):
 
 
 setup.notes = []
+
+
+def _fitted_synthesis(case, viewer, w, mosaic, small):
+    """Fit the widget's model on a corner of the mosaic (run to its end, not
+    measured), set the synthesis size to the input's; returns Synthesize."""
+    n = min(SYNTHESIS_CROP, mosaic.shape[0])
+    layer = viewer.add_image(np.ascontiguousarray(mosaic[:n, :n]), name="mosaic corner",
+                             rgb=True)
+    w._image.value = layer
+    if case.key == "synthesis":
+        w._mode.value = w._mode.choices[0]  # a single texture
+    else:
+        w._max_order.value = 2
+    job = w.start_fit()
+    _wait_job(job, 600)
+    if w.model is None:
+        setup.notes.append(f"{case.key}: the fit gave no model ({w._status.value})")
+    size = small or mosaic.shape[0]
+    w._height.value = w._width.value = size
+    w._seed.value = 1
+    return w.start_synthesis, size * size
 
 
 def recut(case, widget):
@@ -537,6 +583,8 @@ def child(args):
     peak = max(monitor.peak_rss, maxrss if maxrss > maxrss_before else 0)
     out.update(
         longest_ms=round(monitor.longest_ms(), 1), p99_ms=round(monitor.p99_ms(), 1),
+        longest_cpu_ms=round(monitor.longest_cpu_ms(), 1),
+        load=round(os.getloadavg()[0], 1),
         ticks=len(monitor.gaps), peak_gb=round((peak - baseline) / 1e9, 3),
         bytes_per_pixel=round((peak - baseline) / pixels, 1), pixels=int(pixels),
         baseline_gb=round(baseline / 1e9, 3),
@@ -595,13 +643,14 @@ def _fmt(value, digits=1, none="-"):
 
 def table(results, args):
     if args.complete:
-        lines = ["| widget | seconds | longest pause (ms) | in | p99 (ms) | peak memory (GB) "
-                 "| B/px | re-cut longest pause (ms) |",
-                 "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+        lines = ["| widget | seconds | longest pause (ms) | in | its CPU (ms) | p99 (ms) "
+                 "| peak memory (GB) | B/px | re-cut longest pause (ms) | load |",
+                 "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     else:
-        lines = ["| widget | longest pause (ms) | in | p99 (ms) | cancel latency (s) "
-                 "| Run back (s) | peak memory (GB) | B/px | viewer as before |",
-                 "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+        lines = ["| widget | longest pause (ms) | in | its CPU (ms) | p99 (ms) "
+                 "| cancel latency (s) | Run back (s) | peak memory (GB) | B/px "
+                 "| viewer as before | load |",
+                 "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for r in results:
         if "error" in r:
             cells = [r["title"], f"error: {r['error']}"]
@@ -609,11 +658,13 @@ def table(results, args):
                 cells.append(f"(longest pause {r['longest_ms']:.0f} ms)")
             lines.append("| " + " | ".join(cells) + " |")
             continue
-        common = [_fmt(r["longest_ms"]), r.get("longest_in", "-"), _fmt(r["p99_ms"])]
+        common = [_fmt(r["longest_ms"]), r.get("longest_in", "-"),
+                  _fmt(r.get("longest_cpu_ms")), _fmt(r["p99_ms"])]
         memory = [_fmt(r["peak_gb"], 2), _fmt(r["bytes_per_pixel"], 0)]
         if args.complete:
             seconds = _fmt(r.get("seconds"), 1, none=f"> {args.timeout:g}")
-            cells = [r["title"], seconds, *common, *memory, _fmt(r.get("recut_longest_ms"))]
+            cells = [r["title"], seconds, *common, *memory, _fmt(r.get("recut_longest_ms")),
+                     _fmt(r.get("load"))]
         else:
             if "finished_before_cancel_s" in r:
                 cancel = f"finished in {r['finished_before_cancel_s']:.2f} s"
@@ -622,7 +673,7 @@ def table(results, args):
                 cancel = _fmt(r.get("cancel_s"), 2, none=f"> {args.cancel_timeout:g}")
                 back = _fmt(r.get("button_back_s"), 2, none="no")
                 before = "yes" if r.get("viewer_as_before") else "NO"
-            cells = [r["title"], *common, cancel, back, *memory, before]
+            cells = [r["title"], *common, cancel, back, *memory, before, _fmt(r.get("load"))]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 

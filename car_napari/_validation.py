@@ -177,6 +177,59 @@ def output_shape(shape):
     return h, w
 
 
+def float_range(image):
+    """The smallest and largest value of ``image`` in the core's float units.
+
+    The core works on integer images scaled as :func:`as_channel_last_float`
+    scales them (unsigned and signed integers divided by their dtype's
+    maximum, signed ones clipped at -1, booleans as 0 and 1; floats as they
+    are); this is the range of the values it would see, computed from the
+    raw minimum and maximum (no float copy of the image). Non-finite values
+    are not left out.
+
+    Parameters
+    ----------
+    image : array_like
+        A numeric image of any shape.
+
+    Returns
+    -------
+    low, high : float
+        The range, e.g. to clip a synthesised sample to the values of the
+        image its model was fitted to.
+
+    Raises
+    ------
+    TypeError
+        ``image`` is not numeric.
+    ValueError
+        ``image`` is empty.
+
+    Examples
+    --------
+    >>> float_range(np.array([0, 51, 255], np.uint8))
+    (0.0, 1.0)
+    >>> float_range(np.array([-32768, 0], np.int16))
+    (-1.0, 0.0)
+    >>> float_range(np.array([[0.5, -2.0]]))
+    (-2.0, 0.5)
+    """
+    arr = np.asarray(image)
+    if arr.dtype == object or arr.dtype.kind not in "biuf":
+        raise TypeError(f"image has dtype {arr.dtype}; pass a numeric (integer or float) array.")
+    if arr.size == 0:
+        raise ValueError(f"image is empty (shape {arr.shape}); pass a non-empty image.")
+    ends = np.array([arr.min(), arr.max()])
+    if arr.dtype.kind == "b":
+        ends = ends.astype(np.float64)
+    elif arr.dtype.kind in "iu":
+        info = np.iinfo(arr.dtype)
+        ends = ends.astype(np.float64) / info.max  # as as_channel_last_float scales
+        if info.min < 0:
+            ends = np.maximum(ends, -1.0)
+    return float(ends[0]), float(ends[1])
+
+
 def check_real(value, name, *, low=None, high=None, low_open=False, high_open=False,
                integer=False):
     """``value`` as a float (an int with ``integer``) within its range, or a

@@ -6,6 +6,7 @@ recorded, so that a Cancel or an error leaves the viewer as it was."""
 from __future__ import annotations
 
 import functools
+import inspect
 import re
 
 from magicgui.widgets import Container, Label, ProgressBar, PushButton, SpinBox, create_widget
@@ -226,7 +227,11 @@ class JobWidget(Container):
             them (no layer update) for the next ``preview`` to show.
         done : callable, optional
             ``done(result)`` shows the result (through :attr:`record`); it
-            may set the status line, which otherwise says "done".
+            may set the status line, which otherwise says "done". A
+            generator function shows a large result in steps, one per
+            event-loop turn (``yield`` after each layer added, so that the
+            viewer draws in between): the job is done, and the run complete,
+            after its last step; Cancel in between undoes the run.
 
         Returns
         -------
@@ -280,15 +285,26 @@ class JobWidget(Container):
             self._fail(exc)
 
     def _on_done(self, result, done):
-        self._cancel.enabled = False
         self._progress.value = 100
         self._status.value = "done"
         try:
-            if done is not None:
-                done(result)
+            shown = done(result) if done is not None else None
         except Exception as exc:  # a failure applying results is the user's to see
+            self._cancel.enabled = False
             self._fail(exc)
-            return
+            return None
+        if inspect.isgenerator(shown):
+            return self._show_steps(shown)  # Cancel stays enabled until the last step
+        self._cancel.enabled = False
+        self.record.commit()
+        return None
+
+    def _show_steps(self, steps):
+        """The steps of a ``done`` generator (run one per event-loop turn by
+        the job), then the run is complete. A Cancel in between closes them
+        here and undoes the run; a step's error undoes it too (``_on_error``)."""
+        yield from steps
+        self._cancel.enabled = False
         self.record.commit()
 
     def _on_error(self, exc):

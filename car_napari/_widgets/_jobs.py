@@ -12,10 +12,15 @@ The main thread does little per record: the progress records are handed
 over at most every :data:`STATUS_INTERVAL` seconds and the previews (a layer
 update each) at most every :data:`PREVIEW_INTERVAL` seconds, the latest one
 each time; the last preview is always handed over before the result.
+Showing a large result can be split across event-loop turns: when
+``on_done`` returns a generator, the job runs one of its steps per turn (a
+layer added, then the next one), so that the viewer draws and answers in
+between; the job is done once the last step has run.
 """
 
 from __future__ import annotations
 
+import inspect
 import math
 import time
 
@@ -103,8 +108,14 @@ class Job:
     once (cheap bookkeeping only, such as keeping a clip's restored frames
     for the next preview); ``on_done(result)`` gets the generator's return
     value, ``on_error(exc)`` what it raised, ``on_cancel()`` is called by
-    :meth:`cancel`, and ``on_finished(job)`` when the worker has stopped,
-    whatever the outcome. After a cancel nothing more is handed over.
+    :meth:`cancel`, and ``on_finished(job)`` when the worker has stopped
+    and the result is shown, whatever the outcome. After a cancel nothing
+    more is handed over.
+
+    When ``on_done(result)`` returns a generator, its steps are run one per
+    event-loop turn (each one a piece of showing the result, such as one
+    layer added); a :meth:`cancel` between two steps closes it (GeneratorExit
+    at the step it stopped at) and calls ``on_cancel()``.
 
     Parameters
     ----------
@@ -123,7 +134,10 @@ class Job:
     cancelled : bool
         :meth:`cancel` was called before the job ended.
     done : bool
-        The worker has finished (returned, failed or stopped).
+        The worker has finished (returned, failed or stopped) and the
+        result's steps, if any, have all run.
+    showing : bool
+        The result's steps are running (see above).
 
     Examples
     --------
@@ -134,7 +148,8 @@ class Job:
     def __init__(self, job, *, on_progress, on_done, on_error, on_cancel, on_finished,
                  on_preview=None, on_collect=None):
         self.cancelled = False
-        self.done = False
+        self._worker_done = False
+        self._steps = None  # the result's remaining steps (on_done returned a generator)
         self._settled = False  # a result or an error was handed over
         self._callbacks = on_progress, on_done, on_error, on_cancel, on_finished
         self._on_preview = on_preview
@@ -146,6 +161,10 @@ class Job:
         self._timer.setSingleShot(True)
         self._timer.setTimerType(Qt.TimerType.PreciseTimer)
         self._timer.timeout.connect(self._hand_over)
+        self._step_timer = QTimer()
+        self._step_timer.setSingleShot(True)
+        self._step_timer.setInterval(0)  # the next step on the next turn of the event loop
+        self._step_timer.timeout.connect(self._step)
         # The worker's generator; closed at the end in case the worker was
         # stopped otherwise (that closes the job and lifts the BLAS limit).
         self._runner = _run(job, lambda: self.cancelled)
@@ -167,13 +186,33 @@ class Job:
     def _closed(self):
         return self.cancelled or self._settled
 
+    @property
+    def done(self):
+        """The worker has finished and the result is shown (or the job ended otherwise)."""
+        return self._worker_done and self._steps is None
+
+    @property
+    def showing(self):
+        """The result is being shown, step by step."""
+        return self._steps is not None
+
     def cancel(self):
         """Stop the job at its next record; nothing more is handed over.
 
         ``on_cancel()`` is called at once (the worker ends at the core's next
         record). Does nothing when the job has already ended or been handed
-        over.
+        over; while its result is being shown step by step, the steps stop
+        and ``on_cancel()`` is called.
         """
+        if self._steps is not None and not self.cancelled:
+            self._step_timer.stop()
+            steps, self._steps = self._steps, None
+            self.cancelled = True
+            steps.close()
+            self._callbacks[3]()
+            if self._worker_done:
+                self._callbacks[4](self)
+            return
         if self._closed or self.done:
             return
         # The worker's generator sees it at the job's next record and closes the
@@ -233,7 +272,27 @@ class Job:
             if self._closed:  # showing it failed (the widget cancelled)
                 return
         self._settled = True
-        self._callbacks[1](result)
+        steps = self._callbacks[1](result)
+        if inspect.isgenerator(steps):
+            self._steps = steps
+            self._step()
+
+    def _step(self):
+        """Run the result's next step; the one after it on the next turn."""
+        if self._steps is None:
+            return
+        try:
+            next(self._steps)
+        except StopIteration:
+            self._steps = None
+        except Exception as exc:  # showing the result failed: the widget's to show
+            self._steps = None
+            self._callbacks[2](exc)
+        else:
+            self._step_timer.start()
+            return
+        if self._worker_done:
+            self._callbacks[4](self)
 
     def _errored(self, exc):
         if self._closed:
@@ -243,7 +302,8 @@ class Job:
         self._callbacks[2](exc.__cause__ if isinstance(exc, _Failed) else exc)
 
     def _finished(self):
-        self.done = True
+        self._worker_done = True
         self._drop_pending()
         self._runner.close()  # a stopped generator runs its clean-up; the thread is done
-        self._callbacks[4](self)
+        if self._steps is None:  # otherwise, once the last step has run
+            self._callbacks[4](self)

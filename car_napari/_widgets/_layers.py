@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._validation import float_range
+
 NO_LAYER = "no image layer selected: open an image (or a sample) first."
 NOT_2D = "choose a 2-D grey or RGB layer (for a stack, split it or pick one plane)."
 
@@ -83,18 +85,57 @@ def rectangle_bounds(shapes, shape):
 
 
 def value_range(data):
-    """(min, max) of ``data`` in the core's float units (integers scaled to
-    [0, 1] as the core does), to clip synthesised samples for display.
+    """(min, max) of ``data`` in the core's float units (integers scaled as
+    the core scales them: :func:`car_napari._validation.float_range`), to
+    clip synthesised samples for display.
 
     Examples
     --------
     >>> value_range(np.array([0, 255], np.uint8))
     (0.0, 1.0)
     """
-    if data.dtype.kind in "ui":
-        info = np.iinfo(data.dtype)
-        return float(data.min()) / info.max, float(data.max()) / info.max
-    return float(data.min()), float(data.max())
+    return float_range(data)
+
+
+def compact_labels(labels):
+    """``labels`` in the smallest unsigned dtype that holds its values.
+
+    napari draws uint8 and uint16 labels as they are, but hashes int32 and
+    int64 labels into a texture dtype (a pass over the slice, on the main
+    thread) when the layer is made and at every refresh; the values do not
+    change (labels 0..255 become uint8, up to 65535 uint16). Call it where
+    the result is made (in the worker), not in the viewer.
+
+    Parameters
+    ----------
+    labels : array_like of int
+        Labels (0 the background).
+
+    Returns
+    -------
+    ndarray
+        uint8 or uint16 when all values are in its range, else ``labels``
+        as it is (also a float or negative array).
+
+    Examples
+    --------
+    >>> compact_labels(np.array([0, 3, 255], np.int32)).dtype
+    dtype('uint8')
+    >>> compact_labels(np.array([0, 256], np.int64)).dtype
+    dtype('uint16')
+    >>> compact_labels(np.array([-1, 2], np.int32)).dtype
+    dtype('int32')
+    """
+    labels = np.asarray(labels)
+    if labels.dtype.kind not in "iu" or labels.size == 0 or labels.dtype in (np.uint8, np.uint16):
+        return labels
+    if labels.min() < 0:
+        return labels
+    top = labels.max()
+    for dtype in (np.uint8, np.uint16):
+        if top <= np.iinfo(dtype).max:
+            return labels.astype(dtype)
+    return labels
 
 
 class RunRecord:

@@ -112,6 +112,7 @@ class MammogramWidget(JobWidget):
         self.record.replace(f"{self._name} ROI labels",
                             lambda name: self._viewer.add_labels(labels, name=name, opacity=0.4,
                                                                  **geometry))
+        yield  # the viewer draws the labels before the outlines are added
         if outlines:
             self.record.replace(
                 f"{self._name} ROI outlines",
@@ -121,6 +122,7 @@ class MammogramWidget(JobWidget):
             )
         else:
             self.record.remove(f"{self._name} ROI outlines")
+        yield
         self.table = table
         self._fill_table(table)
         n = len(table["label"])

@@ -311,3 +311,126 @@ def test_layer_array_crops_and_copies(make_napari_viewer):
     with pytest.raises(ValueError, match="3 non-colour axes"):
         layer_array(stack)
     assert layer_array(stack, ndims=(3,))[0].shape == (3, 8, 8)
+
+
+class ShownInStepsWidget(JobWidget):
+    """A widget whose result is shown in steps: three layers, one per event-loop turn."""
+
+    def __init__(self, napari_viewer):
+        super().__init__(napari_viewer)
+        self.turns = 0  # a 0 ms timer counts the event-loop turns
+        self.at = []  # the turn of each step
+        self.hold = False  # the second step waits (a turn at a time) while set
+        self.fail = False
+        self.closed = False
+        self._run = self.action("Run", self.start)
+        self.arrange([self._run])
+        from qtpy.QtCore import QTimer
+
+        self._counter = QTimer()
+        self._counter.setInterval(0)
+        self._counter.timeout.connect(self._count)
+        self._counter.start()
+
+    def _count(self):
+        self.turns += 1
+
+    @guarded
+    def start(self, *_):
+        data, _ = self.input_array()
+        return self.run(_ticks(data, 2, 0.01, {}), done=self._show)
+
+    def _show(self, result):
+        try:
+            for k in range(3):
+                self.at.append(self.turns)
+                self.record.add(lambda k=k: self._viewer.add_image(result, name=f"part {k}"))
+                if k == 1 and self.fail:
+                    raise ValueError("showing failed")
+                yield
+                while k == 0 and self.hold:
+                    yield
+            self._status.value = "three parts"
+        finally:
+            self.closed = True
+
+
+@pytest.fixture
+def shown_in_steps(docked):
+    viewer, w = docked(ShownInStepsWidget, "parts")
+    w._image.value = viewer.add_image(np.zeros((8, 8)), name="img")
+    return viewer, w
+
+
+def test_a_result_shown_in_steps_takes_one_turn_a_layer(shown_in_steps, qtbot):
+    viewer, w = shown_in_steps
+    job = w.start()
+    qtbot.waitUntil(lambda: job.showing or job.done, timeout=30000)
+    assert not job.done and not w._run.enabled and w._cancel.enabled  # still running
+    qtbot.waitUntil(lambda: job.done, timeout=30000)
+    assert [lay.name for lay in viewer.layers] == ["img", "part 0", "part 1", "part 2"]
+    assert all(b > a for a, b in zip(w.at, w.at[1:], strict=False)), w.at  # a turn each
+    assert w._status.value == "three parts" and w._run.enabled and not w._cancel.enabled
+    assert not w.record._undo  # committed: a later cancel does not take them away
+
+
+def test_cancel_between_steps_undoes_the_shown_part(shown_in_steps, qtbot):
+    viewer, w = shown_in_steps
+    w.hold = True
+    job = w.start()
+    qtbot.waitUntil(lambda: "part 0" in viewer.layers, timeout=30000)
+    assert job.showing and not job.done
+    w._cancel.native.click()
+    assert job.done and job.cancelled and w.closed
+    assert [lay.name for lay in viewer.layers] == ["img"]
+    assert w._status.value == "cancelled" and w._run.enabled and not w._cancel.enabled
+    qtbot.wait(50)
+    assert [lay.name for lay in viewer.layers] == ["img"]  # no step after the cancel
+
+
+def test_a_failing_step_undoes_and_says_why(shown_in_steps, qtbot, last_notification):
+    viewer, w = shown_in_steps
+    w.fail = True
+    job = w.start()
+    qtbot.waitUntil(lambda: job.done, timeout=30000)
+    assert [lay.name for lay in viewer.layers] == ["img"]
+    assert w._status.value == "failed" and w._run.enabled and not w._cancel.enabled
+    assert "showing failed" in last_notification()
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.int8, np.int16, np.int32, np.uint32,
+                                   np.int64, bool, np.float32, np.float64])
+def test_float_range_scales_as_the_core(dtype):
+    from car_napari._validation import as_channel_last_float, float_range
+    from car_napari._widgets._layers import value_range
+
+    rng = np.random.default_rng(3)
+    if np.dtype(dtype).kind in "iu":
+        info = np.iinfo(dtype)
+        data = rng.integers(info.min, info.max, (6, 7), dtype=dtype, endpoint=True)
+        data.flat[:2] = info.min, info.max  # both ends, and -1 below the signed minimum
+        expected = np.maximum(data.astype(np.float64) / info.max, -1.0)  # plain NumPy
+    else:
+        data = (rng.random((6, 7)) * 3 - 1).astype(dtype)
+        expected = data.astype(np.float64)
+    expected = float(expected.min()), float(expected.max())
+    assert float_range(data) == expected == value_range(data)
+    core = as_channel_last_float(data, channel_axis=None)  # the core's own scaling
+    assert float_range(data) == (float(core.min()), float(core.max()))
+
+
+def test_compact_labels_keeps_the_values():
+    from car_napari._widgets._layers import compact_labels
+
+    labels = np.zeros((5, 6), np.int32)
+    labels[1:3, 2:5] = 7
+    for top, dtype in ((255, np.uint8), (256, np.uint16), (65535, np.uint16),
+                       (65536, np.int32)):
+        labels[0, 0] = top
+        out = compact_labels(labels)
+        assert out.dtype == dtype
+        np.testing.assert_array_equal(out.astype(np.int64), labels.astype(np.int64))
+    labels[0, 0] = -1
+    assert compact_labels(labels) is labels
+    small = labels.astype(np.uint8)
+    assert compact_labels(small) is small
