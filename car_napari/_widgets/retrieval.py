@@ -11,28 +11,87 @@ from qtpy.QtCore import QSize, Qt
 from qtpy.QtGui import QIcon, QImage, QPixmap
 from qtpy.QtWidgets import QListWidget, QListWidgetItem
 
+from .._progress import Progress
 from ..io.images import IMAGE_SUFFIXES, read_image
 from ..texture import iter_rank
 from ._base import JobWidget
-from ._layers import layer_array
+from ._layers import NO_LAYER, NOT_2D, rectangle_bounds
 
 LAYERS, FOLDER = "open image layers", "a folder"
 THUMBNAIL = 64
+EMPTY_GALLERY = ("the gallery is empty: open other image layers (of the same kind, grey or "
+                 "colour, as the query) or choose a folder.")
 
 
-def _thumbnail(image):
-    """A QIcon of an (H, W[, 3]) image, scaled to its own range (for display)."""
-    a = np.asarray(image, dtype=np.float64)
-    step = max(1, max(a.shape[:2]) // THUMBNAIL)
-    a = a[::step, ::step]
+def _layer_view(layer, region=None):
+    """The data of a 2-D image layer as a view (no copy: the core reads it
+    in the worker and never modifies it), cropped to the bounding box of the
+    first shape of ``region``, and its channel axis; checked as
+    :func:`~car_napari._widgets._layers.layer_array` checks it."""
+    if layer is None:
+        raise ValueError(NO_LAYER)
+    data = layer.data
+    if data.size == 0:
+        raise ValueError(f"layer {layer.name!r} is empty.")
+    rgb = bool(getattr(layer, "rgb", False))
+    if data.ndim - rgb != 2:
+        raise ValueError(f"layer {layer.name!r} has shape {data.shape} ({data.ndim - rgb} "
+                         f"non-colour axes); {NOT_2D}")
+    if rgb:
+        data = data[..., :3]
+    if region is not None and len(region.data):
+        rows, cols = rectangle_bounds(region, data.shape[:2])
+        data = data[rows, cols]
+        if min(data.shape[:2]) < 2:
+            raise ValueError(f"the rectangle in {region.name!r} hardly overlaps the image.")
+    return data, (-1 if rgb else None)
+
+
+def _small(image):
+    """An (H, W[, 3]) image subsampled to about THUMBNAIL pixels a side,
+    scaled to its own range, as (h, w, 3) uint8 (in the worker)."""
+    image = np.asarray(image)
+    step = max(1, max(image.shape[:2]) // THUMBNAIL)
+    a = np.asarray(image[::step, ::step], dtype=np.float64)
     lo, hi = float(a.min()), float(a.max())
     a = np.zeros_like(a) if hi <= lo else (a - lo) / (hi - lo)
     if a.ndim == 2:
         a = np.repeat(a[..., None], 3, axis=2)
-    rgb = np.ascontiguousarray(np.round(a[..., :3] * 255).astype(np.uint8))
-    h, w = rgb.shape[:2]
-    qimage = QImage(rgb.data, w, h, 3 * w, QImage.Format_RGB888).copy()
+    return np.ascontiguousarray(np.round(a[..., :3] * 255).astype(np.uint8))
+
+
+def _thumbnail(small):
+    """A QIcon of a :func:`_small` thumbnail."""
+    h, w = small.shape[:2]
+    qimage = QImage(small.data, w, h, 3 * w, QImage.Format_RGB888).copy()
     return QIcon(QPixmap.fromImage(qimage))
+
+
+def _rank_job(query, gallery, channel_axis, skipped):
+    """The ranking, in the worker: the folder's images read (``gallery``
+    entries ``("file", path)``; those of the other kind skipped), the
+    ranking, the thumbnails. Returns ``(ranking, entries, images,
+    thumbnails, skipped)``."""
+    colour = channel_axis is not None
+    entries, images = [], []
+    for i, (entry, image) in enumerate(gallery):
+        if image is None:  # a file
+            yield Progress("reading", i / len(gallery), Path(entry[1]).name)
+            try:
+                image = read_image(entry[1])
+            except ImportError:  # DICOM without pydicom
+                skipped += 1
+                continue
+            if (image.ndim == 3) != colour:
+                skipped += 1
+                continue
+        entries.append(entry)
+        images.append(image)
+    if not images:
+        raise ValueError(EMPTY_GALLERY)
+    ranking = yield from iter_rank(query, images, channel_axis=channel_axis)
+    thumbnails = [_small(image) for image in images]
+    return ranking, entries, images, thumbnails, skipped
 
 
 class TextureRetrievalWidget(JobWidget):
@@ -61,8 +120,10 @@ class TextureRetrievalWidget(JobWidget):
         self._results.itemClicked.connect(lambda item: self.show(self._results.row(item)))
 
     def _gallery(self, query_layer, query_colour, use_region):
-        """(entries, images, skipped) of the gallery with the query's colour-ness."""
-        entries, images, skipped = [], [], 0
+        """(gallery, skipped): the gallery's ``(entry, data)`` pairs with the
+        query's colour-ness, layer data as views; a file's data is None (the
+        worker reads it)."""
+        gallery, skipped = [], 0
         if self._source.value == LAYERS:
             for layer in self._viewer.layers:
                 if getattr(layer, "_type_string", "") != "image":
@@ -70,45 +131,35 @@ class TextureRetrievalWidget(JobWidget):
                 if layer is query_layer and not use_region:
                     continue  # the query itself would always come first
                 try:
-                    data, channel_axis = layer_array(layer)
+                    data, channel_axis = _layer_view(layer)
                 except ValueError:
                     skipped += 1
                     continue
                 if (channel_axis is not None) != query_colour:
                     skipped += 1
                     continue
-                entries.append(("layer", layer.name))
-                images.append(data)
+                gallery.append((("layer", layer.name), data))
+            if not gallery:
+                raise ValueError(EMPTY_GALLERY)
         else:
             folder = Path(self._folder.value)
             if not folder.is_dir():
                 raise ValueError(f"{folder} is not a folder; choose one with images.")
-            for path in sorted(folder.iterdir()):
-                if path.suffix.lower() not in IMAGE_SUFFIXES:
-                    continue
-                try:
-                    data = read_image(path)
-                except ImportError:  # DICOM without pydicom
-                    skipped += 1
-                    continue
-                if (data.ndim == 3) != query_colour:
-                    skipped += 1
-                    continue
-                entries.append(("file", path))
-                images.append(data)
-        if not images:
-            raise ValueError("the gallery is empty: open other image layers (of the same "
-                             "kind, grey or colour, as the query) or choose a folder.")
-        return entries, images, skipped
+            gallery = [(("file", path), None) for path in sorted(folder.iterdir())
+                       if path.suffix.lower() in IMAGE_SUFFIXES]
+            if not gallery:
+                raise ValueError(EMPTY_GALLERY)
+        return gallery, skipped
 
     def _start(self):
-        """Rank the gallery by distance to the query."""
+        """Rank the gallery by distance to the query: the main thread only
+        picks the layers (their data as views) or the folder's files; the
+        worker reads, describes and ranks them."""
         layer, region = self._image.value, self._region.value
-        query, channel_axis = self.input_array()
+        query, channel_axis = _layer_view(layer, region)
         use_region = region is not None and len(region.data) > 0
-        entries, images, skipped = self._gallery(layer, channel_axis is not None, use_region)
-        self._pending = entries, images, skipped
-        return self.run(iter_rank(query, images, channel_axis=channel_axis),
+        gallery, skipped = self._gallery(layer, channel_axis is not None, use_region)
+        return self.run(_rank_job(query, gallery, channel_axis, skipped),
                         done=self._show_ranking)
 
     def _name(self, entry):
@@ -116,8 +167,7 @@ class TextureRetrievalWidget(JobWidget):
         return value if kind == "layer" else Path(value).name
 
     def _show_ranking(self, result):
-        indices, distances = result
-        self._entries, self._images, self._skipped = self._pending
+        (indices, distances), self._entries, self._images, thumbnails, self._skipped = result
         self._results.clear()
         self.ranking = []
         order = [int(i) for i in indices]
@@ -125,7 +175,7 @@ class TextureRetrievalWidget(JobWidget):
         for rank_, (i, dist) in enumerate(zip(order, distances, strict=True), start=1):
             name = self._name(self._entries[i])
             self.ranking.append((name, float(dist)))
-            item = QListWidgetItem(_thumbnail(self._images[i]), f"{rank_}. {name}   {dist:.3g}")
+            item = QListWidgetItem(_thumbnail(thumbnails[i]), f"{rank_}. {name}   {dist:.3g}")
             item.setData(Qt.UserRole, i)
             self._results.addItem(item)
         note = f" ({self._skipped} of another kind skipped)" if self._skipped else ""

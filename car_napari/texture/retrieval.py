@@ -37,13 +37,27 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
+from scipy import ndimage as ndi
 
 from .._progress import Progress, drain
-from .._validation import as_channel_last_float
-from ..model.invariants import illumination_invariants
+from .._validation import Summary, as_channel_last_float, check_not_constant, check_size
 from ..model.neighbourhood import Context, as_offsets
+from ..model.statistics import design_chunks, estimate_parameters
 
 __all__ = ["Ranking", "iter_rank", "minimum_size", "rank", "texture_features"]
+
+# The features of an image are computed in bands of about this many pixels
+# (of the pyramid level at hand, a few hundredths of a second each): a record
+# can come between two bands, and memory beyond the input is the next
+# pyramid level (a quarter of the image, as float64) and a few bands.
+BAND_PIXELS = 1 << 17
+# The Gaussian-Laplacian pyramid of skimage.transform.pyramid_laplacian
+# (downscale 2, its default sigma, scipy.ndimage's default truncation) that
+# illumination_invariants uses, computed band by band.
+_SIGMA = 2 * 2 / 6.0
+_TRUNCATE = 4.0
+_RADIUS = int(_TRUNCATE * _SIGMA + 0.5)  # rows of the smoothing kernel on each side (3)
+_MAX_CHANNELS = 64
 
 
 def _check_levels(levels):
@@ -90,30 +104,230 @@ def minimum_size(*, levels=3, neighbourhood=2):
     return 2 ** (levels - 1) * (max(up + down, left + right) + 4)
 
 
-def _as_image(image, *, levels, neighbourhood, channel_axis, name):
-    data = as_channel_last_float(image, channel_axis=channel_axis, name=name)
-    need = minimum_size(levels=levels, neighbourhood=neighbourhood)
-    if min(data.shape[:2]) < need:
+def _level_shapes(height, width, levels):
+    """(rows, columns) of every pyramid level: each halves the last, rounding up."""
+    shapes = [(height, width)]
+    for _ in range(levels - 1):
+        height, width = -(-height // 2), -(-width // 2)
+        shapes.append((height, width))
+    return shapes
+
+
+def _channel_last(arr, channel_axis, name):
+    """A view ``(H, W, d)`` of a numeric 2-D or 3-D array (no copy), checked
+    as :func:`~car_napari._validation.as_channel_last_float` checks it."""
+    if arr.size == 0:
+        raise ValueError(f"{name} is empty (shape {arr.shape}); pass a non-empty image.")
+    if arr.ndim == 2:
+        view = arr[..., np.newaxis]
+    elif arr.ndim == 3:
+        if channel_axis is None:
+            raise ValueError(
+                f"{name} is 3-D {arr.shape} but channel_axis=None; pass the channel "
+                "axis (e.g. channel_axis=-1 for (H, W, C)) or a 2-D grey image."
+            )
+        view = np.moveaxis(arr, channel_axis, -1)
+    else:
         raise ValueError(
-            f"{name} is {data.shape[0]}x{data.shape[1]}: too small for {levels} pyramid "
+            f"{name} must be 2-D (H, W) or 3-D (H, W, C) with channel_axis; got "
+            f"{arr.ndim}-D shape {arr.shape}. For a stack, pass one image at a time."
+        )
+    if view.shape[-1] > _MAX_CHANNELS:
+        raise ValueError(
+            f"{name} has {view.shape[-1]} channels on axis {channel_axis}; is the channel "
+            "axis right? Pass channel_axis=None for a grey image or the correct axis."
+        )
+    return view
+
+
+def _as_image(image, *, levels, offsets, channel_axis, name):
+    """The image as a channel-last view, with every check that needs no pass
+    over its values: numeric, 2-D or 3-D, large enough for every level."""
+    if image is None:
+        raise TypeError(f"{name} is None: pass a 2-D grey or 3-D multichannel array.")
+    try:
+        arr = np.asarray(image)
+    except Exception as exc:
+        raise TypeError(f"{name} could not be converted to an array: {exc}") from None
+    if arr.dtype == object or arr.dtype.kind not in "biuf":
+        raise TypeError(f"{name} has dtype {arr.dtype}; pass a numeric (integer or float) "
+                        "array.")
+    view = _channel_last(arr, channel_axis, name)
+    need = minimum_size(levels=levels, neighbourhood=offsets)
+    if min(view.shape[:2]) < need:
+        raise ValueError(
+            f"{name} is {view.shape[0]}x{view.shape[1]}: too small for {levels} pyramid "
             f"level(s) with this neighbourhood; each side needs at least {need} pixels. "
             "Use a larger image, fewer levels or a lower order."
         )
-    return data
+    ctx = Context.spatial(offsets, view.shape[2])
+    for h, w in _level_shapes(*view.shape[:2], levels):
+        try:
+            check_size(np.empty((h, w, 0)), ctx.reach,
+                       minimum_pixels=ctx.n_regressors + view.shape[2] + 2,
+                       name="pyramid level")
+        except ValueError as exc:
+            raise ValueError(f"{name}: {exc}") from None
+    return view
 
 
-def _features(data, *, levels, offsets, name):
+def _nonfinite(view):
+    """The number of NaN or infinite values of ``view``, by bands of rows."""
+    if view.dtype.kind != "f":
+        return 0
+    step = max(1, BAND_PIXELS // max(1, view.shape[1]))
+    return sum(int(np.count_nonzero(~np.isfinite(view[a:a + step])))
+               for a in range(0, view.shape[0], step))
+
+
+class _Level0Rows:
+    """Rows of the input as float64 (integers scaled to [0, 1], as
+    :func:`~car_napari._validation.as_channel_last_float` converts them, and
+    checked the same way), with the running per-channel range."""
+
+    def __init__(self, view, name):
+        self.view, self.name = view, name
+        d = view.shape[2]
+        self.lo, self.hi = np.full(d, np.inf), np.full(d, -np.inf)
+
+    def __call__(self, start, stop):
+        try:
+            rows, summary = as_channel_last_float(self.view[start:stop], channel_axis=-1,
+                                                  name=self.name, with_summary=True)
+        except ValueError:
+            bad = _nonfinite(self.view)  # the count of the whole image, not of the band
+            if bad:
+                raise ValueError(
+                    f"{self.name} contains {bad} NaN or infinite values; fill or mask them "
+                    "first (e.g. np.nan_to_num, or restrict the fit to a finite rectangle)."
+                ) from None
+            raise
+        np.minimum(self.lo, summary.min, out=self.lo)
+        np.maximum(self.hi, summary.max, out=self.hi)
+        return rows
+
+    def check(self):
+        """The input must not be constant (after the pass over all its rows)."""
+        d = self.lo.size
+        summary = Summary(self.lo, self.hi, np.zeros(d), np.zeros(d), np.zeros(d))
+        try:
+            check_not_constant(None, summary=summary)
+        except ValueError as exc:
+            raise ValueError(f"{self.name}: {exc}") from None
+
+
+def _iter_features(view, *, levels, offsets, name):
+    """The features of :func:`texture_features` of a checked channel-last
+    view, level by level and band by band of rows; yields ``(pixels, level)``
+    after every band (the pixels of that band), returns the vector.
+
+    Every level of the Gaussian-Laplacian pyramid is the band-pass
+    ``R - G(R)`` of its image ``R`` (the input, then ``G(R)`` halved by
+    linear interpolation and clipped to its range), as in
+    :func:`skimage.transform.pyramid_laplacian`; with one level there is no
+    pyramid: the level is the image itself. A band of ``G(R)`` is smoothed
+    from the band of ``R`` with the kernel's rows around it: the same values
+    as smoothing the whole image. A first pass over the bands makes the
+    level (kept, float64) and the next level's image; a second one, after
+    the level's mean, sums the statistics of the centred level band by band
+    (the data-gathering matrix of
+    :func:`~car_napari.model.statistics.data_statistics`, the scatter).
+    """
+    height, width, d = view.shape
     eta = len(offsets)
-    d = data.shape[2]
-    try:
-        raw = illumination_invariants(data, offsets, levels=levels, channel_axis=-1)
-    except ValueError as exc:
-        raise ValueError(f"{name}: {exc}") from None
-    per_level = raw.reshape(levels, eta + 2 * eta * d + 3)
-    # traces (eta values) and alpha_3 (the last value) of every level
-    return np.ascontiguousarray(
-        np.concatenate([per_level[:, :eta], per_level[:, -1:]], axis=1).ravel()
-    )
+    ctx = Context.spatial(offsets, d)
+    (up, down), _ = ctx.reach
+    m = ctx.n_regressors
+    shapes = _level_shapes(height, width, levels)
+    level0 = _Level0Rows(view, name)
+    rows = level0
+    features = []
+    for k, (H, W) in enumerate(shapes):
+        last = k == levels - 1
+        step = max(up + down + 1, BAND_PIXELS // W)
+        bands = [(a, min(a + step, H)) for a in range(0, H, step)]
+        level = np.empty((H, W, d))
+        total = np.zeros(d)
+        if not last:
+            Hn, Wn = shapes[k + 1]
+            nxt = np.empty((Hn, Wn, d))
+            coord = (np.arange(Hn) + 0.5) * (H / Hn) - 0.5  # scipy.ndimage.zoom's grid
+            top = np.floor(coord).astype(np.intp)
+            row_t = (coord - top)[:, None, None]
+            coord = (np.arange(Wn) + 0.5) * (W / Wn) - 0.5
+            left = np.floor(coord).astype(np.intp)
+            col_t = (coord - left)[None, :, None]
+            right = np.minimum(left + 1, W - 1)
+            smallest, largest = np.inf, -np.inf
+        for a, b in bands:  # the level, and the next level's image
+            s1 = b if last else min(b + 1, H)  # the rows of G(R) needed
+            x0, x1 = max(a - _RADIUS, 0), min(s1 + _RADIUS, H)  # the rows of R they need
+            image = rows(x0, x1)
+            if levels == 1:
+                level[a:b] = image[a - x0:b - x0]
+                total += level[a:b].reshape(-1, d).sum(axis=0)
+                yield (b - a) * W, k
+                continue
+            smooth = ndi.gaussian_filter(image, (_SIGMA, _SIGMA, 0), mode="reflect",
+                                         truncate=_TRUNCATE)
+            np.subtract(image[a - x0:b - x0], smooth[a - x0:b - x0], out=level[a:b])
+            if not last:
+                part = smooth[a - x0:b - x0]
+                smallest = min(smallest, float(part.min()))
+                largest = max(largest, float(part.max()))
+                o0, o1 = np.searchsorted(top, [a, b])  # the next level's rows from these
+                if o1 > o0:
+                    r = top[o0:o1] - x0
+                    t = row_t[o0:o1]
+                    halved = (1.0 - t) * smooth[r] + t * smooth[r + 1]
+                    nxt[o0:o1] = (1.0 - col_t) * halved[:, left] + col_t * halved[:, right]
+            total += level[a:b].reshape(-1, d).sum(axis=0)
+            del image, smooth
+            yield (b - a) * W, k
+        if k == 0:
+            level0.check()
+        mean = total / (H * W)
+        scatter = np.zeros((d, d))
+        V = np.zeros((m + d, m + d))
+        count = 0
+        for a, b in bands:  # the statistics of the centred level
+            s0, e = max(a - up, 0), min(b + down, H)
+            centred = level[s0:e] - mean
+            own = centred[a - s0:b - s0].reshape(-1, d)
+            scatter += own.T @ own
+            for Z in design_chunks(centred, ctx):  # the rows a..b with a whole neighbourhood
+                V += Z.T @ Z
+                count += Z.shape[0]
+            del centred, own
+            yield (b - a) * W, k
+        del level
+        evals = np.linalg.eigvalsh(scatter)
+        if evals[0] <= 1e-10 * evals[-1]:
+            raise ValueError(
+                f"{name}: the image's channels are linearly dependent (e.g. a grey image "
+                "stored as RGB): illumination invariants need independent channels. Pass "
+                "one channel (channel_axis=None on a 2-D image) or a true colour image."
+            )
+        # covariant prior: one pixel's worth of the data's own scatter
+        gamma, lam = estimate_parameters(V + V / count, count, m, d, np.zeros(m + d))[:2]
+        A = gamma.reshape(d, eta, d).transpose(1, 0, 2)
+        chol = np.linalg.cholesky(lam)
+        white = np.linalg.solve(chol, np.linalg.solve(chol, scatter).T)
+        features.extend(np.trace(A, axis1=1, axis2=2))
+        features.append(float(np.sqrt(np.trace(white))))  # alpha_3
+        if not last:  # the next level's image: G(R) halved, clipped to its range
+            def rows(start, stop, image=nxt, lo=smallest, hi=largest):
+                return np.clip(image[start:stop], lo, hi)
+    return np.asarray(features, dtype=np.float64)
+
+
+def _finish(job):
+    """Run a generator to its end; its return value."""
+    while True:
+        try:
+            next(job)
+        except StopIteration as stop:
+            return stop.value
 
 
 def texture_features(image, *, levels=3, neighbourhood=2, channel_axis=-1):
@@ -183,9 +397,9 @@ def texture_features(image, *, levels=3, neighbourhood=2, channel_axis=-1):
     """
     levels = _check_levels(levels)
     offsets, _ = as_offsets(neighbourhood)
-    data = _as_image(image, levels=levels, neighbourhood=offsets,
-                     channel_axis=channel_axis, name="image")
-    return _features(data, levels=levels, offsets=offsets, name="image")
+    view = _as_image(image, levels=levels, offsets=offsets, channel_axis=channel_axis,
+                     name="image")
+    return _finish(_iter_features(view, levels=levels, offsets=offsets, name="image"))
 
 
 def _describe(item, name, *, levels, offsets, channel_axis):
@@ -208,9 +422,9 @@ def _describe(item, name, *, levels, offsets, channel_axis):
         if not np.all(np.isfinite(vec)):
             raise ValueError(f"{name} (a feature vector) contains NaN or infinite values.")
         return vec, None, None
-    data = _as_image(arr, levels=levels, neighbourhood=offsets,
+    view = _as_image(arr, levels=levels, offsets=offsets,
                      channel_axis=channel_axis if arr.ndim == 3 else None, name=name)
-    return None, data, data.shape[2]
+    return None, view, view.shape[2]
 
 
 class Ranking(NamedTuple):
@@ -291,11 +505,20 @@ def iter_rank(query, gallery, *, levels=3, neighbourhood=2, channel_axis=-1):
     """Rank a gallery by distance to a query, as a job reporting progress.
 
     The generator form of :func:`rank` (same arguments, same result): every
-    entry is checked first, then it yields a :class:`~car_napari.Progress`
-    record before the features of the query (``"query"``) and of every
-    gallery entry (``"gallery 3/12"``) are computed and a last one when the
-    gallery is ranked, and returns the :class:`Ranking`. Closing the
-    generator stops the work before the next entry.
+    entry's type, shape and size is checked first, then it yields a
+    :class:`~car_napari.Progress` record before the features of the query
+    (``"query"``) and of every gallery entry (``"gallery 3/12"``) are
+    computed, records between the bands of rows of a large image (see
+    below) and a last one when the gallery is ranked, and returns the
+    :class:`Ranking`. Closing the generator stops the work at the next
+    record: within a band (:data:`BAND_PIXELS` pixels, a fraction of a
+    second).
+
+    The images are read where they are (views, not copied) and never
+    modified; an image's features are computed band by band, so that beyond
+    the inputs the job holds about ``10 * d`` bytes per pixel of the image
+    being described (``d`` channels: its current pyramid level and the next
+    level's image, float64), and nothing of the images already described.
 
     Parameters
     ----------
@@ -320,12 +543,16 @@ def iter_rank(query, gallery, *, levels=3, neighbourhood=2, channel_axis=-1):
     Progress
         Stage ``"features"``, then ``"ranking"``; ``fraction`` is the share
         of the images' pixels already described (feature vectors cost
-        nothing; a gallery of vectors only advances by entries).
+        nothing; a gallery of vectors only advances by entries). On an
+        image of more than :data:`BAND_PIXELS` pixels, a record after every
+        band's worth of work, message like ``"gallery 3/12, level 1/3"``.
 
     Raises
     ------
     ValueError
-        As :func:`rank`, before the first record.
+        As :func:`rank`: before the first record for the types, shapes and
+        sizes; for the values (NaN, a constant image, dependent channels)
+        when the entry's features are computed.
     TypeError
         As :func:`rank`, before the first record.
 
@@ -359,10 +586,30 @@ def iter_rank(query, gallery, *, levels=3, neighbourhood=2, channel_axis=-1):
     done = np.concatenate([[0.0], np.cumsum(cost)]) / cost.sum()
     n = len(entries)
     feats = []
-    for i, (name, (vec, data, _)) in enumerate(zip(names, described, strict=True)):
-        yield Progress("features", float(done[i]), "query" if i == 0 else f"gallery {i}/{n}")
-        feats.append(vec if vec is not None
-                     else _features(data, levels=levels, offsets=offsets, name=name))
+    for i, (name, (vec, view, _)) in enumerate(zip(names, described, strict=True)):
+        label = "query" if i == 0 else f"gallery {i}/{n}"
+        yield Progress("features", float(done[i]), label)
+        if vec is not None:
+            feats.append(vec)
+            continue
+        # a record between bands once a band's worth of pixels is done (none
+        # on a small image): a Cancel stops the job within a band
+        job = _iter_features(view, levels=levels, offsets=offsets, name=name)
+        work = 2 * sum(h * w for h, w in _level_shapes(*view.shape[:2], levels))
+        finished = pending = 0
+        while True:
+            try:
+                pixels, level = next(job)
+            except StopIteration as stop:
+                feats.append(stop.value)
+                break
+            finished += pixels
+            pending += pixels
+            if pending >= BAND_PIXELS and finished < work:
+                pending = 0
+                fraction = done[i] + (done[i + 1] - done[i]) * finished / work
+                yield Progress("features", float(fraction),
+                               f"{label}, level {level + 1}/{levels}")
     feats = np.array(feats)
     q, G = feats[0], feats[1:]
     spread = G.std(axis=0)

@@ -178,3 +178,94 @@ def test_iter_rank_of_vectors_advances_by_entries_and_validates_first():
 def test_grey_image_needs_no_channel_axis():
     img = skdata.camera()[100:228, 100:228] / 255.0
     np.testing.assert_array_equal(texture_features(img), texture_features(img, channel_axis=None))
+
+
+# --- the features by bands of rows (issue 12: cancellable, bounded memory) ----------------
+
+def _reference_features(image, levels, neighbourhood, channel_axis):
+    """The traces and alpha_3 of every level, from illumination_invariants
+    (the whole-image computation the band-by-band one replaces)."""
+    from car_napari.model import as_offsets, illumination_invariants
+
+    eta = len(as_offsets(neighbourhood)[0])
+    d = 1 if image.ndim == 2 else image.shape[channel_axis]
+    raw = illumination_invariants(image, neighbourhood, levels=levels,
+                                  channel_axis=channel_axis).reshape(levels, -1)
+    assert raw.shape[1] == eta + 2 * eta * d + 3
+    return np.concatenate([raw[:, :eta], raw[:, -1:]], axis=1).ravel()
+
+
+@pytest.mark.parametrize("band_pixels", [1 << 17, 700])
+@pytest.mark.parametrize(
+    "make, levels, neighbourhood, channel_axis",
+    [
+        (lambda: skdata.astronaut()[100:301, 50:223], 3, 2, -1),  # uint8, odd sizes
+        (lambda: skdata.camera()[50:200, 100:251] / 255.0, 2, 3, None),  # float grey
+        (lambda: skdata.coffee()[:120, :160].astype(np.uint16) * 257, 1, 1, -1),  # no pyramid
+        (lambda: np.moveaxis(skdata.chelsea()[:99, :77], -1, 0).astype(np.float32), 3, 1, 0),
+    ],
+)
+def test_features_by_bands_match_the_whole_image_computation(monkeypatch, band_pixels, make,
+                                                            levels, neighbourhood,
+                                                            channel_axis):
+    from car_napari.texture import retrieval
+
+    image = make()
+    before = image.copy()
+    monkeypatch.setattr(retrieval, "BAND_PIXELS", band_pixels)  # 700: many bands a level
+    got = texture_features(image, levels=levels, neighbourhood=neighbourhood,
+                           channel_axis=channel_axis)
+    want = _reference_features(image, levels, neighbourhood, channel_axis)
+    np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12)
+    np.testing.assert_array_equal(image, before)  # the input is read, never written
+
+
+def test_ranking_by_bands_matches_plain_numpy(monkeypatch):
+    """Same ranking and distances (float tolerance) as the normalised L1 of
+    the whole-image features, computed here with plain NumPy."""
+    from car_napari.texture import retrieval
+
+    astro = skdata.astronaut()
+    gallery = [astro[i:i + 96, j:j + 96] for i in (0, 200, 400) for j in (0, 150, 300)]
+    query = astro[210:330, 160:290]
+    feats = np.array([_reference_features(g, 3, 2, -1) for g in gallery])
+    q = _reference_features(query, 3, 2, -1)
+    spread = feats.std(axis=0)
+    want = (np.abs(feats - q) / np.where(spread > 0, spread, 1.0)).sum(axis=1)
+    monkeypatch.setattr(retrieval, "BAND_PIXELS", 1000)
+    indices, distances = rank(query, gallery)
+    np.testing.assert_array_equal(indices, np.argsort(want, kind="stable"))
+    np.testing.assert_allclose(distances, want[indices], rtol=1e-9)
+
+
+def test_a_large_image_reports_between_bands_and_stops_when_closed(monkeypatch):
+    from car_napari.texture import retrieval
+
+    monkeypatch.setattr(retrieval, "BAND_PIXELS", 2048)
+    image = np.tile(skdata.astronaut()[:128, :128], (2, 2, 1))  # 256 x 256: 32 bands a pass
+    records = []
+    drain(iter_rank(image, [image[::-1], image[:, ::-1]]), records.append)
+    messages = [r.message for r in records]
+    assert messages[0] == "query" and "query, level 1/3" in messages
+    assert "gallery 2/2, level 3/3" in messages and messages[-1] == "2 ranked"
+    fractions = [r.fraction for r in records]
+    assert np.all(np.diff(fractions) >= 0) and len(records) > 40
+    job = iter_rank(image, [image[::-1]])
+    for _ in range(5):
+        next(job)
+    job.close()  # a Cancel: the generator stops between two bands
+    with pytest.raises(StopIteration):
+        next(job)
+
+
+def test_values_are_checked_as_the_image_is_described():
+    img = _patch()
+    bad = img.copy()
+    bad[3, 4, 1] = np.nan
+    bad[60:62, 7, 0] = np.inf
+    with pytest.raises(ValueError, match=r"gallery\[1\] contains 3 NaN or infinite"):
+        rank(img, [img[::-1], bad])
+    with pytest.raises(ValueError, match=r"query: image is constant in channel\(s\) \[2\]"):
+        flat = img.copy()
+        flat[..., 2] = 0.5
+        rank(flat, [img])
