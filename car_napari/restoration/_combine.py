@@ -4,13 +4,14 @@ at a time, their precision-weighted average, and the edge rule (14.40)."""
 from __future__ import annotations
 
 import os
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
+from functools import partial
 
 import numpy as np
 
 from .._validation import check_size
 from ..model.directions import scan_shape
-from ..model.recursive import adaptive_scan
+from ..model.recursive import adaptive_scanner
 from ._kernels import accumulate_direction, combine_directions
 from ._windowed import edge_weight
 
@@ -22,6 +23,8 @@ DIRECTION_POWER = 4
 # Edge rule: directional predictions whose variance (3x3 mean) exceeds this
 # many noise variances mark an edge (flat noise: 99.9 % of 3x3 means below 0.4).
 EDGE_SPREAD = 0.7
+# Values (pixels x channels) of one chunk of the row-wise kernels: ~10-40 ms.
+CHUNK_VALUES = 1 << 20
 
 
 def in_halves(pool, kernel, n, *args):
@@ -32,29 +35,115 @@ def in_halves(pool, kernel, n, *args):
         future.result()
 
 
-def run_directions(source, context, targets_var, *, forgetting, directions, outputs, prior):
-    """Adaptive scans in several directions, two at a time on two cores (the
-    kernels release the GIL). Yields (direction, ScanResult) as they finish."""
+def row_chunks(start, stop, rows):
+    """[start, stop) as consecutive (a, b) ranges of at most ``rows`` rows."""
+    rows = max(1, int(rows))
+    return [(a, min(stop, a + rows)) for a in range(start, stop, rows)]
+
+
+def chunk_rows(width, per_pixel=1.0):
+    """Rows of ``width`` pixels of ``per_pixel`` work each that make a chunk
+    (of about ``CHUNK_VALUES`` units)."""
+    return max(1, int(CHUNK_VALUES // max(1.0, width * per_pixel)))
+
+
+def iter_chains(pool, chains):
+    """Run chains of calls, the chains side by side on ``pool`` (the calls
+    release the GIL), each chain's calls one after the other.
+
+    ``chains`` are iterables of zero-argument callables, drawn lazily (the
+    next call of a chain is drawn when its previous call has finished, so it
+    may depend on it). Yields each call's return value as it finishes.
+    Without a pool, runs the chains one after the other here. Closing the
+    generator early starts no more calls (the ones running finish).
+    """
+    chains = [iter(chain) for chain in chains]
+    if pool is None:
+        for chain in chains:
+            for call in chain:
+                yield call()
+        return
+    pending = {}
+
+    def submit(k):
+        call = next(chains[k], None)
+        if call is not None:
+            pending[pool.submit(call)] = k
+
+    try:
+        for k in range(len(chains)):
+            submit(k)
+        while pending:
+            done, _ = wait(list(pending), return_when=FIRST_COMPLETED)
+            for future in sorted(done, key=pending.get):
+                k = pending.pop(future)
+                value = future.result()
+                submit(k)
+                yield value
+    finally:  # closing early: do not start what is queued
+        for future in pending:
+            future.cancel()
+
+
+def iter_calls(pool, calls, n_chains=2):
+    """:func:`iter_chains` of independent ``calls``, dealt out to
+    ``n_chains`` chains."""
+    calls = list(calls)
+    return iter_chains(pool, [calls[k::n_chains] for k in range(n_chains)])
+
+
+def _scan_chain(directions, make):
+    """The calls of the scans in ``directions``, one after the other: each
+    call advances a scan by one chunk and returns (pixels scanned, None), the
+    last of a scan (0, (direction, ScanResult))."""
+    for direction in directions:
+        scanner = make(direction)
+        while not scanner.done:
+            def advance(scanner=scanner):
+                chunk = scanner.advance()
+                return (chunk.stop - chunk.start) * (scanner.pixels // scanner.rows), None
+            yield advance
+        yield lambda scanner=scanner, direction=direction: (0, (direction, scanner.result()))
+
+
+def iter_directions(source, context, targets_var, *, forgetting, directions, outputs, prior,
+                    pool=None):
+    """Adaptive scans in several directions, in chunks of rows
+    (:func:`~car_napari.model.recursive.adaptive_scanner`, each chunk one
+    ``nogil`` kernel call of about 0.1-0.25 s), the directions side by side
+    on ``pool``'s two cores. Yields (pixels scanned, finished) after every
+    chunk; ``finished`` lists the (direction, ScanResult) that are complete,
+    in the order of ``directions``. Bit for bit the one-call scans."""
     for direction in directions:
         check_size(np.empty(scan_shape(source.shape, direction)), context.reach)
 
-    def run(direction):
-        return direction, adaptive_scan(source, context, targets_var, forgetting=forgetting,
-                                        direction=direction, prior=prior, outputs=outputs)
+    def make(direction):
+        scanner = adaptive_scanner(source, context, targets_var, forgetting=forgetting,
+                                   direction=direction, prior=prior, outputs=outputs)
+        scanner.pixels = source.shape[0] * source.shape[1]
+        return scanner
 
-    workers = max(1, min(len(directions), os.cpu_count() or 1, 4))
-    if workers == 1:
-        for direction in directions:
-            yield run(direction)
-        return
-    with ThreadPoolExecutor(max_workers=workers) as pool:
-        futures = [pool.submit(run, d) for d in directions]
-        try:
-            for future in futures:
-                yield future.result()
-        finally:  # closing the generator early: do not start what is queued
-            for future in futures:
-                future.cancel()
+    n_chains = 1 if pool is None else max(1, min(len(directions), os.cpu_count() or 1, 2))
+    chains = [_scan_chain(directions[k::n_chains], make) for k in range(n_chains)]
+    ready = {}
+    order = list(directions)
+    for pixels, done in iter_chains(pool, chains):
+        if done is not None:
+            ready[done[0]] = done
+        finished = []
+        while order and order[0] in ready:
+            finished.append(ready.pop(order.pop(0)))
+        yield pixels, finished
+
+
+def run_directions(source, context, targets_var, *, forgetting, directions, outputs, prior):
+    """The scans of :func:`iter_directions` to their end: yields (direction,
+    ScanResult) in the order of ``directions``."""
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        for _, finished in iter_directions(source, context, targets_var, forgetting=forgetting,
+                                           directions=directions, outputs=outputs,
+                                           prior=prior, pool=pool):
+            yield from finished
 
 
 class DirectionalAverage:
@@ -78,13 +167,27 @@ class DirectionalAverage:
         self.weight_sum = np.zeros(shape[:2])
         self.count = np.zeros(shape[:2])
 
-    def add(self, mean, logrel):
+    def add(self, mean, logrel, pool=None):
         """Add one direction's (H, W, C) conditional mean and (H, W) log
         relative density (NaN where it does not predict)."""
-        accumulate_direction(self.observed, np.ascontiguousarray(mean),
-                             np.ascontiguousarray(logrel), DIRECTION_WINDOW // 2,
-                             int(DIRECTION_POWER), self.mean_sum, self.prob_sum,
-                             self.weight_sum, self.plain_sum, self.square_sum, self.count)
+        for _ in self.iter_add(mean, logrel, pool):
+            pass
+
+    def iter_add(self, mean, logrel, pool=None):
+        """:meth:`add` in chunks of rows (on ``pool`` if given); yields the
+        rows done after each chunk. Bit for bit :meth:`add`."""
+        mean, logrel = np.ascontiguousarray(mean), np.ascontiguousarray(logrel)
+        H, W, C = self.observed.shape
+
+        def call(a, b):
+            accumulate_direction(self.observed, mean, logrel, DIRECTION_WINDOW // 2,
+                                 int(DIRECTION_POWER), self.mean_sum, self.prob_sum,
+                                 self.weight_sum, self.plain_sum, self.square_sum, self.count,
+                                 a, b)
+            return b - a
+
+        rows = chunk_rows(W, 4 * C)
+        yield from iter_calls(pool, [partial(call, a, b) for a, b in row_chunks(0, H, rows)])
 
     def spread(self):
         """(H, W, C) variance of the directional predictions (0 with < 2)."""
@@ -97,7 +200,7 @@ class DirectionalAverage:
         pred = np.empty(self.observed.shape)
         prob = np.empty(self.observed.shape[:2])
         combine_directions(self.mean_sum, self.prob_sum, self.weight_sum, self.observed,
-                           self.offset, pred, prob)
+                           self.offset, pred, prob, 0, pred.shape[0])
         return pred, prob
 
 
@@ -122,11 +225,36 @@ def edge_rule(observed, prediction, spread, noise, pool=None, blend=False, out=N
     (observed - prediction)`` instead (no weight array); rows run in two
     halves on ``pool`` when given; the result goes into ``out`` if given.
     """
+    job = iter_edge_rule(observed, prediction, spread, noise, pool, blend=blend, out=out)
+    while True:
+        try:
+            next(job)
+        except StopIteration as stop:
+            return stop.value
+
+
+def iter_edge_rule(observed, prediction, spread, noise, pool=None, blend=False, out=None):
+    """:func:`edge_rule` in chunks of rows: yields the rows done after each
+    chunk, returns what :func:`edge_rule` returns, bit for bit the one-call
+    kernel (without ``pool`` one segment of rows, with it two halves, each
+    run in chunks that carry its running sums)."""
+    H, W, C = observed.shape
     out = np.empty(observed.shape) if out is None else out
     args = (observed, np.ascontiguousarray(prediction), np.ascontiguousarray(spread), noise**2,
             EDGE_WINDOW // 2, EDGE_SPREAD * float(np.mean(noise**2)), bool(blend), out)
-    if pool is None:
-        edge_weight(*args, 0, observed.shape[0])
-    else:
-        in_halves(pool, edge_weight, observed.shape[0], *args)
+    half = (H + 1) // 2
+    segments = [(0, H)] if pool is None else [(a, b) for a, b in ((0, half), (half, H)) if b > a]
+    rows = chunk_rows(W, 2 * C)
+
+    def chain(r0, r1):
+        cols, spread_cols = np.zeros((W, C)), np.zeros(W)
+        steps = row_chunks(r0, r1, rows)
+        steps[0] = (r0 - 2 * (EDGE_WINDOW // 2) - 1, steps[0][1])  # the sums fill first
+        for a, b in steps:
+            def call(a=a, b=b):
+                edge_weight(*args, r0, r1, a, b, cols, spread_cols)
+                return b - max(a, r0)
+            yield call
+
+    yield from iter_chains(pool, [chain(r0, r1) for r0, r1 in segments])
     return out

@@ -66,4 +66,9 @@ def noise_channel_last(data):
 
 def noise_channel_first(planes):
     """:func:`estimate_noise` of channel-first (C, H, W) planes."""
-    return np.array([median_abs_laplacian(plane) for plane in planes]) / _LAPLACIAN_SIGMAS
+    return noise_from_medians([median_abs_laplacian(plane) for plane in planes])
+
+
+def noise_from_medians(medians):
+    """The noise levels from the channels' :func:`median_abs_laplacian`."""
+    return np.array(medians) / _LAPLACIAN_SIGMAS

@@ -19,19 +19,30 @@ from __future__ import annotations
 import queue
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
-from .._progress import Progress, drain
-from .._validation import as_channel_last_float, check_not_constant, check_size
+from .._progress import Progress, drain, stage
+from .._validation import check_not_constant, check_size
 from ..model.directions import DIRECTIONS
 from ..model.neighbourhood import Context
 from ._checks import check_kappa, check_options, resolve_offsets
-from ._combine import DIRECTION_POWER, DirectionalAverage, edge_rule, in_halves, run_directions
-from ._noise import noise_channel_first, noise_channel_last
+from ._combine import (
+    DIRECTION_POWER,
+    DirectionalAverage,
+    chunk_rows,
+    iter_calls,
+    iter_directions,
+    iter_edge_rule,
+    row_chunks,
+)
+from ._input import channel_last_shape, iter_channel_last_float
+from ._noise import noise_channel_last, noise_from_medians
 from ._windowed import (
     block_moments,
     combine_predictions,
+    median_abs_laplacian,
     predict_block_models,
     predict_scratch_rows,
     valid_box,
@@ -48,6 +59,14 @@ STRIP_ROWS = 64  # at most this many rows restored at a time by one core (window
 # down/up/right/left would repeat one: at order 1 'down' and 'right' both
 # use the pixels above and to the left.
 CORNERS = ("up-left", "up-right", "down-left", "down-right")
+# The stages' shares of the work (progress fractions), measured on 4000 x
+# 4000 colour, order 1 (CPU seconds of one core): with the probability map
+# (the widget, return_result) and without (restore).
+WINDOWED_WORK = {"reading": 0.6, "centre": 0.5, "moments": 0.4, "models": 0.6, "rows": 3.0,
+                 "noise": 0.4, "edges": 0.5}
+WINDOWED_WORK_PLAIN = {"reading": 0.6, "centre": 0.3, "moments": 0.4, "models": 0.3,
+                       "rows": 1.5, "noise": 0.4, "edges": 0.5}
+RECURSIVE_WORK = {"reading": 0.6, "centre": 0.2, "directions": 30.0, "edges": 0.5}
 
 
 @dataclass
@@ -195,12 +214,13 @@ def corner_displacements(offsets, corner):
 
 
 def _iter_windowed(planes, mean, var, offsets, directions, window, pool, live, probability,
-                   show):
+                   show, span, pred):
     """The windowed estimator's predictions (see :mod:`._windowed`) on the
-    centred channel-first ``planes``: yields Progress as strips of rows
-    finish (with ``live``, previews ``show(running prediction)``), returns
-    (prediction (H, W, C) plus ``mean``, probability or None when not asked
-    for, spread over channels)."""
+    centred channel-first ``planes``: yields Progress as block rows of the
+    statistics and models and strips of rows finish (with ``live``, previews
+    ``show(running prediction)``), the fractions in ``span(stage)``; returns
+    (prediction (H, W, C) plus ``mean``, written into ``pred``, probability
+    or None when not asked for, spread over channels)."""
     C, H, W = planes.shape
     # the statistics of every corner come from one pass, over the pixels whose
     # neighbours in all four corners lie inside (whichever corners are used)
@@ -213,7 +233,14 @@ def _iter_windowed(planes, mean, var, offsets, directions, window, pool, live, p
     nbi, nbj = -(-H // block), -(-W // block)
     A = len(positions) * C + 1
     moments = np.zeros((nbi, nbj, A, A))
-    in_halves(pool, block_moments, nbi, planes, disp_i, disp_j, block, moments)
+    # block rows are independent: chunks of them, two at a time, a record each
+    lo, hi = span("moments")
+    ranges = row_chunks(0, nbi, chunk_rows(nbj * block * block, A * (A + 1) / 8))
+    for k, _ in enumerate(iter_calls(pool, [
+            partial(block_moments, planes, disp_i, disp_j, block, moments, a, b)
+            for a, b in ranges]), start=1):
+        yield Progress("moments", lo + (hi - lo) * k / len(ranges),
+                       f"statistics {k}/{len(ranges)}")
 
     taps = []
     for direction in directions:
@@ -232,21 +259,25 @@ def _iter_windowed(planes, mean, var, offsets, directions, window, pool, live, p
     x_inv = np.empty((K, *density_shape, p, p))
     lam_inv = np.empty((K, *density_shape, C, C))
     exponent = np.empty((nbi, nbj))
-    in_halves(pool, window_models, nbi, moments, ix, iy, prior_x, np.full(C, 1e-6 * var),
-              bool(probability), gamma, x_inv, lam_inv, exponent)
+    lo, hi = span("models")
+    # work of one block's models: the window's sums, then per direction a
+    # Cholesky factor and solves (and the inverses for the density)
+    per_block = 9 * A * A + K * (p * p * (p + C) + (p * p * p if probability else 0))
+    ranges = row_chunks(0, nbi, chunk_rows(nbj, per_block / 16))
+    for k, _ in enumerate(iter_calls(pool, [
+            partial(window_models, moments, ix, iy, prior_x, np.full(C, 1e-6 * var),
+                    bool(probability), gamma, x_inv, lam_inv, exponent, a, b)
+            for a, b in ranges]), start=1):
+        yield Progress("models", lo + (hi - lo) * k / len(ranges),
+                       f"{min(nbi, ranges[k - 1][1]) * nbj}/{nbi * nbj} local models")
     boxes = np.array([valid_box(H, W, tap[0], tap[1]) for tap in taps], np.int64)
-    # fractions as measured on 1024 x 1024 colour: the models take a fifth
-    # of the time, the strips seven tenths, the edge rule the rest
-    yield Progress("models", 0.2, f"{nbi * nbj} local models")
 
     # Strips of rows, two at a time on two cores, each with its own buffers:
     # the image fills in row by row, and the per-direction arrays stay small.
-    # live: rows not yet restored show the observation
-    pred = np.moveaxis(planes, 0, -1) + mean if live else np.empty((H, W, C))
+    # live: rows not yet restored show the observation (pred holds it)
     spread = np.zeros((H, W))
-    density = np.ones((H, W)) if probability else None
-    exponent_px = (np.repeat(np.repeat(exponent, block, axis=0), block, axis=1)[:H, :W]
-                   if probability else None)
+    density = np.empty((H, W)) if probability else None  # every strip writes its rows
+    block_of_column = np.arange(W) // block
     height = int(np.clip(H // 8, 8, STRIP_ROWS))  # small images: still a few strips
     strips = [(r, min(H, r + height)) for r in range(0, H, height)]
     buffers = queue.SimpleQueue()
@@ -269,7 +300,9 @@ def _iter_windowed(planes, mean, var, offsets, directions, window, pool, live, p
                                 weight, spread, a0, r0, r1)
             if probability:  # the weighted Student-t density relative to its peak
                 rows = slice(r0 - a0, r1 - a0)
-                relative = np.exp(-exponent_px[r0:r1] * np.log1p(ratio[:, rows]))
+                # each pixel's block exponent (the blocks' values spread out)
+                exponent_px = exponent[np.arange(r0, r1) // block][:, block_of_column]
+                relative = np.exp(-exponent_px * np.log1p(ratio[:, rows]))
                 weights = weight[:, rows]
                 density[r0:r1] = np.where(weights.sum(axis=0) > 0,
                                           np.sum(weights * relative, axis=0), 1.0)
@@ -278,37 +311,74 @@ def _iter_windowed(planes, mean, var, offsets, directions, window, pool, live, p
 
     futures = [pool.submit(run, *strip) for strip in strips]
     every = max(1, len(strips) // 8)  # a live image costs a copy: about 8 of them
+    lo, hi = span("rows")
     try:
         for done, future in enumerate(futures, start=1):
             future.result()
-            running = (show(pred.copy()) if live and done < len(strips) and done % every == 0
-                       else None)
-            yield Progress("rows", 0.2 + 0.7 * done / len(strips),
-                           f"rows {strips[done - 1][1]}/{H}", running)
+            fraction = lo + (hi - lo) * done / len(strips)
+            message = f"rows {strips[done - 1][1]}/{H}"
+            running = None
+            if live and done < len(strips) and done % every == 0:
+                # the copy in strips, a record between them (fresh memory of a
+                # large image is slow to touch)
+                running = np.empty_like(pred)
+                for a, b in row_chunks(0, H, chunk_rows(W, 4 * C)):
+                    np.copyto(running[a:b], pred[a:b])  # NumPy releases the GIL
+                    yield Progress("rows", fraction, message)
+                running = show(running)
+            yield Progress("rows", fraction, message, running)
     finally:  # closing the generator early: do not start what is queued
         for future in futures:
             future.cancel()
     return pred, density, spread
 
 
-def _iter_recursive(centred, mean, context, var, forgetting, directions, live, show):
+def _iter_recursive(centred, mean, context, var, forgetting, directions, live, show, pool,
+                    span):
     """The adaptive (recursive) estimator's predictions, as _iter_windowed but
-    on channel-last centred data (H, W, C); the prediction returned is
-    centred too (``mean`` only shifts the previews)."""
+    on channel-last centred data (H, W, C): the scans run in chunks of rows,
+    two directions at a time on ``pool``; the prediction returned is centred
+    too (``mean`` only shifts the previews)."""
     average = DirectionalAverage(centred, np.zeros(centred.shape[2]))
     n = len(directions)
-    for k, (_, result) in enumerate(run_directions(
+    H, W = centred.shape[:2]
+    total = n * H * W
+    lo, hi = span("directions")
+    done = k = 0
+    for pixels, finished in iter_directions(
             centred, context, var, forgetting=forgetting, directions=directions,
-            outputs=("mean", "logrel"), prior=1e-6), start=1):
-        average.add(result["mean"], result["logrel"])
-        running = None
-        if live and k < n:
-            running = average.prediction()[0]
-            running += mean
-            running = show(running)
-        yield Progress("directions", 0.95 * k / n, f"direction {k}/{n}", running)
+            outputs=("mean", "logrel"), prior=1e-6, pool=pool):
+        done += pixels
+        fraction = lo + (hi - lo) * done / total
+        yield Progress("directions", fraction, f"scans {100 * done // total} %")
+        for _, result in finished:
+            k += 1
+            for _ in average.iter_add(result["mean"], result["logrel"]):  # beside the scans
+                yield Progress("directions", fraction, f"direction {k}/{n}: combining")
+            running = None
+            if live and k < n:
+                running = average.prediction()[0]
+                running += mean
+                running = show(running)
+            yield Progress("directions", fraction, f"direction {k}/{n}", running)
     pred, prob = average.prediction()
     return pred, prob, average.spread().mean(axis=-1)
+
+
+def _median(c, plane):
+    """(c, :func:`median_abs_laplacian` of ``plane``)."""
+    return c, median_abs_laplacian(plane)
+
+
+def _spans(work):
+    """``span(stage) -> (start, stop)``: the stages' parts of [0, 1] in
+    proportion to their ``work`` (a dict in the order they run)."""
+    total = sum(work.values())
+    bounds, at = {}, 0.0
+    for name, value in work.items():
+        bounds[name] = (at / total, (at + value) / total)
+        at += value
+    return bounds.__getitem__
 
 
 def iter_restoration(image, *, neighbourhood, estimator, window, forgetting, directions,
@@ -328,60 +398,107 @@ def iter_restoration(image, *, neighbourhood, estimator, window, forgetting, dir
     if isinstance(window, (bool, np.bool_)) or int(window) != window or int(window) < 6:
         raise ValueError(f"window must be an integer of at least 6 pixels; got {window!r}.")
     probability = bool(probability) or kappa > 0 or estimator == "recursive"
-    # blend: nothing keeps the image, so a float64 input need not be copied
-    data, summary = as_channel_last_float(image, channel_axis=channel_axis, with_summary=True,
-                                          copy=not blend)
-    check_not_constant(data, summary=summary)
-    offsets = resolve_offsets(neighbourhood, data)
-    context = Context.spatial(offsets, data.shape[2])
-    check_size(data, context.reach)
+    H, W, C = channel_last_shape(image, channel_axis=channel_axis)
     if noise is not None:
-        noise = np.broadcast_to(np.asarray(noise, float), (data.shape[2],)).copy()
+        noise = np.broadcast_to(np.asarray(noise, float), (C,)).copy()
         if np.any(noise < 0) or not np.all(np.isfinite(noise)):
             raise ValueError(f"noise must be finite and >= 0; got {noise}.")
+    if estimator == "windowed":
+        work = dict(WINDOWED_WORK if probability else WINDOWED_WORK_PLAIN)
+    else:
+        work = dict(RECURSIVE_WORK)
+    if not keep_edges:
+        work.pop("edges")
+    span = _spans(work)
     ndim = np.ndim(image)
 
     def show(running):  # a preview in the input's layout
         return to_layout(running, ndim, channel_axis)
 
-    yield Progress("start", 0.0, f"{data.shape[0]} x {data.shape[1]} image")
+    yield Progress("start", 0.0, f"{H} x {W} image")
+    # blend: nothing keeps the image, so a float64 input need not be copied
+    data, summary = yield from stage(
+        iter_channel_last_float(image, channel_axis=channel_axis, copy=not blend),
+        *span("reading"))
+    check_not_constant(data, summary=summary)
+    offsets = resolve_offsets(neighbourhood, data)
+    context = Context.spatial(offsets, data.shape[2])
+    check_size(data, context.reach)
+    lo, hi = span("centre")
+    rows = row_chunks(0, H, chunk_rows(W, 2 * C))
     with ThreadPoolExecutor(max_workers=2) as pool:
         if estimator == "windowed":
             # channel-first: every kernel runs along contiguous rows
             planes = np.empty(np.roll(data.shape, 1))
             source = np.moveaxis(data, -1, 0)
-            in_halves(pool, lambda a, b: np.subtract(  # NumPy releases the GIL
-                source[:, a:b], summary.mean[:, None, None], out=planes[:, a:b]), data.shape[0])
-            # the noise level is estimated beside the kernels (the queue keeps
-            # two cores busy); the Laplacian ignores the mean
-            noise_future = pool.submit(noise_channel_first, planes) if noise is None else None
+            # live: rows not yet restored show the observation
+            pred = np.empty((H, W, C))
+
+            def centre(a, b):  # NumPy releases the GIL
+                np.subtract(source[:, a:b], summary.mean[:, None, None], out=planes[:, a:b])
+                if live:
+                    np.add(np.moveaxis(planes[:, a:b], 0, -1), summary.mean, out=pred[a:b])
+
+            for k, _ in enumerate(iter_calls(pool, [partial(centre, a, b) for a, b in rows]),
+                                  start=1):
+                yield Progress("centre", lo + (hi - lo) * k / len(rows), "centring")
             pred, prob, spread = yield from _iter_windowed(
-                planes, summary.mean, summary.var, offsets, directions, window, pool, live,
-                probability, show)
-            if noise_future is not None:
-                noise = noise_future.result()
+                planes, summary.mean, summary.var, offsets, directions, window, pool,
+                live, probability, show, span, pred)
+            if noise is None:  # one channel per call, two at a time
+                lo, hi = span("noise")
+                medians = {}
+                for k, (c, value) in enumerate(iter_calls(pool, [
+                        partial(_median, c, plane) for c, plane in enumerate(planes)]),
+                        start=1):
+                    medians[c] = value
+                    yield Progress("noise", lo + (hi - lo) * k / C, f"channel {k}/{C}")
+                noise = noise_from_medians([medians[c] for c in range(C)])
             weight = None
             if keep_edges and blend:  # the restored image straight away, no weight array,
                 # written over the planes, which are no longer needed (fresh memory is
                 # slow to touch: page faults cost as much as a kernel here)
-                pred = edge_rule(data, pred, spread, noise, pool, blend=True,
-                                 out=planes.reshape(data.shape))
+                pred = yield from _iter_edges(data, pred, spread, noise, pool, span, blend=True,
+                                              out=planes.reshape(data.shape))
             elif keep_edges:
-                weight = edge_rule(data, pred, spread, noise, pool)
+                weight = yield from _iter_edges(data, pred, spread, noise, pool, span)
         else:
+            centred = np.empty(data.shape)
+
+            def centre(a, b):
+                np.subtract(data[a:b], summary.mean, out=centred[a:b])
+
+            for k, _ in enumerate(iter_calls(pool, [partial(centre, a, b) for a, b in rows]),
+                                  start=1):
+                yield Progress("centre", lo + (hi - lo) * k / len(rows), "centring")
             noise_future = pool.submit(noise_channel_last, data) if noise is None else None
-            centred = np.ascontiguousarray(data - summary.mean)
             pred, prob, spread = yield from _iter_recursive(
-                centred, summary.mean, context, summary.var, forgetting, directions, live, show)
+                centred, summary.mean, context, summary.var, forgetting, directions, live, show,
+                pool, span)
             if noise_future is not None:
                 noise = noise_future.result()
             pred += summary.mean
             weight = None
+            # one segment of rows, in chunks here (bit for bit the one-call rule)
             if keep_edges and blend:
-                pred = edge_rule(data, pred, spread, noise, blend=True)
+                pred = yield from _iter_edges(data, pred, spread, noise, None, span, blend=True)
             elif keep_edges:
-                weight = edge_rule(data, pred, spread, noise)
+                weight = yield from _iter_edges(data, pred, spread, noise, None, span)
     return RestorationResult(data, pred, prob, weight, None, kappa, noise)
+
+
+def _iter_edges(observed, prediction, spread, noise, pool, span, blend=False, out=None):
+    """The edge rule in chunks of rows, a Progress record after each."""
+    lo, hi = span("edges")
+    H = observed.shape[0]
+    job = iter_edge_rule(observed, prediction, spread, noise, pool, blend=blend, out=out)
+    done = 0
+    while True:
+        try:
+            done += next(job)
+        except StopIteration as stop:
+            return stop.value
+        yield Progress("edges", lo + (hi - lo) * done / H, f"edge rule: rows {done}/{H}")
 
 
 def _restore_job(image, *, neighbourhood, estimator, window, forgetting, directions,
@@ -444,8 +561,11 @@ def iter_restore(image, *, neighbourhood=1, estimator="windowed", window=DEFAULT
     Yields
     ------
     progress : Progress
-        Stage ``'start'``, then ``'models'`` and ``'rows'`` (message like
-        ``'rows 128/1024'``; windowed) or ``'directions'`` (recursive), the
+        Stage ``'start'``, then ``'reading'`` (large images), ``'centre'``,
+        and for 'windowed' ``'moments'``, ``'models'``, ``'rows'`` (message
+        like ``'rows 128/1024'``) and ``'noise'``, for 'recursive'
+        ``'directions'``, then ``'edges'`` (the edge rule); a record at least
+        every few tenths of a second of work (docs/restoration.md), the
         fraction proportional to the work done. Some records (about eight
         for 'windowed', one per direction but the last for 'recursive')
         carry a preview: the image restored so far (the prediction, before

@@ -485,7 +485,8 @@ def _bin_of(hist, rank):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
-def edge_weight(observed, prediction, spread, noise2, radius, threshold, blend, out, r0, r1):
+def edge_weight(observed, prediction, spread, noise2, radius, threshold, blend, out, r0, r1,
+                i_from, i_to, cols, spread_cols):
     """The edge rule's weight of the observation (see restoration._edge_weight)
     for rows ``r0 <= i < r1``, all images channel-last (H, W, C): ``clip(1 -
     noise2[c] / v, 0, 1)`` with ``v`` the mean of ``(observed -
@@ -494,13 +495,18 @@ def edge_weight(observed, prediction, spread, noise2, radius, threshold, blend, 
     ``threshold``. With ``blend``, writes the restored image ``prediction +
     weight (observed - prediction)`` instead of the weight. Running sums
     down the rows (started ``radius`` rows above ``r0``), then along each
-    row."""
+    row.
+
+    Resumable: the segment of rows [r0, r1) runs its steps ``i`` from ``r0 -
+    2 radius - 1`` to ``r1`` (the first ones only fill the running sums); a
+    call runs the steps ``i_from <= i < i_to`` of it, the running sums kept
+    in ``cols`` (W, C) and ``spread_cols`` (W,), zero at the segment's first
+    step. Any split of the steps gives, bit for bit, the one-call result.
+    """
     H, W, C = observed.shape
-    cols = np.zeros((W, C))
-    spread_cols = np.zeros(W)
     sums = np.empty(C)
     start = r0 - 2 * radius - 1  # at i = r0 the sums hold rows r0 - radius ... r0 + radius
-    for i in range(start, r1):
+    for i in range(max(i_from, start), min(i_to, r1)):
         # rows entering (i + radius) and leaving (i - radius - 1) the window;
         # a row leaves only if it entered
         for sign, a in ((1.0, i + radius), (-1.0, i - radius - 1)):

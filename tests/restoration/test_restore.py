@@ -347,7 +347,9 @@ def test_iter_restore_multichannel_previews_and_returns_what_restore_multichanne
     np.testing.assert_array_equal(out.probability, want.probability)
     fractions = [r.fraction for r in records]
     assert fractions == sorted(fractions) and fractions[-1] <= 1
-    assert {r.stage for r in records} == {"start", "reference", "directions"}
+    assert {"start", "sharpness", "reference", "directions", "edges"} <= {
+        r.stage for r in records} <= {"start", "reading", "sharpness", "reference",
+                                      "directions", "edges"}
     previews = [r for r in records if r.preview is not None]
     assert len(previews) == 3 * 4  # a running image after every channel and direction
     assert all(r.preview.shape == clean.shape for r in previews)
@@ -465,3 +467,70 @@ def test_return_result_matches_the_plain_call():
     np.testing.assert_array_equal(result.restored()[..., 0], restored)
     np.testing.assert_array_equal(result.probability, probability)
     assert restore_multichannel(stack).restored is not None  # a named result
+
+
+def test_chunked_stages_give_the_outputs_of_one_call(monkeypatch):
+    """Issue 12: the input conversion, statistics, models, strips, scans and
+    edge rule run in chunks with a record between them; any chunking gives,
+    bit for bit, the results of the whole-image calls (large chunks here),
+    and the conversion is exactly as_channel_last_float's."""
+    from car_napari._validation import as_channel_last_float
+    from car_napari.model import recursive
+    from car_napari.restoration import _combine, _input
+    from car_napari.restoration._input import channel_last_shape, iter_channel_last_float
+
+    rng = np.random.default_rng(4)
+    colour = (np.clip(_degraded(img_as_float(skdata.astronaut())[:71, :53], rng), 0, 1)
+              * 255).astype(np.uint8)
+    grey = _degraded(img_as_float(skdata.camera())[:45, :38], rng)
+    stack = np.stack([colour, colour[::-1]]).astype(np.float32)
+
+    def run_all():
+        return [restore(colour, return_result=True), restore(colour),
+                restore(grey, channel_axis=None, estimator="recursive", return_result=True),
+                restore_multichannel(stack, return_result=True)]
+
+    whole = run_all()
+    monkeypatch.setattr(_combine, "CHUNK_VALUES", 200)  # a few rows a chunk
+    monkeypatch.setattr(_input, "STRIP_VALUES", 500)
+    monkeypatch.setattr(recursive, "_CHUNK_WORK", 5e4)
+    records = []
+    drain(iter_restore(colour, return_result=True), records.append)
+    assert {"reading", "centre", "moments", "models", "rows", "edges"} <= {
+        r.stage for r in records}
+    assert sum(r.stage == "models" for r in records) > 3
+    chunked = run_all()
+    for a, b in zip(whole, chunked, strict=True):
+        if isinstance(a, np.ndarray):
+            np.testing.assert_array_equal(a, b)
+            continue
+        for name in ("observed", "prediction", "probability", "weight", "noise"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+    # the conversion itself, for integer, float32, channel-first and float64 inputs
+    for image, axis in ((colour, -1), (stack[0], -1), (np.moveaxis(colour, -1, 0), 0),
+                        (grey, None), (-colour.astype(np.int16), -1)):
+        assert channel_last_shape(image, channel_axis=axis) == as_channel_last_float(
+            image, channel_axis=axis).shape
+        want, want_summary = as_channel_last_float(image, channel_axis=axis,
+                                                   with_summary=True)
+        got, summary = drain(iter_channel_last_float(image, channel_axis=axis))
+        np.testing.assert_array_equal(got, want)
+        for x, y in zip(summary, want_summary, strict=True):
+            np.testing.assert_array_equal(x, y)
+    bad = grey.copy()
+    bad[3, 4] = np.inf
+    with pytest.raises(ValueError, match="1 NaN or infinite"):
+        drain(iter_channel_last_float(bad, channel_axis=None))
+
+
+def test_sharpness_in_strips_is_the_whole_image_measure(monkeypatch):
+    from scipy import ndimage
+
+    from car_napari.restoration import _combine
+
+    rng = np.random.default_rng(6)
+    stack = rng.random((3, 57, 41, 2))
+    want = [np.mean([np.mean(ndimage.gaussian_laplace(v[..., c], 1.0) ** 2)
+                     for c in range(2)]) for v in stack]
+    monkeypatch.setattr(_combine, "CHUNK_VALUES", 100)
+    np.testing.assert_array_equal(sharpness(stack), want)
