@@ -6,9 +6,8 @@ from __future__ import annotations
 import numpy as np
 from magicgui.widgets import Label, SpinBox, TextEdit
 
-from ..model import iter_fit_car, spectral_radius, synthesize
+from ..model import iter_fit_car, iter_synthesize, spectral_radius
 from ._base import ModelWidget
-from ._jobs import call
 from ._layers import value_range
 
 
@@ -45,6 +44,14 @@ def describe(model):
         lines.append(f"Sigma =\n{model.sigma}")
         lines.append(f"mean = {model.mean}")
     return "\n".join(lines)
+
+
+def _for_display(job, value_range):
+    """The synthesis, then (in the worker) clipped to the fitted image's range
+    (the model lives in the core's float units: integers scaled to [0, 1]) and
+    as float32, which napari draws without converting it."""
+    sample = yield from job
+    return np.clip(sample, *value_range).astype(np.float32)
 
 
 class CARModelWidget(ModelWidget):
@@ -92,12 +99,12 @@ class CARModelWidget(ModelWidget):
                 f"the fitted model is unstable (spectral radius {radius:.4g} >= 1): its "
                 "samples would grow without bound. Fit again with a lower 'max order', or "
                 "on a more uniform region (draw a rectangle).")
-        return self.run(call(synthesize, self.model, shape, seed=seed, stage="synthesis"),
-                        done=self._add_sample)
+        # a job: progress by blocks of rows, and Cancel stops it at the next one
+        job = _for_display(iter_synthesize(self.model, shape, seed=seed), self._range)
+        return self.run(job, done=self._add_sample)
 
     def _add_sample(self, sample):
         # the model lives in the core's float units (integers scaled to [0, 1])
-        sample = np.clip(sample, *self._range)
         rgb = sample.ndim == 3 and sample.shape[2] == 3
         self.record.add(lambda: self._viewer.add_image(sample, name=f"{self._source} CAR sample",
-                                                       rgb=rgb))
+                                                       rgb=rgb, contrast_limits=self._range))

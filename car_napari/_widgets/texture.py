@@ -17,7 +17,6 @@ from ..texture import (
     iter_fit_texture,
 )
 from ._base import ModelWidget, guarded
-from ._jobs import call
 
 SINGLE, BTF, DYNAMIC = "single texture", "BTF: stack of illuminations", "dynamic: frames"
 NOT_A_STACK = "it is not a stack (images along the first axis); choose 'single texture'."
@@ -169,12 +168,13 @@ class TextureSynthesisWidget(ModelWidget):
 
     def _synthesis(self, shape, seed):
         model = self.model
+        # the synthesis as a job: progress, and Cancel stops it at its next record
         if isinstance(model, DynamicTextureModel):
-            job = call(model.synthesize, int(self._frames.value), shape, seed=seed)
+            job = model.iter_synthesize(int(self._frames.value), shape, seed=seed)
         elif isinstance(model, BTFModel):
-            job = call(model.synthesize, shape, seed=seed)
+            job = model.iter_synthesize(shape, seed=seed)
         else:
-            job = call(model.synthesize, shape, seed=seed, tileable=bool(self._tileable.value))
+            job = model.iter_synthesize(shape, seed=seed, tileable=bool(self._tileable.value))
         self._target = f"{self._source_name} synthesis", not isinstance(model, TextureModel)
         return self.run(job, done=self._show)
 

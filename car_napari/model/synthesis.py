@@ -18,7 +18,10 @@ __all__ = ["iter_synthesize", "synthesize", "spectral_radius"]
 
 # rows of the (enlarged) lattice per kernel call: about this many multiply-adds
 # (~0.1-0.2 s of one core)
-_CHUNK_FLOPS = 1.5e8
+_CHUNK_FLOPS = 1e8
+# cost of a drawn noise value and of an output value (the crop and the mean),
+# in multiply-adds of the kernel: for the progress fractions (measured)
+_NOISE_COST, _FINISH_COST = 24.0, 6.0
 
 _FREQUENCIES = 256
 _MARGIN_TOLERANCE = 1e-4
@@ -202,8 +205,13 @@ def iter_synthesize(model, shape, *, seed=None, margin=None, chunk_rows=None):
     Yields
     ------
     Progress
-        Stage ``"synthesis"`` after each chunk, message like ``"rows 512/4256"``
-        (rows of the lattice, burn-in margin included).
+        Stage ``"synthesis"`` after each block of noise draws (``"noise
+        512/4256"``), each chunk of the field (``"rows 512/4256"``: rows of the
+        lattice, burn-in margin included) and each block of the output
+        (``"output rows 512/4000"``); fractions in proportion to the measured
+        cost of each part. The output records carry a preview: the output
+        array filling in (rows not yet done are 0; it is the array returned,
+        do not modify it).
 
     Raises
     ------
@@ -242,18 +250,22 @@ def iter_synthesize(model, shape, *, seed=None, margin=None, chunk_rows=None):
     hs, ws = (w, h) if model.direction in ("right", "left") else (h, w)
     reach = int(np.abs(model.offsets).max())
     top, side = margin + reach, margin + reach
-    # the draws by blocks of rows: the same stream, in the same order, as one call
+    gamma = np.ascontiguousarray(model.gamma)
     noise = np.empty((hs + top, ws + 2 * side, d))
-    for start, stop in row_ranges(noise.shape[0], noise.shape[1] * d):
+    n_rows, n_cols = noise.shape[:2]
+    # the shares of the work: the draws, the field, the crop (measured costs)
+    work = np.array([_NOISE_COST * noise.size, n_rows * n_cols * (gamma.size + d * d + 8),
+                     _FINISH_COST * h * w * d], float)
+    edges = (np.concatenate([[0.0], np.cumsum(work)]) / work.sum()).tolist()
+    # the draws by blocks of rows: the same stream, in the same order, as one call
+    for start, stop in row_ranges(n_rows, n_cols * d):
         noise[start:stop] = rng.standard_normal((stop - start,) + noise.shape[1:])
-        yield Progress("synthesis", 0.0, "noise")
+        yield Progress("synthesis", edges[1] * stop / n_rows, f"noise {stop}/{n_rows}")
     taps = model.context.taps
     chol = np.linalg.cholesky(0.5 * (model.sigma + model.sigma.T) + 1e-300 * np.eye(d))
     scale = math.sqrt(float(np.trace(model.sigma)))
-    gamma = np.ascontiguousarray(model.gamma)
     tap_di, tap_dj, tap_ch = taps[:, 0].copy(), taps[:, 1].copy(), taps[:, 2].copy()
     limit = 1e8 * max(scale, 1e-300) / max(1.0 - radius, 1e-6)
-    n_rows, n_cols = noise.shape[:2]
     if chunk_rows is None:
         chunk_rows = _CHUNK_FLOPS // (n_cols * (gamma.size + d * d + 8))
     chunk_rows = max(1, int(chunk_rows))
@@ -265,8 +277,14 @@ def iter_synthesize(model, shape, *, seed=None, margin=None, chunk_rows=None):
                 "the model is numerically unstable: the synthesised field exploded. "
                 "Use a lower order or a more stationary texture."
             )
-        yield Progress("synthesis", stop / n_rows, f"rows {stop}/{n_rows}")
-    field = noise[top:, side : side + ws]
-    out = unscan_view(field, model.direction) + model.mean
-    out = np.ascontiguousarray(out)
-    return out[..., 0] if d == 1 else out
+        fraction = edges[1] + (edges[2] - edges[1]) * stop / n_rows
+        yield Progress("synthesis", fraction, f"rows {stop}/{n_rows}")
+    # the crop, in the image's geometry, plus the mean: by blocks of output rows
+    image = unscan_view(noise[top:, side : side + ws], model.direction)
+    out = np.zeros((h, w, d))
+    shown = out[..., 0] if d == 1 else out
+    for start, stop in row_ranges(h, w * d):
+        out[start:stop] = image[start:stop] + model.mean
+        fraction = edges[2] + (1.0 - edges[2]) * stop / h
+        yield Progress("synthesis", fraction, f"output rows {stop}/{h}", shown)
+    return shown

@@ -37,7 +37,7 @@ from .._progress import Progress, drain, stage
 from .._validation import as_channel_last_float, check_not_constant, output_shape, summarize
 from ..model.estimation import CARModel, iter_fit_car
 from ..model.neighbourhood import as_offsets
-from ..model.synthesis import spectral_radius, synthesize
+from ..model.synthesis import iter_synthesize, spectral_radius
 
 __all__ = [
     "TextureModel", "iter_fit_texture", "laplacian_pyramid", "collapse_pyramid", "FORMAT_NAME",
@@ -58,6 +58,11 @@ _BLUR_HALO = 8  # rows beyond a block that its blur reads (the kernel reaches 4)
 _HIST_BINS = 1 << 16  # bins of the first pass of the exact quantiles
 # relative cost per pixel of the parts of a fit (progress fractions), measured
 _SHARE_READ, _SHARE_QUANTILES, _SHARE_PYRAMID, _SHARE_FIT = 0.3, 1.0, 0.5, 20.0
+# cost per value of the parts of a synthesis (progress fractions), in
+# multiply-adds of the synthesis kernel, measured: a band's field (its noise
+# and crop; the kernel adds its parameters a pixel), the tiling, a histogram
+# matching, the collapse, the restore of the mean and contrast
+_COST_FIELD, _COST_TORUS, _COST_MATCH, _COST_COLLAPSE, _COST_RESTORE = 30, 10, 75, 14, 25
 
 
 def _plane_shape(image, channel_axis):
@@ -245,17 +250,40 @@ def _iter_pyramid(image, levels, *, overwrite=False):
 
 def _collapse(bands, wrap):
     """Inverse of :func:`_pyramid` on channel-last bands."""
+    return drain(_iter_collapse(bands, wrap))
+
+
+def _iter_collapse(bands, wrap):
+    """:func:`_collapse` as a job: ``band + expand(coarser)`` by blocks of
+    rows (those of :func:`_expand`: the same numbers), a record after each
+    (stage ``"collapse"``, fractions by pixels); then the collapsed image."""
     out = bands[-1]
-    for band in bands[-2::-1]:
-        out = band + _expand(out, band.shape[:2], wrap=wrap)
+    finer = bands[-2::-1]
+    pixels = np.array([band.shape[0] * band.shape[1] for band in finer], float)
+    total, done = max(pixels.sum(), 1.0), 0.0
+    for k, band in enumerate(finer):
+        h, w = band.shape[:2]
+        level = np.empty(band.shape)
+        for a, b in _row_chunks(h, w):
+            level[a:b] = band[a:b] + _expand_rows(out, (h, w), slice(a, b), wrap)
+            yield Progress("collapse", (done + pixels[k] * b / h) / total,
+                           f"level {len(finer) - k}, rows {b}/{h}")
+        done += pixels[k]
+        out = level
     return out
 
 
+def _positive_int(value, name):
+    """``value`` as an int when it is a positive int (not a bool), else the
+    ValueError ``"{name} must be a positive int"``."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) \
+            or value < 1:
+        raise ValueError(f"{name} must be a positive int; got {value!r}.")
+    return int(value)
+
+
 def _check_pyramid_levels(levels):
-    if isinstance(levels, (bool, np.bool_)) or not isinstance(levels, (int, np.integer)) \
-            or levels < 1:
-        raise ValueError(f"levels must be a positive int; got {levels!r}.")
-    return int(levels)
+    return _positive_int(levels, "levels")
 
 
 def laplacian_pyramid(image, *, levels=3, channel_axis=-1):
@@ -454,21 +482,117 @@ def _torus(field, shape, mean):
     mix without losing variance; then the same for the rows. Column 0 then
     equals the old column ``w``, the true neighbour of column ``w - 1``.
     """
+    return drain(_iter_torus(field, shape, mean))
+
+
+def _fade(n, b, axis):
+    """The weights of the own and the extra samples of a cross-fade over
+    ``b`` samples, shaped to broadcast along ``axis`` of an (h, w, d) array."""
+    t = 0.5 * np.pi * np.arange(b) / b
+    shape = [1, 1, 1]
+    shape[axis] = b
+    return np.sin(t).reshape(shape), np.cos(t).reshape(shape)
+
+
+def _iter_torus(field, shape, mean):
+    """:func:`_torus` as a job, by blocks of output rows (a record after
+    each, stage ``"tiling"``): the same numbers."""
     h, w = shape
-    f = field - mean
-    for axis, n in ((1, w), (0, h)):
-        b = f.shape[axis] - n
-        if b > 0:
-            t = 0.5 * np.pi * np.arange(b) / b
-            shape_w = [1, 1, 1]
-            shape_w[axis] = b
-            own = np.sin(t).reshape(shape_w)
-            extra = np.cos(t).reshape(shape_w)
-            head = np.take(f, np.arange(b), axis=axis)
-            tail = np.take(f, np.arange(n, n + b), axis=axis)
-            body = np.take(f, np.arange(b, n), axis=axis)
-            f = np.concatenate([own * head + extra * tail, body], axis=axis)
-    return f + mean
+    bh, bw = field.shape[0] - h, field.shape[1] - w
+    cols = _fade(w, bw, 1) if bw > 0 else None
+    rows = _fade(h, bh, 0) if bh > 0 else None
+
+    def faded(r0, r1):  # rows r0:r1 of the field, centred, its columns cross-faded
+        f = field[r0:r1] - mean
+        if cols is None:
+            return f
+        own, extra = cols
+        return np.concatenate([own * f[:, :bw] + extra * f[:, w:], f[:, bw:w]], axis=1)
+
+    out = np.empty((h, w, field.shape[2]))
+    for a, b in _row_chunks(h, w):
+        if rows is not None and a < bh:
+            m = min(b, bh)
+            own, extra = rows
+            out[a:m] = own[a:m] * faded(a, m) + extra[a:m] * faded(h + a, h + m) + mean
+            if m < b:
+                out[m:b] = faded(m, b) + mean
+        else:
+            out[a:b] = faded(a, b) + mean
+        yield Progress("tiling", b / h, f"rows {b}/{h}")
+    return out
+
+
+def _iter_clip(values, bounds, *, out=None, preview=None):
+    """``np.clip(values, bounds[0], bounds[1])`` by blocks of rows, as a job
+    (stage ``"clipping"``), into ``out`` (default: in place); the records
+    carry ``preview``."""
+    h, w = values.shape[:2]
+    out = values if out is None else out
+    for a, b in _row_chunks(h, w):
+        out[a:b] = np.clip(values[a:b], bounds[0], bounds[1])
+        yield Progress("clipping", b / h, f"rows {b}/{h}", preview)
+    return out
+
+
+def _iter_channel_sum(values, *, name="sum"):
+    """``np.add.reduce(values, axis=(0, 1))`` of (h, w, d) ``values``, the
+    same numbers, as a job. For d >= 2 NumPy adds the pixels one after the
+    other (a long strided pass): here by blocks of rows, each block's first
+    pixel carrying the running sum in (and put back after), with a record
+    between blocks. A grey image is one call (NumPy's fast pairwise sum)."""
+    h, w, d = values.shape
+    chunks = _row_chunks(h, w)
+    if d == 1 or len(chunks) == 1:
+        return np.add.reduce(values, axis=(0, 1))
+    total = None
+    for a, b in chunks:
+        block = values[a:b]
+        if total is None:
+            total = np.add.reduce(block, axis=(0, 1))
+        else:
+            first = block[0, 0].copy()
+            block[0, 0] += total  # the running sum, then this block's pixels in order
+            try:
+                total = np.add.reduce(block, axis=(0, 1))
+            finally:
+                block[0, 0] = first
+        yield Progress(name, b / h, f"rows {b}/{h}")
+    return total
+
+
+def _iter_restore(values, mean, std):
+    """``mean + (values - m) * gain``, where ``m`` and ``s`` are the channel
+    means and standard deviations of (h, w, d) ``values`` and ``gain`` is
+    ``std / s`` (1 where ``s`` is 0), as a job (stage ``"restore"``): a
+    record after every block of rows of the elementwise passes, between
+    which the sums over the image run one NumPy call each, as
+    ``values.mean(axis=(0, 1))`` and ``.std`` sum. The same numbers as those
+    one-call forms; ``values`` is overwritten (used as scratch, and returned).
+    """
+    h, w, d = values.shape
+    n = h * w
+    parts = [(k / 6, (k + 1) / 6) for k in range(6)]  # three sums, three passes
+    # values.mean(axis=(0, 1))
+    m = (yield from stage(_iter_channel_sum(values), *parts[0], prefix="mean, ")) / n
+    centred = np.empty_like(values)
+    for a, b in _row_chunks(h, w):
+        np.subtract(values[a:b], m, out=centred[a:b])
+        yield Progress("restore", parts[1][0] + b / h / 6, f"mean, rows {b}/{h}")
+    # centred.std(axis=(0, 1)), as NumPy's _var computes it
+    centre = (yield from stage(_iter_channel_sum(centred), *parts[2], prefix="contrast, "))
+    centre = centre.reshape(1, 1, d) / n
+    for a, b in _row_chunks(h, w):
+        np.subtract(centred[a:b], centre, out=values[a:b])
+        np.square(values[a:b], out=values[a:b])
+        yield Progress("restore", parts[3][0] + b / h / 6, f"contrast, rows {b}/{h}")
+    spread = yield from stage(_iter_channel_sum(values), *parts[4], prefix="contrast, ")
+    spread = np.sqrt(spread / n)
+    gain = np.where(spread > 0, std / np.where(spread > 0, spread, 1.0), 1.0)
+    for a, b in _row_chunks(h, w):
+        values[a:b] = mean + centred[a:b] * gain
+        yield Progress("restore", min(parts[5][0] + b / h / 6, 1.0), f"rows {b}/{h}")
+    return values
 
 
 def _probabilities(n):
@@ -583,29 +707,67 @@ def _match(values, quantiles, bins=4096):
     quantile function follows an exponential tail instead, its scale read off
     the next interval inward, and never goes beyond the linear one.
     """
+    return drain(_iter_match(values, quantiles, bins))
+
+
+# relative costs of the passes of a histogram matching (progress fractions)
+_MATCH_PASSES = (1.0, 3.0, 8.0)
+
+
+def _iter_match(values, quantiles, bins=4096, *, clip=None, out=None, preview=None,
+                stage_name="matching"):
+    """:func:`_match` as a job, by blocks of rows: the same numbers.
+
+    Three passes, a record after every block: the channels' ranges, their
+    histograms (summed over the blocks: the same counts), the mapping.
+    ``clip`` (a (2, d) array) clips every mapped channel to its range, as
+    ``np.clip`` after the matching would; ``out`` receives the result
+    (default a new array); the mapping's records carry ``preview``.
+    """
     h, w, d = values.shape
-    flat = values.reshape(-1, d)
-    out = np.empty_like(flat)
+    out = np.empty_like(values) if out is None else out
     q = quantiles.shape[0]
-    for c in range(d):
-        v = flat[:, c]
-        lo, hi = float(v.min()), float(v.max())
-        if hi <= lo:
-            out[:, c] = quantiles[q // 2, c]
-            continue
-        counts, _ = np.histogram(v, bins=bins, range=(lo, hi))
-        cdf = np.concatenate([[0.0], np.cumsum(counts) / v.size])
-        pos = (v - lo) * (bins / (hi - lo))
-        k = np.minimum(pos.astype(np.int64), bins - 1)
-        p = cdf[k] + (pos - k) * (cdf[k + 1] - cdf[k])
-        # quantiles sit at equally spaced probabilities: index arithmetic again
-        pos = p * (q - 1)
-        k = np.minimum(pos.astype(np.int64), q - 2)
-        mapped = quantiles[k, c] + (pos - k) * (quantiles[k + 1, c] - quantiles[k, c])
-        if q >= 4:
-            _exponential_tails(mapped, pos, k, quantiles[:, c])
-        out[:, c] = mapped
-    return out.reshape(h, w, d)
+    # the mapping costs about ten passes over a block: smaller blocks
+    chunks = _row_chunks(h, w, max(_CHUNK_PIXELS // 4, 1))
+    weights = np.repeat(np.array(_MATCH_PASSES) / sum(_MATCH_PASSES) / len(chunks), len(chunks))
+    fractions = np.minimum(np.cumsum(weights), 1.0).tolist()
+    fractions[-1] = 1.0
+    fractions = iter(fractions)
+    lo, hi = np.full(d, np.inf), np.full(d, -np.inf)
+    for a, b in chunks:
+        block = values[a:b]
+        lo = np.minimum(lo, block.min(axis=(0, 1)))
+        hi = np.maximum(hi, block.max(axis=(0, 1)))
+        yield Progress(stage_name, next(fractions), f"range, rows {b}/{h}")
+    lo, hi = [float(v) for v in lo], [float(v) for v in hi]
+    counts = np.zeros((d, bins), np.int64)
+    for a, b in chunks:
+        for c in range(d):
+            if hi[c] > lo[c]:
+                counts[c] += np.histogram(values[a:b, :, c].ravel(), bins=bins,
+                                          range=(lo[c], hi[c]))[0]
+        yield Progress(stage_name, next(fractions), f"histogram, rows {b}/{h}")
+    cdfs = [np.concatenate([[0.0], np.cumsum(counts[c]) / (h * w)]) for c in range(d)]
+    for a, b in chunks:
+        for c in range(d):
+            if not hi[c] > lo[c]:
+                mapped = np.full((b - a) * w, quantiles[q // 2, c])
+            else:
+                v, cdf = values[a:b, :, c].ravel(), cdfs[c]
+                pos = (v - lo[c]) * (bins / (hi[c] - lo[c]))
+                k = np.minimum(pos.astype(np.int64), bins - 1)
+                p = cdf[k] + (pos - k) * (cdf[k + 1] - cdf[k])
+                # quantiles sit at equally spaced probabilities: index arithmetic again
+                pos = p * (q - 1)
+                k = np.minimum(pos.astype(np.int64), q - 2)
+                mapped = quantiles[k, c] + (pos - k) * (quantiles[k + 1, c] - quantiles[k, c])
+                if q >= 4:
+                    _exponential_tails(mapped, pos, k, quantiles[:, c])
+            if clip is not None:
+                mapped = np.clip(mapped, clip[0, c], clip[1, c])
+            out[a:b, :, c] = mapped.reshape(b - a, w)
+        yield Progress(stage_name, next(fractions), f"rows {b}/{h}", preview)
+    return out
 
 
 def _exponential_tails(mapped, pos, k, quantiles):
@@ -965,33 +1127,115 @@ class TextureModel:
         >>> np.array_equal(texture, model.synthesize((30, 40), seed=1, tileable=True))
         True
         """
+        return drain(self.iter_synthesize(shape, seed=seed, tileable=tileable))
+
+    def iter_synthesize(self, shape, *, seed=None, tileable=False):
+        """Generate a texture from the model, as a job: Progress, then the texture.
+
+        The generator form of :meth:`synthesize`, with the same parameters
+        and, bit for bit, the same result. Every part runs by blocks of rows
+        with a :class:`~car_napari.Progress` record between them (each
+        band's field by :func:`~car_napari.iter_synthesize`, its tiling,
+        its histogram matching; the collapse; the restore of the mean,
+        contrast and histogram), so closing the generator (a Cancel) stops
+        the synthesis within a fraction of a second even at 4000 x 4000.
+
+        Parameters
+        ----------
+        shape : tuple of 2 ints
+            (height, width) of the output; any size of at least 1 x 1.
+        seed : int, numpy Generator or None, optional
+            The same seed gives the same texture.
+        tileable : bool, optional
+            Make the texture periodic (see :meth:`synthesize`).
+
+        Returns
+        -------
+        texture : (H, W) or (H, W, C) ndarray of float64
+            What :meth:`synthesize` returns.
+
+        Yields
+        ------
+        Progress
+            Stage ``"synthesis"`` (each band's field, tiling and matching,
+            message ``"band 2/3, rows 512/1024"``), ``"collapse"``, then
+            ``"restore"`` (the mean, contrast and histogram of the input);
+            fractions in proportion to each part's measured cost. The
+            records of the last pass carry a preview: the texture filling in
+            (rows not yet done are 0; it is the array returned, do not
+            modify it).
+
+        Raises
+        ------
+        ValueError
+            If ``shape`` is not two positive sizes (before the first record).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from car_napari._progress import drain
+        >>> from car_napari.texture import TextureModel
+        >>> model = TextureModel.fit(np.random.default_rng(0).random((64, 64)), levels=2)
+        >>> records = []
+        >>> texture = drain(model.iter_synthesize((30, 40), seed=1), records.append)
+        >>> list(dict.fromkeys(r.stage for r in records))
+        ['synthesis', 'collapse', 'restore']
+        >>> records[-1].fraction, np.array_equal(texture, model.synthesize((30, 40), seed=1))
+        (1.0, True)
+        """
         h, w = output_shape(shape)
         rng = np.random.default_rng(seed)
         # one independent stream per band, fixed by the seed
         streams = [np.random.default_rng(s) for s in rng.integers(0, 2**63, size=self.levels)]
-        bands = []
         shapes = _level_shapes((h, w), self.levels)
-        for k, (model, (hk, wk)) in enumerate(zip(self.models, shapes, strict=True)):
+        made = [(hk + _blend_width(hk), wk + _blend_width(wk)) if tileable else (hk, wk)
+                for hk, wk in shapes]
+        # the shares of the work, in values times their measured cost a value
+        d = self.n_channels
+        parts = []
+        for model, (hk, wk), (gh, gw) in zip(self.models, shapes, made, strict=True):
+            parts += [gh * gw * (_COST_FIELD * d + model.gamma.size + d * d + 8),
+                      _COST_TORUS * hk * wk * d if tileable else 0.0,
+                      (_COST_MATCH if self.band_quantiles is not None else 1.0) * hk * wk * d]
+        parts += [_COST_COLLAPSE * sum(hk * wk for hk, wk in shapes[:-1]) * d,
+                  (_COST_RESTORE + (_COST_MATCH if self.quantiles is not None else 1.0))
+                  * h * w * d]
+        edges = (np.concatenate([[0.0], np.cumsum(parts)]) / sum(parts)).tolist()
+        bands = []
+        for k, (model, (hk, wk), (gh, gw)) in enumerate(
+                zip(self.models, shapes, made, strict=True)):
+            part = f"band {k + 1}/{self.levels}, "
+            e = edges[3 * k : 3 * k + 4]
+            field = yield from stage(iter_synthesize(model, (gh, gw), seed=streams[k]), e[0],
+                                     e[1], prefix=part, name="synthesis")
+            band = field.reshape(gh, gw, -1)
             if tileable:
-                bh, bw = _blend_width(hk), _blend_width(wk)
-                big = synthesize(model, (hk + bh, wk + bw), seed=streams[k])
-                band = _torus(big.reshape(hk + bh, wk + bw, -1), (hk, wk), model.mean)
-            else:
-                band = synthesize(model, (hk, wk), seed=streams[k]).reshape(hk, wk, -1)
+                band = yield from stage(_iter_torus(band, (hk, wk), model.mean), e[1], e[2],
+                                        prefix=part, name="synthesis")
+            bounds = self.band_ranges[k]
             if self.band_quantiles is not None:
-                band = _match(band, self.band_quantiles[k])
-            bands.append(np.clip(band, self.band_ranges[k, 0], self.band_ranges[k, 1]))
-        out = _collapse(bands, bool(tileable))
-        # the bands' sample means drift, and independent bands lose the
-        # cross-band covariance: restore the input's mean and contrast
-        centred = out - out.mean(axis=(0, 1))
-        spread = centred.std(axis=(0, 1))
-        gain = np.where(spread > 0, self.std / np.where(spread > 0, spread, 1.0), 1.0)
-        out = self.mean + centred * gain
+                band = yield from stage(_iter_match(band, self.band_quantiles[k], clip=bounds),
+                                        e[2], e[3], prefix=part + "matching, ",
+                                        name="synthesis")
+            else:
+                band = yield from stage(_iter_clip(band, bounds), e[2], e[3], prefix=part,
+                                        name="synthesis")
+            bands.append(band)
+        out = yield from stage(_iter_collapse(bands, bool(tileable)), edges[-3], edges[-2])
+        del bands
+        result = np.zeros((h, w, d))
+        shown = result[..., 0] if self.grey else result
+        last = _COST_MATCH if self.quantiles is not None else 1.0
+        middle = edges[-2] + (1.0 - edges[-2]) * _COST_RESTORE / (_COST_RESTORE + last)
+        out = yield from stage(_iter_restore(out, self.mean, self.std), edges[-2], middle,
+                               name="restore")
         if self.quantiles is not None:
-            out = _match(out, self.quantiles)
-        out = np.clip(out, self.value_range[0], self.value_range[1])
-        return out[..., 0] if self.grey else out
+            final = _iter_match(out, self.quantiles, clip=self.value_range, out=result,
+                                preview=shown)
+        else:
+            final = _iter_clip(out, self.value_range, out=result, preview=shown)
+        yield from stage(final, middle, 1.0, name="restore", prefix="histogram, ")
+        return shown
 
     # ---------------------------------------------------------- persistence
     def save(self, path):

@@ -7,9 +7,12 @@ import numpy as np
 from .._validation import as_channel_last_float
 
 
-def as_stack(stack, channel_axis, *, name="stack", item="image"):
+def as_stack(stack, channel_axis, *, name="stack", item="image", minimum=1, what=None):
     """Return ``(images, grey)``: a (n, H, W, d) float64 stack and whether it
     is grey.
+
+    A stack of fewer than ``minimum`` images is refused (``"{what} needs at
+    least {minimum} {item}s"``; by default ``"the {name} is empty"``).
 
     A 3-D array is n grey images whatever ``channel_axis`` says (it has no
     room for a channel axis); a 4-D array has its channels on axis
@@ -45,4 +48,7 @@ def as_stack(stack, channel_axis, *, name="stack", item="image"):
         as_channel_last_float(a, channel_axis=None if grey else -1, name=f"{item} {i}")
         for i, a in enumerate(arr)
     ])
+    if images.shape[0] < minimum:
+        raise ValueError(f"{what or 'a ' + name} needs at least {minimum} {item}s; got "
+                         f"{images.shape[0]}.")
     return images, grey

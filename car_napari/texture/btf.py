@@ -15,7 +15,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._progress import Progress, drain, stage
-from ._model import _check_options, _check_texture_size, iter_fit_texture
+from .._validation import output_shape
+from ._model import (
+    _check_options,
+    _check_texture_size,
+    _iter_clip,
+    _iter_restore,
+    _positive_int,
+    iter_fit_texture,
+)
 from ._stack import as_stack
 
 __all__ = ["BTFModel", "cumulative_histograms", "iter_fit_btf"]
@@ -34,13 +42,6 @@ def _cumulative_histogram(image, bins):
         below = np.searchsorted(values, edges, side="right") / values.size
         out[c * bins : (c + 1) * bins] = np.r_[below, 1.0]
     return out
-
-
-def _check_bins(bins):
-    if isinstance(bins, (bool, np.bool_)) or not isinstance(bins, (int, np.integer)) \
-            or bins < 1:
-        raise ValueError(f"bins must be a positive int; got {bins!r}.")
-    return int(bins)
 
 
 def cumulative_histograms(stack, *, bins=HISTOGRAM_BINS, channel_axis=-1):
@@ -81,7 +82,7 @@ def cumulative_histograms(stack, *, bins=HISTOGRAM_BINS, channel_axis=-1):
     array([[1., 1., 1., 1.],
            [0., 0., 0., 1.]])
     """
-    bins = _check_bins(bins)
+    bins = _positive_int(bins, "bins")
     images, _ = as_stack(stack, channel_axis)
     return np.stack([_cumulative_histogram(image, bins) for image in images])
 
@@ -378,16 +379,73 @@ class BTFModel:
         >>> btf.synthesize((16, 20), seed=0).shape
         (2, 16, 20, 3)
         """
+        return drain(self.iter_synthesize(shape, seed=seed))
+
+    def iter_synthesize(self, shape, *, seed=None):
+        """Synthesise every image of the stack, as a job: Progress, then the stack.
+
+        The generator form of :meth:`synthesize`, with the same parameters
+        and, bit for bit, the same result: image after image, each by
+        :meth:`TextureModel.iter_synthesize` and a restore of its own mean,
+        contrast and range by blocks of rows, with a
+        :class:`~car_napari.Progress` record between blocks (closing the
+        generator stops it within a fraction of a second).
+
+        Parameters
+        ----------
+        shape : tuple of 2 ints
+            (height, width) of every image.
+        seed : int, numpy Generator or None, optional
+            The same seed gives the same stack.
+
+        Returns
+        -------
+        stack : (n, H, W) or (n, H, W, C) ndarray of float64
+            What :meth:`synthesize` returns.
+
+        Yields
+        ------
+        Progress
+            Stage ``"synthesis"``, message ``"image 2/8, band 1/3, rows
+            512/1024"``; an equal share of the range per image. The records
+            of each image's last pass carry a preview: the stack filling in
+            (images not yet done are 0; it is the array returned, do not
+            modify it).
+
+        Raises
+        ------
+        ValueError
+            If ``shape`` is not two positive sizes (before the first record).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from car_napari._progress import drain
+        >>> from car_napari.texture import BTFModel
+        >>> stack = np.random.default_rng(0).random((2, 32, 32))
+        >>> btf = BTFModel.fit(stack, n_subspaces=1, levels=1)
+        >>> records = []
+        >>> out = drain(btf.iter_synthesize((16, 20), seed=0), records.append)
+        >>> records[-1].message, records[-1].fraction
+        ('image 2/2, rows 16/16', 1.0)
+        >>> np.array_equal(out, btf.synthesize((16, 20), seed=0))
+        True
+        """
+        h, w = output_shape(shape)
         rng = np.random.default_rng(seed)
-        out = []
-        for i in range(self.n_images):
+        n = self.n_images
+        d = self.image_mean.shape[1]
+        out = np.zeros((n, h, w, d))
+        shown = out[..., 0] if self.grey else out
+        for i in range(n):
             model = self.models[self.assignment[i]]
-            sample = model.synthesize(shape, seed=rng.integers(2**63))
-            sample = sample.reshape(shape[0], shape[1], -1)
-            centred = sample - sample.mean(axis=(0, 1))
-            spread = centred.std(axis=(0, 1))
-            gain = np.where(spread > 0, self.image_std[i] / np.where(spread > 0, spread, 1), 1)
-            image = np.clip(self.image_mean[i] + centred * gain, self.image_range[i, 0],
-                            self.image_range[i, 1])
-            out.append(image[..., 0] if self.grey else image)
-        return np.stack(out)
+            part = f"image {i + 1}/{n}, "
+            a, b = i / n, (i + 1) / n
+            sample = yield from stage(model.iter_synthesize((h, w), seed=rng.integers(2**63)),
+                                      a, a + 0.9 * (b - a), name="synthesis", prefix=part)
+            sample = yield from stage(
+                _iter_restore(sample.reshape(h, w, -1), self.image_mean[i], self.image_std[i]),
+                a + 0.9 * (b - a), a + 0.95 * (b - a), name="synthesis", prefix=part)
+            yield from stage(_iter_clip(sample, self.image_range[i], out=out[i], preview=shown),
+                             a + 0.95 * (b - a), b, name="synthesis", prefix=part)
+        return shown

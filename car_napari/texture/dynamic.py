@@ -21,10 +21,11 @@ import numpy as np
 
 from .._progress import Progress, drain, stage
 from .._validation import check_not_constant, check_size, output_shape, summarize
+from ..model.blocks import row_ranges
 from ..model.estimation import CARModel
 from ..model.neighbourhood import Context, as_offsets
 from ..model.statistics import estimate_parameters, iter_data_statistics
-from ..model.synthesis import spectral_radius, synthesize, synthesize_field
+from ..model.synthesis import iter_synthesize, spectral_radius, synthesize_field
 from ._model import _SHRINK_RADIUS, _iter_scale, _iter_stable_fit, _max_order_below
 from ._stack import as_stack
 
@@ -33,6 +34,9 @@ __all__ = ["DynamicTextureModel", "iter_fit_dynamic_texture", "temporal_context"
 _PRIOR = 1e-6
 _FREQUENCIES = 64  # per axis, of the frame-to-frame stability test
 _SCALE_STEPS = 24  # bisection steps of the last resort (the scale to within 6e-8)
+# costs of a synthesis, in multiply-adds of the kernel (as model.synthesis
+# measures them): a noise draw, an output value; kernel calls of this many
+_NOISE_COST, _FINISH_COST, _CHUNK_FLOPS = 24.0, 6.0, 1.5e8
 
 
 def _spatial_model(gamma, offsets, d):
@@ -195,9 +199,8 @@ def iter_fit_dynamic_texture(frames, *, neighbourhood=2, channel_axis=-1):
     >>> [round(r.fraction, 2) for r in records]
     [0.33, 0.67, 1.0, 1.0]
     """
-    clip, grey = as_stack(frames, channel_axis, name="frames", item="frame")
-    if clip.shape[0] < 2:
-        raise ValueError(f"a dynamic texture needs at least 2 frames; got {clip.shape[0]}.")
+    clip, grey = as_stack(frames, channel_axis, name="frames", item="frame", minimum=2,
+                          what="a dynamic texture")
     T, H, W, d = clip.shape
     summary = summarize(clip.reshape(T * H, W, d))
     check_not_constant(clip.reshape(T * H, W, d), summary=summary, name="frames")
@@ -444,9 +447,72 @@ class DynamicTextureModel:
         >>> model.synthesize(4, (10, 12), seed=0).shape
         (4, 10, 12)
         """
+        return drain(self.iter_synthesize(n_frames, shape, seed=seed, burn_in=burn_in))
+
+    def iter_synthesize(self, n_frames, shape, *, seed=None, burn_in=10):
+        """Generate a clip from the model, as a job: Progress, then the clip.
+
+        The generator form of :meth:`synthesize`, with the same parameters
+        and, bit for bit, the same result: the first frame by
+        :func:`~car_napari.iter_synthesize`, then frame after frame, each
+        drawn, generated (one ``nogil`` kernel call per block of rows) and
+        cropped by blocks of rows with a :class:`~car_napari.Progress`
+        record between blocks (closing the generator stops it within a
+        fraction of a second).
+
+        Parameters
+        ----------
+        n_frames : int
+            Number of frames to return.
+        shape : tuple of 2 ints
+            (height, width) of every frame.
+        seed : int, numpy Generator or None, optional
+            The same seed gives the same clip.
+        burn_in : int, optional
+            Frames generated and discarded first.
+
+        Returns
+        -------
+        clip : (n_frames, H, W) or (n_frames, H, W, C) ndarray of float64
+            What :meth:`synthesize` returns.
+
+        Yields
+        ------
+        Progress
+            Stage ``"synthesis"``, messages ``"first frame: rows 120/560"``
+            (the records of :func:`~car_napari.iter_synthesize`), ``"burn-in
+            3/10, noise rows 120/560"``, ``"frame 2/8, field rows 120/560"``,
+            ``"frame 2/8, output rows 120/500"``;
+            fractions in proportion to the work (every generated frame
+            counts). The records of the returned frames carry a preview: the
+            clip filling in (frames not yet done are 0; it is the array
+            returned, do not modify it).
+
+        Raises
+        ------
+        ValueError
+            If ``n_frames`` or ``shape`` is not positive (before the first
+            record), or the model is unstable (the frames grow without
+            bound).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from car_napari._progress import drain
+        >>> from car_napari.texture import DynamicTextureModel
+        >>> model = DynamicTextureModel.fit(np.random.default_rng(0).random((3, 24, 24)),
+        ...                                 neighbourhood=1)
+        >>> records = []
+        >>> clip = drain(model.iter_synthesize(2, (10, 12), seed=0, burn_in=1), records.append)
+        >>> records[-1].message, records[-1].fraction
+        ('frame 2/2, output rows 10/10', 1.0)
+        >>> np.array_equal(clip, model.synthesize(2, (10, 12), seed=0, burn_in=1))
+        True
+        """
         h, w = output_shape(shape)
         if int(n_frames) != n_frames or n_frames < 1:
             raise ValueError(f"n_frames must be a positive integer; got {n_frames!r}.")
+        n_frames, burn_in = int(n_frames), int(burn_in)
         rng = np.random.default_rng(seed)
         d = self.n_channels
         reach = int(np.abs(self.offsets).max())
@@ -454,25 +520,59 @@ class DynamicTextureModel:
         H, W = h + margin, w + 2 * margin
         context = temporal_context(self.offsets, d)
         taps = context.taps
+        tap_di, tap_dj, tap_ch = taps[:, 0].copy(), taps[:, 1].copy(), taps[:, 2].copy()
+        gamma = np.ascontiguousarray(self.gamma)
         chol = np.linalg.cholesky(0.5 * (self.sigma + self.sigma.T) + 1e-300 * np.eye(d))
         first = self.first
-        previous = synthesize(first, (H, W), seed=rng.integers(2**63)).reshape(H, W, d)
-        previous = previous - self.mean
+        # the work of a frame and of the first one, in multiply-adds (as iter_synthesize)
+        per_pixel = gamma.size + d * d + 8
+        frame_work = H * W * (_NOISE_COST * d + per_pixel)
+        first_work = H * W * (_NOISE_COST * d + first.gamma.size + d * d + 8 + _FINISH_COST * d)
+        total = (first_work + (burn_in + n_frames) * frame_work
+                 + n_frames * _FINISH_COST * h * w * d)
+        done = first_work / total
+        previous = yield from stage(
+            iter_synthesize(first, (H, W), seed=rng.integers(2**63)), 0.0, done,
+            name="synthesis", prefix="first frame: ")
+        previous = previous.reshape(H, W, d) - self.mean
         limit = 1e6 * math.sqrt(float(np.trace(self.sigma))) + 1e6 * float(
             np.ptp(self.value_range))
-        frames = []
-        for t in range(int(burn_in) + int(n_frames)):
-            lattice = np.concatenate([rng.standard_normal((H, W, d)), previous], axis=2)
-            ok = synthesize_field(np.ascontiguousarray(self.gamma), chol, lattice,
-                                  taps[:, 0].copy(), taps[:, 1].copy(), taps[:, 2].copy(),
-                                  limit)
-            if not ok:
-                raise ValueError("the dynamic model is unstable: the frames grow without "
-                                 "bound. Fit it to a longer or more stationary clip, or use "
-                                 "a smaller neighbourhood.")
-            previous = lattice[..., :d].copy()
-            if t >= burn_in:
-                frame = np.clip(previous[margin:, margin : margin + w] + self.mean,
-                                self.value_range[0], self.value_range[1])
-                frames.append(frame[..., 0] if self.grey else frame)
-        return np.stack(frames)
+        out = np.zeros((n_frames, h, w, d))
+        shown = out[..., 0] if self.grey else out
+        noise_rows = row_ranges(H, W * d)
+        field_rows = max(1, int(_CHUNK_FLOPS // (W * per_pixel)))
+        field_rows = [(a, min(a + field_rows, H)) for a in range(0, H, field_rows)]
+        out_rows = row_ranges(h, w * d)
+        steps = [(what, a, b) for what, rows in (("noise", noise_rows), ("field", field_rows),
+                                                   ("output", out_rows)) for a, b in rows]
+        costs = {"noise": W * d * _NOISE_COST, "field": W * per_pixel,
+                 "output": w * d * _FINISH_COST}
+        for t in range(burn_in + n_frames):
+            part = f"burn-in {t + 1}/{burn_in}, " if t < burn_in else \
+                f"frame {t - burn_in + 1}/{n_frames}, "
+            lattice = np.empty((H, W, 2 * d))
+            lattice[..., d:] = previous
+            for what, a, b in steps:
+                if what == "noise":  # the same stream, in the same order, as one call
+                    lattice[a:b, :, :d] = rng.standard_normal((b - a, W, d))
+                elif what == "field":
+                    if not synthesize_field(gamma, chol, lattice, tap_di, tap_dj, tap_ch, limit,
+                                            a, b):
+                        raise ValueError(
+                            "the dynamic model is unstable: the frames grow without bound. "
+                            "Fit it to a longer or more stationary clip, or use a smaller "
+                            "neighbourhood.")
+                    if b == H:
+                        previous = lattice[..., :d].copy()
+                elif t >= burn_in:
+                    frame = previous[margin + a : margin + b, margin : margin + w]
+                    out[t - burn_in, a:b] = np.clip(frame + self.mean, self.value_range[0],
+                                                    self.value_range[1])
+                else:
+                    continue
+                done += costs[what] * (b - a) / total
+                last = t == burn_in + n_frames - 1 and what == "output" and b == h
+                preview = shown if what == "output" else None
+                rows = f"{part}{what} rows {b}/{H if what != 'output' else h}"
+                yield Progress("synthesis", 1.0 if last else min(done, 1.0), rows, preview)
+        return shown

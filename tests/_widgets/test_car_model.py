@@ -119,7 +119,8 @@ def test_cancelled_fit_keeps_the_model_and_name_of_the_previous_one(widget, qtbo
     sample = viewer.layers["A CAR sample"]
     assert sample.rgb and sample.data.shape == (30, 40, 3)  # A is RGB, B grey
     expected = np.clip(synthesize(model_a, (30, 40), seed=7), *value_range(a.data))
-    np.testing.assert_array_equal(sample.data, expected)
+    # shown as float32 (what napari draws without a conversion)
+    np.testing.assert_array_equal(sample.data, expected.astype(np.float32))
 
 
 def test_cancel_of_a_large_fit_ends_the_worker_quickly(widget, qtbot, cancel_latency):
@@ -148,3 +149,23 @@ def test_unstable_model_is_explained_in_the_widgets_terms(widget, qtbot, last_no
     assert w.start_synthesis() is None
     assert "unstable" in last_notification() and "lower 'max order'" in last_notification()
     assert [layer.name for layer in viewer.layers] == ["grass"]
+
+
+def test_synthesize_reports_progress_and_cancel_ends_it_quickly(widget, qtbot, cancel_latency):
+    # Synthesize ran as one call: no progress, and Cancel waited for its end.
+    # Now it is a job by blocks of rows: a 2048 x 2048 RGB sample, cancelled.
+    viewer, w = widget
+    w._image.value = viewer.add_image(skdata.astronaut()[300:428, 0:128], name="grass",
+                                      rgb=True)
+    w._max_order.value = 1
+    _wait(qtbot, w.start_fit())
+    model = w.model
+    w._height.value, w._width.value = 2048, 2048
+    job = w.start_synthesis()
+    qtbot.waitUntil(lambda: w._progress.value >= 1 or job.done, timeout=60000)
+    assert not job.done and w._status.value.startswith("synthesis")
+    latency = cancel_latency(w, job, timeout=3.0)
+    assert latency is not None, f"the worker ran on after Cancel ({w._status.value})"
+    assert [layer.name for layer in viewer.layers] == ["grass"]
+    assert w.model is model and w._synth.enabled and w._fit.enabled
+    assert not w._cancel.enabled and w._status.value == "cancelled"

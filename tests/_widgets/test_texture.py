@@ -214,3 +214,35 @@ def test_cancel_of_a_large_fit_ends_the_worker_quickly(widget, qtbot, cancel_lat
     assert latency is not None, f"the worker ran on after Cancel ({w._status.value})"
     assert w._fit.enabled and not w._cancel.enabled and w.model is None
     assert [layer.name for layer in viewer.layers] == names
+
+
+@pytest.mark.parametrize("mode", ["single", "dynamic"])
+def test_synthesize_reports_progress_and_cancel_ends_it_quickly(widget, qtbot, cancel_latency,
+                                                                mode):
+    # Synthesis ran as one call: no progress, and Cancel waited for its end
+    # (minutes at 4000 x 4000). Now every synthesis is a job by blocks of rows.
+    viewer, w = widget
+    if mode == "single":
+        w._image.value = viewer.add_image(skdata.astronaut()[300:364, 0:64], name="grass",
+                                          rgb=True)
+        w._levels.value = 2
+        size = 2048
+    else:
+        clip = np.random.default_rng(0).random((3, 32, 32))
+        w._image.value = viewer.add_image(clip, name="clip")
+        w._mode.value = "dynamic: frames"
+        size, w._frames.value = 1536, 2
+    job = w.start_fit()
+    qtbot.waitUntil(lambda: job.done, timeout=120000)
+    model = w.model
+    assert model is not None
+    names = [layer.name for layer in viewer.layers]
+    w._height.value = w._width.value = size
+    job = w.start_synthesis()
+    qtbot.waitUntil(lambda: w._progress.value >= 1 or job.done, timeout=60000)
+    assert not job.done and w._status.value.startswith("synthesis")
+    latency = cancel_latency(w, job, timeout=3.0)
+    assert latency is not None, f"the worker ran on after Cancel ({w._status.value})"
+    assert [layer.name for layer in viewer.layers] == names
+    assert w.model is model and w._synth.enabled and not w._cancel.enabled
+    assert w._status.value == "cancelled"

@@ -134,3 +134,68 @@ def test_synthesis_in_chunks_of_rows_is_the_one_call_field(monkeypatch):
     left = fit_car(rng.random((64, 64)), 1, direction="left")
     np.testing.assert_array_equal(drain(iter_synthesize(left, (30, 40), seed=1, chunk_rows=3)),
                                   synth(left, (30, 40), seed=1))
+
+
+def _one_call_synthesis(model, shape, seed):
+    """Today's (session 19's) synthesis, before it became a job: the noise in
+    one draw, the field in one kernel call, the crop in one expression."""
+    import math
+
+    from car_napari.model.directions import unscan_view
+    from car_napari.model.synthesis import synthesize_field
+
+    h, w = shape
+    radius = spectral_radius(model)
+    margin = int(min(max(math.ceil(math.log(1e-4) / math.log(max(radius, 1e-3))), 16), 256))
+    rng = np.random.default_rng(seed)
+    d = model.n_channels
+    hs, ws = (w, h) if model.direction in ("right", "left") else (h, w)
+    reach = int(np.abs(model.offsets).max())
+    top = side = margin + reach
+    noise = rng.standard_normal((hs + top, ws + 2 * side, d))
+    taps = model.context.taps
+    chol = np.linalg.cholesky(0.5 * (model.sigma + model.sigma.T) + 1e-300 * np.eye(d))
+    limit = 1e8 * max(math.sqrt(float(np.trace(model.sigma))), 1e-300) / max(1 - radius, 1e-6)
+    assert synthesize_field(np.ascontiguousarray(model.gamma), chol, noise, taps[:, 0].copy(),
+                            taps[:, 1].copy(), taps[:, 2].copy(), limit)
+    out = np.ascontiguousarray(unscan_view(noise[top:, side : side + ws], model.direction)
+                               + model.mean)
+    return out[..., 0] if d == 1 else out
+
+
+@pytest.mark.parametrize("direction, channels", [("down", 3), ("right", 1), ("up", 2)])
+def test_job_is_bit_identical_to_the_one_call_synthesis(direction, channels, monkeypatch):
+    # issue 12: the job (noise by blocks, field by chunks, crop by blocks of
+    # rows) gives, bit for bit, what the one-call synthesis gave
+    from car_napari._progress import drain
+    from car_napari.model import blocks, iter_synthesize
+
+    rng = np.random.default_rng(7)
+    model = fit_car(rng.random((48, 48, channels)), 2, direction=direction)
+    expected = _one_call_synthesis(model, (37, 53), seed=5)
+    np.testing.assert_array_equal(synthesize(model, (37, 53), seed=5), expected)
+    monkeypatch.setattr(blocks, "BLOCK_VALUES", 300)  # many blocks of every kind
+    records = []
+    got = drain(iter_synthesize(model, (37, 53), seed=5, chunk_rows=4), records.append)
+    np.testing.assert_array_equal(got, expected)
+    assert got.shape == expected.shape and got.flags.c_contiguous == expected.flags.c_contiguous
+    fractions = [r.fraction for r in records]
+    assert fractions == sorted(fractions) and fractions[-1] == 1.0 and fractions[0] > 0
+    kinds = [r.message.split()[0] for r in records]
+    assert kinds.index("rows") > kinds.index("noise") and kinds[-1] == "output"
+    # the output records preview the texture filling in: the array returned
+    previews = [r.preview for r in records if r.preview is not None]
+    assert previews and all(p is previews[-1] for p in previews)
+    np.testing.assert_array_equal(previews[-1], got)
+
+
+def test_job_closed_midway_stops():
+    from car_napari.model import iter_synthesize
+
+    model = fit_car(np.random.default_rng(0).random((32, 32)), 1)
+    job = iter_synthesize(model, (200, 200), seed=0, chunk_rows=10)
+    for record in job:
+        if record.message.startswith("rows"):
+            break
+    job.close()  # a Cancel: no error, nothing more
+    assert list(job) == []

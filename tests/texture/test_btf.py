@@ -100,3 +100,40 @@ def test_grey_stack_and_channel_axis():
     _same_btf(first, BTFModel.fit(stack, n_subspaces=1, levels=2))
     np.testing.assert_array_equal(cumulative_histograms(stack[..., 0]),
                                   cumulative_histograms(stack[..., :1]))
+
+
+def _reference_btf_synthesis(btf, shape, seed):
+    """Today's (session 19's) one-call BTF synthesis, the reference of the job."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for i in range(btf.n_images):
+        model = btf.models[btf.assignment[i]]
+        sample = model.synthesize(shape, seed=rng.integers(2**63))
+        sample = sample.reshape(shape[0], shape[1], -1)
+        centred = sample - sample.mean(axis=(0, 1))
+        spread = centred.std(axis=(0, 1))
+        gain = np.where(spread > 0, btf.image_std[i] / np.where(spread > 0, spread, 1), 1)
+        image = np.clip(btf.image_mean[i] + centred * gain, btf.image_range[i, 0],
+                        btf.image_range[i, 1])
+        out.append(image[..., 0] if btf.grey else image)
+    return np.stack(out)
+
+
+@pytest.mark.parametrize("grey", [False, True])
+def test_synthesis_job_is_bit_identical_and_reports_every_image(grey):
+    stack, _ = _lit_stack(4)
+    stack = stack[:, :64, :64].mean(axis=3) if grey else stack[:, :64, :64]
+    btf = BTFModel.fit(stack, n_subspaces=2, levels=2)
+    want = _reference_btf_synthesis(btf, (35, 47), 4)
+    np.testing.assert_array_equal(btf.synthesize((35, 47), seed=4), want)
+    records = []
+    got = drain(btf.iter_synthesize((35, 47), seed=4), records.append)
+    np.testing.assert_array_equal(got, want)
+    fractions = [r.fraction for r in records]
+    assert fractions == sorted(fractions) and fractions[-1] == 1.0
+    for i in range(4):  # an equal share per image
+        mine = [r.fraction for r in records if r.message.startswith(f"image {i + 1}/4, ")]
+        assert i / 4 <= min(mine) and max(mine) <= (i + 1) / 4 + 1e-12
+    assert [r.preview for r in records if r.preview is not None][-1] is got
+    with pytest.raises(ValueError, match="positive"):
+        next(btf.iter_synthesize((0, 5)))

@@ -155,3 +155,59 @@ def test_channel_first_colour_clip():
     first = DynamicTextureModel.fit(np.moveaxis(clip, -1, 1), neighbourhood=1, channel_axis=1)
     np.testing.assert_array_equal(last.gamma, first.gamma)
     assert last.synthesize(2, (10, 12), seed=0).shape == (2, 10, 12, 2)
+
+
+def _reference_dynamic_synthesis(model, n_frames, shape, seed, burn_in=10):
+    """Today's (session 19's) one-call dynamic synthesis, the reference of the job."""
+    import math
+
+    from car_napari import synthesize
+
+    h, w = shape
+    rng = np.random.default_rng(seed)
+    d = model.n_channels
+    margin = 32 + int(np.abs(model.offsets).max())
+    H, W = h + margin, w + 2 * margin
+    taps = temporal_context(model.offsets, d).taps
+    chol = np.linalg.cholesky(0.5 * (model.sigma + model.sigma.T) + 1e-300 * np.eye(d))
+    previous = synthesize(model.first, (H, W), seed=rng.integers(2**63)).reshape(H, W, d)
+    previous = previous - model.mean
+    limit = 1e6 * math.sqrt(float(np.trace(model.sigma))) + 1e6 * float(
+        np.ptp(model.value_range))
+    frames = []
+    for t in range(burn_in + n_frames):
+        lattice = np.concatenate([rng.standard_normal((H, W, d)), previous], axis=2)
+        assert synthesize_field(np.ascontiguousarray(model.gamma), chol, lattice,
+                                taps[:, 0].copy(), taps[:, 1].copy(), taps[:, 2].copy(), limit)
+        previous = lattice[..., :d].copy()
+        if t >= burn_in:
+            frame = np.clip(previous[margin:, margin : margin + w] + model.mean,
+                            model.value_range[0], model.value_range[1])
+            frames.append(frame[..., 0] if model.grey else frame)
+    return np.stack(frames)
+
+
+@pytest.mark.parametrize("channels", [1, 3])
+def test_synthesis_job_is_bit_identical_and_yields_by_rows(channels, monkeypatch):
+    from car_napari.model import blocks, synthesis
+    from car_napari.texture import dynamic
+
+    rng = np.random.default_rng(3)
+    clip = rng.random((3, 30, 30, channels))[..., 0] if channels == 1 else \
+        rng.random((3, 30, 30, channels))
+    model = DynamicTextureModel.fit(clip, neighbourhood=1)
+    want = _reference_dynamic_synthesis(model, 3, (21, 26), 8, burn_in=2)
+    np.testing.assert_array_equal(model.synthesize(3, (21, 26), seed=8, burn_in=2), want)
+    monkeypatch.setattr(blocks, "BLOCK_VALUES", 400)  # many blocks of rows
+    monkeypatch.setattr(dynamic, "_CHUNK_FLOPS", 2e4)
+    monkeypatch.setattr(synthesis, "_CHUNK_FLOPS", 2e4)
+    records = []
+    got = drain(model.iter_synthesize(3, (21, 26), seed=8, burn_in=2), records.append)
+    np.testing.assert_array_equal(got, want)
+    fractions = np.array([r.fraction for r in records])
+    assert (np.diff(fractions) >= 0).all() and fractions[-1] == 1.0
+    assert np.diff(fractions).max() < 0.05  # no part jumps: every block is a record
+    assert any(r.message.startswith("burn-in 2/2, field rows") for r in records)
+    assert [r.preview for r in records if r.preview is not None][-1] is got
+    with pytest.raises(ValueError, match="n_frames"):
+        next(model.iter_synthesize(0, (5, 5)))

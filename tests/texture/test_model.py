@@ -401,3 +401,152 @@ def test_synthesis_of_the_vistex_sample_has_no_speckle():
         out = model.synthesize((256, 256), seed=seed)
         speckle = _isolated_fraction(out)
         assert speckle < max(10 * own, 1e-3), (seed, speckle, own)
+
+
+# ---------------------------------------------------------------- synthesis as a job
+# Today's (session 19's) one-call synthesis, kept verbatim as the reference of
+# the job form: whole-array passes, no blocks.
+
+def _reference_match(values, quantiles, bins=4096):
+    from car_napari.texture._model import _exponential_tails
+
+    h, w, d = values.shape
+    flat = values.reshape(-1, d)
+    out = np.empty_like(flat)
+    q = quantiles.shape[0]
+    for c in range(d):
+        v = flat[:, c]
+        lo, hi = float(v.min()), float(v.max())
+        if hi <= lo:
+            out[:, c] = quantiles[q // 2, c]
+            continue
+        counts, _ = np.histogram(v, bins=bins, range=(lo, hi))
+        cdf = np.concatenate([[0.0], np.cumsum(counts) / v.size])
+        pos = (v - lo) * (bins / (hi - lo))
+        k = np.minimum(pos.astype(np.int64), bins - 1)
+        p = cdf[k] + (pos - k) * (cdf[k + 1] - cdf[k])
+        pos = p * (q - 1)
+        k = np.minimum(pos.astype(np.int64), q - 2)
+        mapped = quantiles[k, c] + (pos - k) * (quantiles[k + 1, c] - quantiles[k, c])
+        if q >= 4:
+            _exponential_tails(mapped, pos, k, quantiles[:, c])
+        out[:, c] = mapped
+    return out.reshape(h, w, d)
+
+
+def _reference_torus(field, shape, mean):
+    h, w = shape
+    f = field - mean
+    for axis, n in ((1, w), (0, h)):
+        b = f.shape[axis] - n
+        if b > 0:
+            t = 0.5 * np.pi * np.arange(b) / b
+            shape_w = [1, 1, 1]
+            shape_w[axis] = b
+            own, extra = np.sin(t).reshape(shape_w), np.cos(t).reshape(shape_w)
+            head = np.take(f, np.arange(b), axis=axis)
+            tail = np.take(f, np.arange(n, n + b), axis=axis)
+            body = np.take(f, np.arange(b, n), axis=axis)
+            f = np.concatenate([own * head + extra * tail, body], axis=axis)
+    return f + mean
+
+
+def _reference_synthesis(self, shape, seed, tileable=False):
+    from car_napari import synthesize
+    from car_napari.texture._model import _blend_width, _expand, _level_shapes
+
+    h, w = shape
+    rng = np.random.default_rng(seed)
+    streams = [np.random.default_rng(s) for s in rng.integers(0, 2**63, size=self.levels)]
+    bands = []
+    for k, (model, (hk, wk)) in enumerate(zip(self.models, _level_shapes((h, w), self.levels),
+                                              strict=True)):
+        if tileable:
+            bh, bw = _blend_width(hk), _blend_width(wk)
+            big = synthesize(model, (hk + bh, wk + bw), seed=streams[k])
+            band = _reference_torus(big.reshape(hk + bh, wk + bw, -1), (hk, wk), model.mean)
+        else:
+            band = synthesize(model, (hk, wk), seed=streams[k]).reshape(hk, wk, -1)
+        if self.band_quantiles is not None:
+            band = _reference_match(band, self.band_quantiles[k])
+        bands.append(np.clip(band, self.band_ranges[k, 0], self.band_ranges[k, 1]))
+    out = bands[-1]
+    for band in bands[-2::-1]:
+        out = band + _expand(out, band.shape[:2], wrap=bool(tileable))
+    centred = out - out.mean(axis=(0, 1))
+    spread = centred.std(axis=(0, 1))
+    gain = np.where(spread > 0, self.std / np.where(spread > 0, spread, 1.0), 1.0)
+    out = self.mean + centred * gain
+    if self.quantiles is not None:
+        out = _reference_match(out, self.quantiles)
+    out = np.clip(out, self.value_range[0], self.value_range[1])
+    return out[..., 0] if self.grey else out
+
+
+@pytest.mark.parametrize("tileable", [False, True])
+def test_synthesis_job_is_bit_identical_to_the_one_call_synthesis(gravel_model, colour_model,
+                                                                  tileable, monkeypatch):
+    from car_napari.texture import _model
+
+    two_d = TextureModel.fit(skdata.astronaut()[300:364, 0:64], levels=1, model="2d")
+    cases = [(gravel_model, (37, 53)), (colour_model, (64, 41)), (two_d, (20, 30))]
+    expected = [_reference_synthesis(m, shape, 3, tileable) for m, shape in cases]
+    for (model, shape), want in zip(cases, expected, strict=True):
+        np.testing.assert_array_equal(model.synthesize(shape, seed=3, tileable=tileable), want)
+    monkeypatch.setattr(_model, "_CHUNK_PIXELS", 97)  # blocks of a row or two
+    for (model, shape), want in zip(cases, expected, strict=True):
+        records = []
+        got = drain(model.iter_synthesize(shape, seed=3, tileable=tileable), records.append)
+        np.testing.assert_array_equal(got, want)
+        assert got.shape == want.shape
+        fractions = [r.fraction for r in records]
+        assert fractions == sorted(fractions) and fractions[-1] == 1.0
+        previews = [r.preview for r in records if r.preview is not None]
+        assert previews[-1] is got  # the texture filling in, the array returned
+        stages = list(dict.fromkeys(r.stage for r in records))
+        assert stages == ["synthesis", "collapse", "restore"] or (
+            model.levels == 1 and stages == ["synthesis", "restore"])
+    # a version-1 model (no quantiles): clipping only, the same numbers
+    v1 = TextureModel(**{**colour_model.__dict__, "band_quantiles": None, "quantiles": None})
+    np.testing.assert_array_equal(drain(v1.iter_synthesize((33, 30), seed=1)),
+                                  _reference_synthesis(v1, (33, 30), 1))
+
+
+def test_synthesis_job_yields_between_blocks_and_stops_when_closed(colour_model, monkeypatch):
+    # fractions in proportion to the work: no part of the job jumps far
+    from car_napari.model import blocks, synthesis
+    from car_napari.texture import _model
+
+    monkeypatch.setattr(_model, "_CHUNK_PIXELS", 512)
+    monkeypatch.setattr(blocks, "BLOCK_VALUES", 1500)
+    monkeypatch.setattr(synthesis, "_CHUNK_FLOPS", 1e5)
+    records = list(colour_model.iter_synthesize((160, 200), seed=0))
+    fractions = np.array([r.fraction for r in records])
+    assert len(records) > 100 and np.diff(fractions).max() < 0.1
+    job = colour_model.iter_synthesize((160, 200), seed=0)
+    for record in job:
+        if record.stage == "collapse":
+            break
+    job.close()
+    assert list(job) == []
+
+
+@pytest.mark.parametrize("pixels", [1 << 19, 97, 1])
+def test_blocked_sums_are_numpys_mean_and_std(pixels, monkeypatch):
+    # the restore's sums by blocks of rows add as NumPy's mean and std do:
+    # the same numbers (if a NumPy release changed its order, this fails)
+    from car_napari.texture import _model
+
+    monkeypatch.setattr(_model, "_CHUNK_PIXELS", pixels)
+    rng = np.random.default_rng(2)
+    for shape in [(37, 41, 3), (64, 50, 1), (5, 7, 2), (300, 200, 4)]:
+        values = rng.standard_normal(shape) * 1e3 + 1
+        before = values.copy()
+        np.testing.assert_array_equal(drain(_model._iter_channel_sum(values)),
+                                      before.sum(axis=(0, 1)))
+        np.testing.assert_array_equal(values, before)  # the running sum is put back
+        mean, std = rng.random(shape[2]), rng.random(shape[2]) + 0.5
+        centred = values - values.mean(axis=(0, 1))
+        spread = centred.std(axis=(0, 1))
+        want = mean + centred * (std / spread)
+        np.testing.assert_array_equal(drain(_model._iter_restore(values, mean, std)), want)
