@@ -10,7 +10,18 @@ imports neither Qt nor napari; the napari dock widgets live in
 
 from ._progress import Progress, drain
 from ._threads import limited_blas
-from .inpainting import detect_scratches, fit_mask, inpaint, iter_detect_scratches, iter_inpaint
+from .inpainting import (
+    compensate_motion,
+    detect_scratches,
+    estimate_motion,
+    fit_mask,
+    inpaint,
+    iter_compensate_motion,
+    iter_detect_scratches,
+    iter_estimate_motion,
+    iter_inpaint,
+    warp_frame,
+)
 from .mammography import (
     MammogramROIs,
     detect_breast,
@@ -109,11 +120,16 @@ __all__ = [
     "restore",
     "restore_multichannel",
     # scratches and blotches
+    "compensate_motion",
     "detect_scratches",
+    "estimate_motion",
     "fit_mask",
     "inpaint",
+    "iter_compensate_motion",
     "iter_detect_scratches",
+    "iter_estimate_motion",
     "iter_inpaint",
+    "warp_frame",
     # textures
     "BTFModel",
     "DynamicTextureModel",

@@ -2,16 +2,60 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from magicgui.widgets import CheckBox, ComboBox
 from napari.layers import Image, Labels
 from napari.utils.notifications import show_info
 
+from .._progress import Progress
 from ..inpainting import fit_mask, iter_detect_scratches, iter_inpaint
 from ._base import JobWidget, guarded
 
 BRUSH_SIZE = 5
 FRAME_OR_CLIP = "choose a frame (2-D) or a clip (frames, rows, columns)."
+EMPTY_MASK = ("the scratch mask is empty: paint the damaged pixels (or detect them) first; "
+              "nothing was changed.")
+
+
+def _restore_job(frames, mask, *, shape, clip, channel_axis, mask_name, mask_rgb, temporal):
+    """The restoration, in the worker, from the layers' data as they are
+    (views: nothing is copied in the viewer's thread, nothing is modified):
+    the mask fitted to the frames, then :func:`~car_napari.inpainting.iter_inpaint`.
+    A clip's previews carry the whole clip restored so far (a buffer of the
+    worker's, filled frame by frame). Returns the restored image, or None
+    when the fitted mask is empty."""
+    yield Progress("frames", 0.0, "fitting the mask")
+    try:
+        fitted = fit_mask(mask[..., :3] if mask_rgb else mask, shape,
+                          channel_axis=-1 if mask_rgb else None)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"'scratch mask' ({mask_name!r}): {exc}") from exc
+    if not fitted.any():
+        return None
+    shown = np.array(frames) if clip else None  # the clip as shown live
+    job = iter_inpaint(frames, fitted, channel_axis=channel_axis, temporal=temporal)
+    try:
+        while True:
+            try:
+                record = next(job)
+            except StopIteration as stop:
+                return stop.value
+            if clip and record.preview is not None:
+                index, frame = record.preview
+                shown[index] = frame
+                record = replace(record, preview=(index, shown))
+            yield record
+    finally:
+        job.close()
+
+
+def _with_indices(job):
+    """The scratch detection, then (in the worker too) the indices of the
+    proposed pixels, so that the viewer only writes them into the mask."""
+    proposal = yield from job
+    return np.nonzero(np.asarray(proposal, bool))
 
 
 class InpaintingWidget(JobWidget):
@@ -156,22 +200,28 @@ class InpaintingWidget(JobWidget):
             The running job; None without a usable source (notified).
         """
         data, channel_axis = self.input_array(ndims=(2, 3), hint=FRAME_OR_CLIP)
-        return self.run(iter_detect_scratches(data, channel_axis=channel_axis),
+        return self.run(_with_indices(iter_detect_scratches(data, channel_axis=channel_axis)),
                         done=self._add_proposal)
 
-    def _add_proposal(self, proposal):
+    def _add_proposal(self, result):
+        where = result  # the proposed pixels' indices, found in the worker
         mask = self._mask_layer(self.record)
-        new = np.asarray(proposal, bool) & (np.asarray(mask.data) == 0)
-        if new.any():
+        yield  # the viewer draws the mask layer before the proposal goes into it
+        data = np.asarray(mask.data)
+        if data.any():  # what is painted already stays: only the new pixels
+            keep = data[where] == 0
+            where = tuple(w[keep] for w in where)
+        if where[0].size:
             # data_setitem records the change in the layer's undo history
-            mask.data_setitem(np.nonzero(new), 1)
-        self._status.value = f"detector proposed {int(np.count_nonzero(proposal))} pixels"
+            mask.data_setitem(where, 1)
+        self._status.value = f"detector proposed {int(result[0].size)} pixels"
 
     # --- restoring -------------------------------------------------------------------
 
     def _chosen_mask(self, shape):
-        """The chosen mask layer's data fitted to the source's frames
-        ``shape``, as bool; a note when it had to be resized."""
+        """The chosen mask layer (the source's own by default) and whether
+        it is RGB; a note, from the shapes alone, when it is resized to the
+        frames ``shape``. Its data is read in the worker."""
         layer = self._mask.value
         if layer is None or layer not in self._viewer.layers:
             layer = self._own_mask()
@@ -179,39 +229,34 @@ class InpaintingWidget(JobWidget):
             raise ValueError("there is no scratch mask yet: press 'New mask layer' and paint "
                              "the damage, or 'Detect scratches', or choose a mask layer "
                              "(an opened mask image) as 'scratch mask'.")
-        data = np.asarray(layer.data)
-        rgb = bool(getattr(layer, "rgb", False))
-        if rgb:
-            data = data[..., :3]  # an RGBA mask: its alpha is not the damage
-        try:
-            mask = fit_mask(data, shape, channel_axis=-1 if rgb else None)
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"'scratch mask' ({layer.name!r}): {exc}") from exc
+        rgb = bool(getattr(layer, "rgb", False))  # an RGBA mask: its alpha is not the damage
+        data = layer.data
         drawn = data.shape[-3:-1] if rgb else data.shape[-2:]
         if tuple(drawn) != tuple(shape[-2:]):
             show_info(f"the mask {layer.name!r} is {drawn[0]}x{drawn[1]} pixels and the "
-                      f"frames {shape[-2]}x{shape[-1]}: it was resized (nearest neighbour) to "
+                      f"frames {shape[-2]}x{shape[-1]}: it is resized (nearest neighbour) to "
                       "fit them.")
-        return mask
+        return layer, rgb
 
     def _start(self):
-        """Restore the masked pixels of the source, frame by frame."""
+        """Restore the masked pixels of the source, frame by frame. The
+        viewer's thread only picks the layers; the worker fits the mask,
+        copies and restores (the source and the mask are never modified)."""
         layer, rgb = self._source()
-        shape = layer.data.shape[:-1] if rgb else layer.data.shape
-        mask = self._chosen_mask(shape)
-        if not mask.any():
-            show_info("the scratch mask is empty: paint the damaged pixels (or detect "
-                      "them) first; nothing was changed.")
-            return None
-        data, channel_axis = self.input_array(ndims=(2, 3), hint=FRAME_OR_CLIP)
+        data = layer.data
+        if data.size == 0:
+            raise ValueError(f"layer {layer.name!r} is empty.")
+        shape = data.shape[:-1] if rgb else data.shape
+        mask_layer, mask_rgb = self._chosen_mask(shape)
         self._layer = layer
         self._rgb = rgb
         self._out_name = f"{layer.name} restored"
-        self._frames = data.copy()  # the output, filled in frame by frame
-        self._clip = data.ndim - rgb == 3
+        self._clip = len(shape) == 3
         self._following = bool(self._follow.value)
         self.updates = 0
-        job = iter_inpaint(data, mask, channel_axis=channel_axis,
+        job = _restore_job(data[..., :3] if rgb else data, mask_layer.data, shape=shape,
+                           clip=self._clip, channel_axis=-1 if rgb else None,
+                           mask_name=mask_layer.name, mask_rgb=mask_rgb,
                            temporal=bool(self._temporal.value))
         return self.run(job, preview=self._show_frame, done=self._finished)
 
@@ -226,17 +271,17 @@ class InpaintingWidget(JobWidget):
         self.record.put(self._out_name, data, self._add_output)
 
     def _show_frame(self, preview):
-        index, frame = preview
-        if self._clip:
-            self._frames[index] = frame
-            if self._following:  # only when asked: the viewer stays on the user's frame
-                self.record.set_step(0, index)
-        else:
-            self._frames = np.asarray(frame)
-        self._put(self._frames)
+        index, shown = preview  # a clip: all of it as restored so far; a frame: itself
+        if self._clip and self._following:  # only when asked: the viewer stays put
+            self.record.set_step(0, index)
+        self._put(shown)
         self.updates += 1
         self._status.value = f"frame {index + 1} restored"
 
     def _finished(self, restored):
+        if restored is None:  # the mask, fitted to the frames, marks nothing
+            show_info(EMPTY_MASK)
+            self._status.value = "nothing restored: the scratch mask is empty"
+            return
         self._put(restored)
         self._status.value = "restored"

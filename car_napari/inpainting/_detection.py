@@ -2,7 +2,8 @@
 
 :func:`detect_scratches` finds vertical line scratches (thin, brighter or
 darker than both sides, persisting down the frame) and, in clips, blotches
-(pixels that disagree with both neighbouring frames in the same direction).
+(pixels that disagree with both neighbouring frames, warped onto the frame
+by the estimated motion, in the same direction).
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ import numpy as np
 
 from .._progress import Progress, drain
 from .._validation import as_channel_last_float
+from . import _motion
 from ._layout import read_layout
 
 __all__ = ["detect_scratches", "iter_detect_scratches"]
@@ -27,6 +29,23 @@ BAND_PIXELS = 1 << 19
 _BLOTCH_HALO = 4  # rows: the reach of the opening (2x2) and the dilation (3x3), and a spare
 _LINE_PASSES = 5  # contrast, median, strong, persistence, dilation
 _BLOTCH_PASSES = 2  # the blotch test is about twice as heavy as one line pass
+_MOTION_PASSES = 12  # the two flows of a frame weigh about twelve passes of a frame
+# The blotch test on motion-compensated neighbours compares a pixel with the
+# neighbours' pixels within MOTION_TOLERANCE pixels of it (a flow is right to
+# about a pixel at edges; 0.5: half a pixel, the mean of a pixel and its
+# 4-neighbours' extreme), and asks the two neighbours to agree with each
+# other to within AGREEMENT times the spike (None: not asked), with a
+# threshold of COMPENSATED_THRESHOLD. Chosen on the TUNING clips of
+# benchmarks/bench_clip.py (tolerance 0.5 or 1, agreement 0.5, 1 or none,
+# threshold 0.08-0.12: the best recall with at most 0.5 % of the undamaged
+# moving pixels flagged), never on its REPORT clips. Also measured there and
+# left out: a round-trip (forward-backward) flow check, which drops the
+# recall to 0.16-0.77 (a blotch makes the flows disagree too).
+MOTION_TOLERANCE = 1
+AGREEMENT = 1.0
+COMPENSATED_THRESHOLD = 0.08  # image scale [0, 1]
+BLOTCH_THRESHOLD = 0.12  # the raw test (motion=False), image scale [0, 1]
+_CROSS = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], bool)
 
 
 def _bands(n, size):
@@ -102,17 +121,92 @@ def _blotch_mask(before, frame, after, blotch_threshold):
     return ndimage.binary_dilation(spikes, structure=np.ones((3, 3), bool))
 
 
-def _iter_blotch_mask(grey, t, blotch_threshold, band_pixels, out):
-    """Blotches of frame ``t`` of the grey clip into ``out``, by row bands
-    with a halo (exact); yields the pixels done (:data:`_BLOTCH_PASSES`
-    passes of H * W)."""
-    _, H, W = grey.shape
+def _compensated_blotch_mask(before, frame, after, blotch_threshold):
+    """Blotches of one grey frame (or a band of rows) between its two
+    neighbours warped onto it: a pixel brighter (darker) than every pixel
+    within :data:`MOTION_TOLERANCE` of it in both warped neighbours by more
+    than the threshold (the tolerance absorbs the flow's sub-pixel errors
+    at edges)."""
+    from scipy import ndimage
+
+    if MOTION_TOLERANCE >= 1:
+        size = 2 * int(MOTION_TOLERANCE) + 1
+        brighter = np.minimum(frame - ndimage.maximum_filter(before, size),
+                              frame - ndimage.maximum_filter(after, size))
+        darker = np.minimum(ndimage.minimum_filter(before, size) - frame,
+                            ndimage.minimum_filter(after, size) - frame)
+    elif MOTION_TOLERANCE:  # half a pixel: the extremes of the neighbours moved by 1/2 px
+        def high(image):
+            return 0.5 * (image + ndimage.maximum_filter(image, footprint=_CROSS))
+
+        def low(image):
+            return 0.5 * (image + ndimage.minimum_filter(image, footprint=_CROSS))
+
+        brighter = np.minimum(frame - high(before), frame - high(after))
+        darker = np.minimum(low(before) - frame, low(after) - frame)
+    else:
+        brighter = np.minimum(frame - before, frame - after)
+        darker = np.minimum(before - frame, after - frame)
+    spike = np.maximum(brighter, darker)
+    spikes = spike > blotch_threshold
+    if AGREEMENT is not None:  # the two neighbours agree with each other (SDIp)
+        spikes &= np.abs(before - after) < AGREEMENT * spike
+    spikes = ndimage.binary_opening(spikes, structure=np.ones((2, 2), bool))
+    return ndimage.binary_dilation(spikes, structure=np.ones((3, 3), bool))
+
+
+def _iter_blotch_mask(before, frame, after, blotch_threshold, band_pixels, out,
+                      compensated=False):
+    """Blotches of a grey (H, W) frame between its neighbours (warped onto
+    it when ``compensated``) into ``out``, by row bands with a halo (exact);
+    yields the pixels done (:data:`_BLOTCH_PASSES` passes of H * W)."""
+    H, W = frame.shape
     for a, b in _bands(H, band_pixels // W):
         lo, hi = max(a - _BLOTCH_HALO, 0), min(b + _BLOTCH_HALO, H)
-        found = _blotch_mask(grey[t - 1, lo:hi], grey[t, lo:hi], grey[t + 1, lo:hi],
-                             blotch_threshold)
+        if compensated:
+            found = _compensated_blotch_mask(before[lo:hi], frame[lo:hi], after[lo:hi],
+                                             blotch_threshold)
+        else:
+            found = _blotch_mask(before[lo:hi], frame[lo:hi], after[lo:hi],
+                                 blotch_threshold)
         out[a:b] |= found[a - lo : b - lo]
         yield _BLOTCH_PASSES * (b - a) * W
+
+
+def _iter_flows(grey, mask, pairs, cache, pixels):
+    """The coarse flows from frame ``a`` to frame ``b`` of the grey clip for
+    ``(a, b)`` in ``pairs`` into ``cache`` (those not there yet), each
+    estimated with frame ``a``'s damage found so far (``mask``) ignored;
+    yields the pixels done (``pixels`` a unit of a flow's work)."""
+    for a, b in pairs:
+        if (a, b) in cache:
+            continue
+        job = _motion._iter_flow(grey[a].astype(np.float32), grey[b].astype(np.float32),
+                                 (~mask[a]).astype(np.float32), _motion.RADIUS,
+                                 _motion.ITERATIONS, _motion.REGULARISATION,
+                                 _motion.FLOW_PIXELS)
+        while True:
+            try:
+                units = next(job)
+            except StopIteration as stop:
+                cache[(a, b)] = stop.value
+                break
+            yield units * pixels
+
+
+def _iter_compensated(grey, t, mask, out, cache):
+    """Frame ``t``'s two neighbours in the grey clip warped onto it into
+    ``out`` (2, H, W); yields the pixels done (:data:`_MOTION_PASSES` / 2
+    passes of H * W a flow). Flows go through ``cache``, emptied of those
+    later frames do not need."""
+    _, H, W = grey.shape
+    per_flow = _motion._work_units(H, W, _motion.ITERATIONS, _motion.FLOW_PIXELS)
+    pixels = _MOTION_PASSES * H * W / 2 / per_flow  # a flow's unit of work, in pixels
+    yield from _iter_flows(grey, mask, [(t, t - 1), (t, t + 1)], cache, pixels)
+    for k, other in enumerate((t - 1, t + 1)):
+        out[k] = _motion._warp(grey[other][..., None], cache[(t, other)])[..., 0]
+    for key in [key for key in cache if min(key) <= t]:
+        del cache[key]
 
 
 def _iter_records(work, stage, fraction, message, band_pixels):
@@ -130,7 +224,8 @@ def _iter_records(work, stage, fraction, message, band_pixels):
 
 
 def iter_detect_scratches(image, *, kinds=KINDS, channel_axis=-1, line_width=3,
-                          line_length=0.5, line_threshold=4.0, blotch_threshold=0.12):
+                          line_length=0.5, line_threshold=4.0,
+                          blotch_threshold=None, motion=True):
     """Propose a damage mask, as a job: Progress records, then the mask.
 
     The generator form of :func:`detect_scratches`, with the same
@@ -153,7 +248,11 @@ def iter_detect_scratches(image, *, kinds=KINDS, channel_axis=-1, line_width=3,
         horizontal pixel differences.
     blotch_threshold : float, optional
         Difference from both neighbouring frames a blotch needs (image scale
-        [0, 1]).
+        [0, 1]); default :data:`COMPENSATED_THRESHOLD` (0.08) with motion
+        compensation, :data:`BLOTCH_THRESHOLD` (0.12) without.
+    motion : bool, optional
+        Compare with the neighbouring frames warped onto the frame by the
+        estimated motion (default); False: the raw neighbours (SDIa).
 
     Returns
     -------
@@ -168,7 +267,8 @@ def iter_detect_scratches(image, *, kinds=KINDS, channel_axis=-1, line_width=3,
         after each inner frame's blotch test, message like ``"frame 3/24"``,
         no preview. A large frame is worked on in bands of rows (or columns)
         of about :data:`BAND_PIXELS` pixels, with a record (stage
-        ``"reading"``, ``"lines"`` or ``"blotches"``) after each: on a
+        ``"reading"``, ``"lines"``, ``"motion"`` or ``"blotches"``) after
+        each (the motion estimate: after every warp of its pyramid): on a
         4000x4000 frame one every tenth of a second or so. The fraction is
         proportional to the pixels processed.
 
@@ -179,7 +279,8 @@ def iter_detect_scratches(image, *, kinds=KINDS, channel_axis=-1, line_width=3,
     ValueError
         If ``kinds`` is not a subset of ('line', 'blotch'); if the image is
         empty, neither a frame nor a clip, holds NaN or infinite values, or
-        is too narrow for ``line_width``.
+        is too narrow for ``line_width``; if ``blotch_threshold`` is not
+        positive.
 
     Examples
     --------
@@ -210,8 +311,16 @@ def iter_detect_scratches(image, *, kinds=KINDS, channel_axis=-1, line_width=3,
         raise ValueError(f"the frame is too narrow ({W} px) for line_width {w}.")
     band = int(BAND_PIXELS)
     # the work in pixels of one pass: reading every frame, then each frame's passes
+    motion = bool(motion)
+    if blotch_threshold is None:
+        blotch_threshold = COMPENSATED_THRESHOLD if motion else BLOTCH_THRESHOLD
+    blotch_threshold = float(blotch_threshold)
+    if not blotch_threshold > 0:
+        raise ValueError(f"blotch_threshold must be a positive difference (image scale "
+                         f"[0, 1]); got {blotch_threshold}.")
     total = H * W * (T + (_LINE_PASSES * T if lines else 0)
-                     + (_BLOTCH_PASSES * (T - 2) if blotches else 0))
+                     + (_BLOTCH_PASSES * (T - 2) if blotches else 0)
+                     + (_MOTION_PASSES * (T - 2) if blotches and motion else 0))
     done = 0
 
     def at(start):  # the job's fraction when a stage begun at ``start`` has done ``pixels``
@@ -232,17 +341,27 @@ def iter_detect_scratches(image, *, kinds=KINDS, channel_axis=-1, line_width=3,
                 at(done), message, band)
             yield Progress("lines", done / total, message)
     if blotches:
+        neighbours = np.empty((2, H, W)) if motion else None
+        flows = {}
         for t in range(1, T - 1):
             message = f"frame {t + 1}/{T}"
+            if motion:  # the lines found are damage: they do not steer the motion
+                done += yield from _iter_records(
+                    _iter_compensated(grey, t, mask, neighbours, flows), "motion", at(done),
+                    message, band)
+                before, after = neighbours
+            else:
+                before, after = grey[t - 1], grey[t + 1]
             done += yield from _iter_records(
-                _iter_blotch_mask(grey, t, blotch_threshold, band, mask[t]), "blotches",
-                at(done), message, band)
+                _iter_blotch_mask(before, grey[t], after, blotch_threshold, band, mask[t],
+                                  compensated=motion), "blotches", at(done), message, band)
             yield Progress("blotches", done / total, message)
     return mask[0] if layout.single else mask
 
 
 def detect_scratches(image, *, kinds=KINDS, channel_axis=-1, line_width=3,
-                     line_length=0.5, line_threshold=4.0, blotch_threshold=0.12):
+                     line_length=0.5, line_threshold=4.0, blotch_threshold=None,
+                     motion=True):
     """Propose a damage mask for a frame or a clip.
 
     * ``'line'``: vertical line scratches. A pixel of the grey frame (the
@@ -253,14 +372,26 @@ def detect_scratches(image, *, kinds=KINDS, channel_axis=-1, line_width=3,
       proposed when more than half of the rows in a vertical window of
       ``line_length`` times the frame height are candidates of the same
       sign: the scratch persists down the frame.
-    * ``'blotch'`` (clips of 3 frames or more): the spike detector index
-      SDIa. A pixel is proposed when it differs from both the previous and
-      the next frame by more than ``blotch_threshold`` (image scale [0, 1])
-      in the same direction. Real motion fails the test on one side.
+    * ``'blotch'`` (clips of 3 frames or more): a spike detector on
+      motion-compensated frames. The motion from each frame to the previous
+      and the next one is estimated (:func:`estimate_motion`, the lines
+      found ignored) and both neighbours are warped onto the frame; a pixel
+      is proposed when it is brighter (darker) than every pixel within
+      :data:`MOTION_TOLERANCE` (1) pixel of it in both warped neighbours by
+      more than ``blotch_threshold`` (image scale [0, 1]) and the two
+      neighbours agree with each other to within that difference. Moving
+      content agrees with its warped neighbours; a blotch, on one frame
+      only, disagrees with both. Regions thinner than 2x2 pixels are
+      dropped and the rest grown by a pixel. With ``motion=False``: the
+      spike detector index SDIa on the raw neighbours (brighter or darker
+      than both by more than the threshold), which also flags motion.
 
     Misses: scratches that are not vertical, lines fainter than the texture's
-    own vertical structure, blotches that persist over two frames and damage
-    on the first and last frames of a clip (they have one neighbour only).
+    own vertical structure, blotches that persist over two frames, blotches
+    no more different from the neighbours than their own detail within a
+    pixel, and damage on the first and last frames of a clip (they have one
+    neighbour only). Motion the estimate cannot follow (an occlusion, a
+    fast non-rigid change) can still be flagged.
 
     Parameters
     ----------
@@ -284,7 +415,13 @@ def detect_scratches(image, *, kinds=KINDS, channel_axis=-1, line_width=3,
         horizontal pixel differences.
     blotch_threshold : float, optional
         Difference from both neighbouring frames a blotch needs (image scale
-        [0, 1]).
+        [0, 1]); default :data:`COMPENSATED_THRESHOLD` (0.08) with motion
+        compensation, :data:`BLOTCH_THRESHOLD` (0.12) without.
+    motion : bool, optional
+        True (default): compare each frame with its neighbours warped onto
+        it by the estimated motion (see above), so that moving content is
+        left alone; False: with the raw neighbours (plain SDIa, which flags
+        whatever moves).
 
     Returns
     -------
@@ -299,12 +436,13 @@ def detect_scratches(image, *, kinds=KINDS, channel_axis=-1, line_width=3,
     ValueError
         If ``kinds`` is not a subset of ('line', 'blotch'); if the image is
         neither a frame nor a clip, holds NaN or infinite values, or is too
-        narrow for ``line_width``.
+        narrow for ``line_width``; if ``blotch_threshold`` is not positive.
 
     See Also
     --------
     iter_detect_scratches : The same as a job, with progress.
     inpaint : Fill the proposed mask.
+    compensate_motion : The warped neighbours the blotch test compares with.
 
     Examples
     --------
@@ -318,4 +456,4 @@ def detect_scratches(image, *, kinds=KINDS, channel_axis=-1, line_width=3,
     return drain(iter_detect_scratches(
         image, kinds=kinds, channel_axis=channel_axis, line_width=line_width,
         line_length=line_length, line_threshold=line_threshold,
-        blotch_threshold=blotch_threshold))
+        blotch_threshold=blotch_threshold, motion=motion))

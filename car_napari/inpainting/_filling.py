@@ -25,12 +25,21 @@ import numpy as np
 from numba import njit
 
 from .._progress import Progress, drain, stage
-from ..model.neighbourhood import Context
+from ..model.neighbourhood import Context, causal_neighbourhood
 from ..model.recursive import RecursiveScan, default_prior
+from ._conditional import iter_fill_conditional
 from ._layout import MAX_COLOURS, read_layout
+from ._motion import iter_estimate_motion, warp_frame
 
-__all__ = ["DEFAULT_INTERLEAVE", "EDGE_OUTLIER_LOGREL", "inpaint", "iter_inpaint",
-           "line_offsets"]
+__all__ = ["CONDITIONAL_HALO", "CONDITIONAL_ORDER", "DEFAULT_INTERLEAVE",
+           "EDGE_OUTLIER_LOGREL", "METHODS", "inpaint", "iter_inpaint", "line_offsets"]
+
+METHODS = ("conditional", "scans")
+# the conditional mean (method="conditional"): the hierarchical order of each
+# local model and the halo threshold (a log density ratio, as for the scans).
+# Both chosen on the benchmark's TUNING part only (benchmarks/bench_inpainting.py).
+CONDITIONAL_ORDER = 3
+CONDITIONAL_HALO = -50.0
 
 DEFAULT_INTERLEAVE = 2.0  # pixels: decay length of each side's weight
 # A known pixel bordering the damage is treated as damaged by a scan when its
@@ -443,8 +452,20 @@ def _to_dtype(values, dtype):
     return values.astype(dtype)
 
 
-def iter_inpaint(image, mask, *, temporal=True, neighbourhood=1, forgetting=0.9995,
-                 interleave=DEFAULT_INTERLEAVE, halo=EDGE_OUTLIER_LOGREL, channel_axis=-1):
+def _as_frame_records(job, fraction, message):
+    """A sub-job's records as the fill's own ("frames" at ``fraction``), and
+    its result."""
+    while True:
+        try:
+            next(job)
+        except StopIteration as done:
+            return done.value
+        yield Progress("frames", fraction, message)
+
+
+def iter_inpaint(image, mask, *, temporal=True, neighbourhood=None, forgetting=0.9995,
+                 interleave=DEFAULT_INTERLEAVE, halo="auto", channel_axis=-1,
+                 method="scans", motion=True):
     """Fill damaged pixels, as a job: Progress records, then the result.
 
     The generator form of :func:`inpaint`, with the same parameters and
@@ -464,16 +485,22 @@ def iter_inpaint(image, mask, *, temporal=True, neighbourhood=1, forgetting=0.99
         True (nonzero) where pixels are missing; (H, W) applies to every frame.
     temporal : bool, optional
         Use the previous restored frame as context (clips only).
-    neighbourhood : int, optional
-        How many previous scan lines the models see (see :func:`inpaint`).
+    motion : bool, optional
+        With ``temporal``, move the previous frame onto this one by the
+        estimated optical flow first (:func:`estimate_motion`), so that the
+        context follows moving content.
+    neighbourhood : int or None, optional
+        The models' neighbourhood (see :func:`inpaint`).
     forgetting : float in (0, 1], optional
-        Forgetting factor of the adaptive models.
+        Forgetting factor of the adaptive models (``method="scans"``).
     interleave : float, optional
-        Decay length (pixels) of each side's weight.
-    halo : float <= 0 or None, optional
+        Decay length (pixels) of each side's weight (``method="scans"``).
+    halo : float <= 0, 'auto' or None, optional
         Threshold of the edge test (see :func:`inpaint`); None disables it.
     channel_axis : int or None, optional
         The colour axis; None forces grey.
+    method : {'conditional', 'scans'}, optional
+        How the damage is filled (see :func:`inpaint`).
 
     Returns
     -------
@@ -522,15 +549,34 @@ def iter_inpaint(image, mask, *, temporal=True, neighbourhood=1, forgetting=0.99
     >>> bool(np.array_equal(restored[~mask], frame[~mask]))
     True
     """
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}; got {method!r}.")
+    if not isinstance(motion, (bool, np.bool_)):
+        raise TypeError(f"motion must be True or False; got {motion!r}.")
+    conditional = method == "conditional"
     layout, masks = _as_clip(image, mask, channel_axis)
     clip = layout.clip
     if not 0.0 < float(forgetting) <= 1.0:
         raise ValueError(f"forgetting must be in (0, 1]; got {forgetting}.")
     if not float(interleave) > 0:
         raise ValueError(f"interleave must be a positive length in pixels; got {interleave}.")
+    if isinstance(halo, str):
+        if halo != "auto":
+            raise ValueError(f"halo must be 'auto', a log density ratio <= 0 or None (off); "
+                             f"got {halo!r}.")
+        halo = CONDITIONAL_HALO if conditional else EDGE_OUTLIER_LOGREL
     if halo is not None and not float(halo) <= 0:
         raise ValueError(f"halo must be a log density ratio <= 0 (or None: off); got {halo}.")
-    offsets = line_offsets(neighbourhood)
+    if neighbourhood is None:
+        neighbourhood = CONDITIONAL_ORDER if conditional else 1
+    if conditional:
+        if isinstance(neighbourhood, (bool, np.bool_)) or int(neighbourhood) != neighbourhood \
+                or not 1 <= neighbourhood <= 8:
+            raise ValueError(f"neighbourhood (the models' hierarchical order) must be an int "
+                             f"from 1 to 8; got {neighbourhood!r}.")
+        offsets = causal_neighbourhood(int(neighbourhood))
+    else:
+        offsets = line_offsets(neighbourhood)
     T, H, W, C = clip.shape
     reach = int(np.abs(offsets).max())
     if H <= 2 * reach or W <= 2 * reach:
@@ -553,9 +599,22 @@ def iter_inpaint(image, mask, *, temporal=True, neighbourhood=1, forgetting=0.99
             frame_mask = np.asarray(masks[t])
             yield from _as_float(clip[t], frame, meter, work[t - 1] if t else 0.0,
                                  f"{message}, preparing")
-            fill = _iter_fill_frame(frame, frame_mask, previous if temporal else None,
-                                    offsets, float(forgetting), float(interleave), 1e-6,
-                                    None if halo is None else float(halo), message, buffers)
+            context = previous if temporal else None
+            if context is not None and motion:  # the previous frame moved onto this one
+                flow = yield from _as_frame_records(
+                    iter_estimate_motion(frame, context, mask=frame_mask),
+                    work[t - 1] if t else 0.0, f"{message}, motion")
+                context = warp_frame(context, flow)
+            if conditional:
+                fill = iter_fill_conditional(
+                    frame, frame_mask, order=int(neighbourhood),
+                    previous=context,
+                    halo=None if halo is None else float(halo), message=message)
+            else:
+                fill = _iter_fill_frame(frame, frame_mask, context,
+                                        offsets, float(forgetting), float(interleave), 1e-6,
+                                        None if halo is None else float(halo), message,
+                                        buffers)
             values = yield from stage(fill, work[t - 1] if t else 0.0, work[t])
             out[t][frame_mask] = _to_dtype(values, clip.dtype)
         if temporal and t + 1 < T:  # the next frame's context: this one, restored
@@ -569,11 +628,17 @@ def iter_inpaint(image, mask, *, temporal=True, neighbourhood=1, forgetting=0.99
     return layout.to_input(out)
 
 
-def inpaint(image, mask, *, temporal=True, neighbourhood=1, forgetting=0.9995,
-            interleave=DEFAULT_INTERLEAVE, halo=EDGE_OUTLIER_LOGREL, channel_axis=-1):
-    """Fill damaged pixels with the conditional mean of adaptive CAR models.
+def inpaint(image, mask, *, temporal=True, neighbourhood=None, forgetting=0.9995,
+            interleave=DEFAULT_INTERLEAVE, halo="auto", channel_axis=-1,
+            method="scans", motion=True):
+    """Fill damaged pixels with the conditional mean of CAR models.
 
-    Section 14.7, docs/inpainting.md: four models move towards the damage
+    ``method="conditional"`` is the exact Gaussian conditional mean of the
+    damaged pixels given the known ones under 3DCAR models fitted locally
+    around the damage (docs/inpainting.md; not yet the default: it runs as a
+    few long steps, so a Cancel waits for them, and it loses on soft-edged
+    damage). The default, ``method="scans"``, is section 14.7 of the
+    chapter: four models move towards the damage
     (downwards, upwards, rightwards and leftwards), filled pixels serving as
     neighbours of later ones (14.54); the four fills are combined by
     exponential interleaving. Known pixels bordering the damage that a model
@@ -596,25 +661,40 @@ def inpaint(image, mask, *, temporal=True, neighbourhood=1, forgetting=0.9995,
         applies to every frame of a clip.
     temporal : bool, optional
         Use the previous restored frame as context (clips only).
-    neighbourhood : int, optional
-        How many previous scan lines the models see (default 1; see
-        :func:`line_offsets`): 5 pixels of each. One line measured best on
-        composited real scratches (+1.6 dB over two lines of 3 pixels): a
-        deeper model extrapolates texture further into a large hole, which
-        the mean squared error punishes.
+    motion : bool, optional
+        With ``temporal``, move the previous frame onto this one by the
+        estimated optical flow first (:func:`estimate_motion`), so that the
+        context follows moving content.
+    neighbourhood : int or None, optional
+        ``method="conditional"``: the hierarchical order (1 to 8) of the
+        local models (default :data:`CONDITIONAL_ORDER`, 3).
+        ``method="scans"``: how many previous scan lines the models see
+        (default 1; see :func:`line_offsets`): 5 pixels of each. One line
+        measured best on composited real scratches (+1.6 dB over two lines
+        of 3 pixels).
     forgetting : float in (0, 1], optional
-        Forgetting factor of the adaptive models.
+        Forgetting factor of the adaptive models (``method="scans"``).
     interleave : float, optional
-        Decay length (pixels) of each side's weight.
-    halo : float <= 0 or None, optional
-        Known pixels next to the mask (4-neighbours) whose log predictive
-        density relative to its peak is below this, when a model reaches
-        them, are treated as damaged by that model (not used as its
-        neighbours; still returned unchanged). Soft-edged damage leaves such
-        a halo just outside a mask drawn at its core. Default
-        ``EDGE_OUTLIER_LOGREL`` (-12); None disables the test.
+        Decay length (pixels) of each side's weight (``method="scans"``).
+    halo : float <= 0, 'auto' or None, optional
+        The edge test: known pixels next to the mask (4-neighbours) that the
+        model finds improbable are treated as damaged (still returned
+        unchanged). Soft-edged damage leaves such a halo just outside a mask
+        drawn at its core. A log density ratio: ``"scans"`` tests each
+        pixel's predictive density relative to its peak as a model reaches
+        it; ``"conditional"`` tests the blend of the pixel towards the
+        damage (half its chi-square statistic; docs/inpainting.md). 'auto'
+        (the default): :data:`CONDITIONAL_HALO` or ``EDGE_OUTLIER_LOGREL``
+        (-12); None disables the test.
     channel_axis : int or None, optional
         The colour axis (default -1, the last); None forces grey.
+    method : {'scans', 'conditional'}, optional
+        ``"scans"`` (the default): the chapter's four directional adaptive
+        models with exponential interleaving, in chunks of rows.
+        ``"conditional"``: the exact conditional mean of the missing pixels
+        given the known ones under local 3DCAR models fitted around the
+        damage (four scan directions, their densities multiplied), a sparse
+        linear solve.
 
     Returns
     -------
@@ -653,4 +733,4 @@ def inpaint(image, mask, *, temporal=True, neighbourhood=1, forgetting=0.9995,
     """
     return drain(iter_inpaint(image, mask, temporal=temporal, neighbourhood=neighbourhood,
                               forgetting=forgetting, interleave=interleave, halo=halo,
-                              channel_axis=channel_axis))
+                              channel_axis=channel_axis, method=method, motion=motion))

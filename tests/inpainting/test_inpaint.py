@@ -111,8 +111,8 @@ def test_suspect_edge_pixels_are_tested_and_filled_when_improbable():
 
 def test_halo_test_recovers_soft_edged_damage():
     """A blotch with a one-pixel fringe outside its mask (half blended with
-    the blotch): with the halo test the fill is much closer to the truth
-    (measured 5.6 -> 15.1 dB); pixels outside the mask are unchanged."""
+    the blotch): with the scans' halo test the fill is much closer to the
+    truth (measured 5.6 -> 15.1 dB); pixels outside the mask are unchanged."""
     image = skdata.astronaut()[100:228, 100:228]
     mask = np.zeros(image.shape[:2], bool)
     mask[80:100, 60:100] = True
@@ -120,8 +120,8 @@ def test_halo_test_recovers_soft_edged_damage():
     damaged = image.copy()
     damaged[mask] = 250
     damaged[fringe] = (0.5 * image[fringe] + 0.5 * 250).astype(np.uint8)
-    on = inpaint(damaged, mask)
-    off = inpaint(damaged, mask, halo=None)
+    on = inpaint(damaged, mask, method="scans")
+    off = inpaint(damaged, mask, method="scans", halo=None)
     np.testing.assert_array_equal(on[~mask], damaged[~mask])
     assert _psnr(image, on, mask) > _psnr(image, off, mask) + 5.0
     with pytest.raises(ValueError, match="halo"):
@@ -130,7 +130,8 @@ def test_halo_test_recovers_soft_edged_damage():
 
 def test_clip_uses_the_previous_frame():
     """A static scene with different scratches in each frame: the previous
-    restored frame predicts the hole far better than the frame alone."""
+    restored frame predicts the hole far better than the frame alone (the
+    scans, method="scans")."""
     base = skdata.camera()[:96, :96]
     rng = np.random.default_rng(0)
     clip, masks = [], []
@@ -141,12 +142,13 @@ def test_clip_uses_the_previous_frame():
         masks.append(m)
     clip, masks = np.stack(clip), np.stack(masks)
     records = []
-    from_job = drain(iter_inpaint(clip, masks, channel_axis=None), records.append)
+    from_job = drain(iter_inpaint(clip, masks, channel_axis=None, method="scans"),
+                     records.append)
     frames = [r for r in records if r.preview is not None]
     assert [r.preview[0] for r in frames] == [0, 1, 2, 3] and records[-1].fraction == 1.0
-    with_time = inpaint(clip, masks, channel_axis=None)
+    with_time = inpaint(clip, masks, channel_axis=None, method="scans")
     np.testing.assert_array_equal(from_job, with_time)
-    without = inpaint(clip, masks, channel_axis=None, temporal=False)
+    without = inpaint(clip, masks, channel_axis=None, temporal=False, method="scans")
     truth = np.broadcast_to(base, clip.shape)
     assert _psnr(truth[1:], with_time[1:], masks[1:]) > _psnr(truth[1:], without[1:],
                                                               masks[1:]) + 0.5
@@ -209,11 +211,12 @@ def _clip_with_scratches(T=3, colour=False):
     return clip, masks
 
 
-def test_iter_inpaint_yields_progress_and_returns_what_inpaint_returns():
+@pytest.mark.parametrize("method", ["conditional", "scans"])
+def test_iter_inpaint_yields_progress_and_returns_what_inpaint_returns(method):
     clip, masks = _clip_with_scratches(T=3, colour=True)
     records = []
-    restored = drain(iter_inpaint(clip, masks), records.append)
-    np.testing.assert_array_equal(restored, inpaint(clip, masks))
+    restored = drain(iter_inpaint(clip, masks, method=method), records.append)
+    np.testing.assert_array_equal(restored, inpaint(clip, masks, method=method))
     assert all(isinstance(r, Progress) and r.stage == "frames" for r in records)
     fractions = [r.fraction for r in records]
     assert fractions == sorted(fractions) and 0 < fractions[0] and fractions[-1] == 1.0
@@ -225,7 +228,9 @@ def test_iter_inpaint_yields_progress_and_returns_what_inpaint_returns():
         np.testing.assert_array_equal(frame, restored[t])  # the frame as returned
     # the scans of a frame report in between, without a preview
     assert all(r.message.startswith("frame ") for r in records if r.preview is None)
-    assert len(records) == 3 * 4
+    if method == "scans":  # four scans a frame, and the motion estimate of frames 2 and 3
+        assert len([r for r in records if not r.message.endswith(", motion")]) == 3 * 4
+        assert any(r.message == "frame 2/3, motion" for r in records)
 
 
 def test_iter_inpaint_preview_in_the_input_layout():
@@ -320,6 +325,6 @@ def test_blotch_test_frame_by_frame_equals_the_whole_clip_at_once():
     spikes = ndimage.binary_opening(spikes, structure=np.ones((1, 2, 2), bool))
     expected = np.zeros(grey.shape, bool)
     expected[1:-1] = ndimage.binary_dilation(spikes, structure=np.ones((1, 3, 3), bool))
-    got = detect_scratches(grey, kinds="blotch", channel_axis=None)
+    got = detect_scratches(grey, kinds="blotch", channel_axis=None, motion=False)
     assert expected.any()
     np.testing.assert_array_equal(got, expected)

@@ -125,7 +125,8 @@ def test_detector_in_bands_equals_the_whole_frame_at_once(monkeypatch, band):
         expected[t] |= _reference_blotches(grey[t - 1], grey[t], grey[t + 1], 0.12)
     assert expected.any() and expected[2, 30:36, 50:58].all()
     monkeypatch.setattr(_detection, "BAND_PIXELS", band)
-    np.testing.assert_array_equal(detect_scratches(clip), expected)
+    # the raw neighbours (SDIa); the motion-compensated test: tests/inpainting/test_motion.py
+    np.testing.assert_array_equal(detect_scratches(clip, motion=False), expected)
     single = detect_scratches(clip[2])  # a frame: lines only
     np.testing.assert_array_equal(single, _reference_lines(grey[2], 3, 45, 4.0))
 
@@ -134,10 +135,11 @@ def test_a_large_frame_reports_after_each_band(monkeypatch):
     clip = _damaged_clip(T=3, H=120, W=100, colour=False)
     monkeypatch.setattr(_detection, "BAND_PIXELS", 1000)  # 10 rows or columns a band
     records = []
-    banded = drain(iter_detect_scratches(clip), records.append)
+    banded = drain(iter_detect_scratches(clip, motion=False), records.append)
     monkeypatch.setattr(_detection, "BAND_PIXELS", 1 << 19)
     whole = []
-    np.testing.assert_array_equal(banded, drain(iter_detect_scratches(clip), whole.append))
+    np.testing.assert_array_equal(banded, drain(iter_detect_scratches(clip, motion=False),
+                                                whole.append))
     # a whole frame fits one band: one record a frame, as before
     assert [r.stage for r in whole] == ["lines"] * 3 + ["blotches"]
     assert [r.message for r in whole] == ["frame 1/3", "frame 2/3", "frame 3/3", "frame 2/3"]
@@ -213,7 +215,7 @@ def test_a_large_frame_reports_every_chunk_of_its_scans(monkeypatch):
     monkeypatch.setattr(_filling, "BAND_PIXELS", 10 * 90)
     monkeypatch.setattr(_filling, "PASS_RECORD_PIXELS", 10 * 90)
     records = []
-    drain(iter_inpaint(image, mask), records.append)
+    drain(iter_inpaint(image, mask, method="scans"), records.append)
     scans = [r for r in records if ", scan " in r.message]
     # (70 + 4) rows down and up, (90 + 4) columns right and left, about 2 a chunk
     assert len(scans) >= (2 * 74 + 2 * 94) // 4
@@ -223,7 +225,7 @@ def test_a_large_frame_reports_every_chunk_of_its_scans(monkeypatch):
     import threading
 
     before = threading.active_count()
-    job = iter_inpaint(image, mask)
+    job = iter_inpaint(image, mask, method="scans")
     while ", scan " not in next(job).message:
         pass
     job.close()
