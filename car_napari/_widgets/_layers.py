@@ -11,8 +11,8 @@ NO_LAYER = "no image layer selected: open an image (or a sample) first."
 NOT_2D = "choose a 2-D grey or RGB layer (for a stack, split it or pick one plane)."
 
 
-def layer_array(layer, region=None, *, ndims=(2,), hint=NOT_2D):
-    """The data of an image layer as a fresh array, and its channel axis.
+def layer_array(layer, region=None, *, ndims=(2,), hint=NOT_2D, copy=True):
+    """The data of an image layer as a fresh array (or a view), and its channel axis.
 
     Parameters
     ----------
@@ -25,11 +25,16 @@ def layer_array(layer, region=None, *, ndims=(2,), hint=NOT_2D):
         a clip).
     hint : str, optional
         What to do when the layer has another number of axes.
+    copy : bool, optional
+        False: the layer's data itself (sliced, not converted: a job that
+        reads it in its worker and never writes it needs no copy, and the
+        viewer's thread makes none).
 
     Returns
     -------
     data : ndarray
-        A copy of the data; an RGBA layer loses its alpha.
+        A copy of the data (a view with ``copy=False``); an RGBA layer loses
+        its alpha.
     channel_axis : int or None
         -1 for an RGB(A) layer, None (grey) otherwise.
 
@@ -49,7 +54,7 @@ def layer_array(layer, region=None, *, ndims=(2,), hint=NOT_2D):
     """
     if layer is None:
         raise ValueError(NO_LAYER)
-    data = np.asarray(layer.data)
+    data = np.asarray(layer.data) if copy else layer.data
     if data.size == 0:
         raise ValueError(f"layer {layer.name!r} is empty.")
     rgb = bool(getattr(layer, "rgb", False))
@@ -64,7 +69,7 @@ def layer_array(layer, region=None, *, ndims=(2,), hint=NOT_2D):
         data = data[(Ellipsis, rows, cols) + ((slice(None),) if rgb else ())]
         if min(data.shape[spatial - 2:spatial]) < 2:
             raise ValueError(f"the rectangle in {region.name!r} hardly overlaps the image.")
-    return np.array(data, copy=True), (-1 if rgb else None)
+    return (np.array(data, copy=True) if copy else data), (-1 if rgb else None)
 
 
 def rectangle_bounds(shapes, shape):

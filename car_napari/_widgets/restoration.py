@@ -12,28 +12,11 @@ from magicgui.widgets import CheckBox, ComboBox, FloatSlider
 from ..restoration import DEFAULT_KAPPA, iter_restore, iter_restore_multichannel
 from ._base import JobWidget
 from ._jobs import Job, call
-from ._layers import NO_LAYER
+from ._layers import layer_array
 
 SINGLE = "single image"
 DEFAULT_ORDER = 1  # the core's default neighbourhood order (restore, restore_multichannel)
 ORDERS = [(f"{k} (default)" if k == DEFAULT_ORDER else str(k), k) for k in range(1, 6)]
-
-
-def _layer_data(layer, *, ndims, hint):
-    """The data of an image layer as it is (no copy: the core converts it in
-    the worker and never modifies it), without an RGBA layer's alpha, and
-    its channel axis; checked as :func:`~._layers.layer_array` checks it."""
-    if layer is None:
-        raise ValueError(NO_LAYER)
-    data = layer.data
-    if data.size == 0:
-        raise ValueError(f"layer {layer.name!r} is empty.")
-    rgb = bool(getattr(layer, "rgb", False))
-    spatial = data.ndim - rgb
-    if spatial not in ndims:
-        raise ValueError(f"layer {layer.name!r} has shape {data.shape} ({spatial} non-colour "
-                         f"axes); {hint}")
-    return (data[..., :3], -1) if rgb else (data, None)
 
 
 def _shown(image, rgb):
@@ -186,14 +169,14 @@ class RestorationWidget(JobWidget):
         stack_axis = self._stack_axis()
         layer = self._image.value
         if stack_axis is None:
-            data, channel_axis = _layer_data(
-                layer, ndims=(2,),
+            data, channel_axis = layer_array(
+                layer, ndims=(2,), copy=False,
                 hint="choose the axis holding the degraded versions (a stack), or a 2-D image.")
         else:
             if layer is not None and layer.ndim == 3:
                 self._check_axis(stack_axis)  # before any work
-            data, channel_axis = _layer_data(
-                layer, ndims=(3,), hint=f"it is not a stack with versions along axis "
+            data, channel_axis = layer_array(
+                layer, ndims=(3,), copy=False, hint=f"it is not a stack with versions along axis "
                                         f"{stack_axis}; choose '{SINGLE}' or another axis.")
         options = dict(keep_edges=bool(self._keep_edges.value), channel_axis=channel_axis,
                        return_result=True, neighbourhood=int(self._order.value))

@@ -15,36 +15,12 @@ from .._progress import Progress
 from ..io.images import IMAGE_SUFFIXES, read_image
 from ..texture import iter_rank
 from ._base import JobWidget
-from ._layers import NO_LAYER, NOT_2D, rectangle_bounds
+from ._layers import layer_array
 
 LAYERS, FOLDER = "open image layers", "a folder"
 THUMBNAIL = 64
 EMPTY_GALLERY = ("the gallery is empty: open other image layers (of the same kind, grey or "
                  "colour, as the query) or choose a folder.")
-
-
-def _layer_view(layer, region=None):
-    """The data of a 2-D image layer as a view (no copy: the core reads it
-    in the worker and never modifies it), cropped to the bounding box of the
-    first shape of ``region``, and its channel axis; checked as
-    :func:`~car_napari._widgets._layers.layer_array` checks it."""
-    if layer is None:
-        raise ValueError(NO_LAYER)
-    data = layer.data
-    if data.size == 0:
-        raise ValueError(f"layer {layer.name!r} is empty.")
-    rgb = bool(getattr(layer, "rgb", False))
-    if data.ndim - rgb != 2:
-        raise ValueError(f"layer {layer.name!r} has shape {data.shape} ({data.ndim - rgb} "
-                         f"non-colour axes); {NOT_2D}")
-    if rgb:
-        data = data[..., :3]
-    if region is not None and len(region.data):
-        rows, cols = rectangle_bounds(region, data.shape[:2])
-        data = data[rows, cols]
-        if min(data.shape[:2]) < 2:
-            raise ValueError(f"the rectangle in {region.name!r} hardly overlaps the image.")
-    return data, (-1 if rgb else None)
 
 
 def _small(image):
@@ -131,7 +107,7 @@ class TextureRetrievalWidget(JobWidget):
                 if layer is query_layer and not use_region:
                     continue  # the query itself would always come first
                 try:
-                    data, channel_axis = _layer_view(layer)
+                    data, channel_axis = layer_array(layer, copy=False)
                 except ValueError:
                     skipped += 1
                     continue
@@ -156,7 +132,7 @@ class TextureRetrievalWidget(JobWidget):
         picks the layers (their data as views) or the folder's files; the
         worker reads, describes and ranks them."""
         layer, region = self._image.value, self._region.value
-        query, channel_axis = _layer_view(layer, region)
+        query, channel_axis = layer_array(layer, region, copy=False)
         use_region = region is not None and len(region.data) > 0
         gallery, skipped = self._gallery(layer, channel_axis is not None, use_region)
         return self.run(_rank_job(query, gallery, channel_axis, skipped),
