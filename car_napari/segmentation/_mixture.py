@@ -82,22 +82,34 @@ class Mixture:
         return self.weights.size
 
 
-def _log_densities(X, mix):
-    """log(w_j N(x | mu_j, diag var_j)) for every row x and component j."""
+def _log_densities(X, mix, X2=None):
+    """log(w_j N(x | mu_j, diag var_j)) for every row x and component j
+    (``X2``: ``X**2`` when the caller has it). In place on one (N, K) array,
+    the same arithmetic as ``const - 0.5 * (X**2 @ inv.T - 2 X @ (mu inv).T
+    + sum mu**2 inv)``."""
     inv = 1.0 / mix.variances  # (K, D)
     const = -0.5 * (np.log(2 * np.pi * mix.variances).sum(axis=1)) + np.log(mix.weights)
-    quad = (X**2) @ inv.T - 2.0 * X @ (mix.means * inv).T + ((mix.means**2) * inv).sum(axis=1)
-    return const - 0.5 * quad
+    quad = (X**2 if X2 is None else X2) @ inv.T
+    cross = X @ (mix.means * inv).T
+    cross *= 2.0  # (2 X) @ B == 2 (X @ B) exactly
+    quad -= cross
+    del cross
+    quad += ((mix.means**2) * inv).sum(axis=1)
+    quad *= -0.5
+    quad += const
+    return quad
 
 
-def _posteriors(X, mix):
+def _posteriors(X, mix, X2=None):
     """Posterior of every component for every row of X, and the mean log-likelihood."""
-    logd = _log_densities(X, mix)
-    top = logd.max(axis=1, keepdims=True)
-    dens = np.exp(logd - top)
+    dens = _log_densities(X, mix, X2)
+    top = dens.max(axis=1, keepdims=True)
+    dens -= top
+    np.exp(dens, out=dens)
     total = dens.sum(axis=1, keepdims=True)
     loglik = float(np.mean(np.log(total[:, 0]) + top[:, 0]))
-    return dens / total, loglik
+    dens /= total
+    return dens, loglik
 
 
 def _em_steps(X, mix, steps, var_floor):
@@ -105,21 +117,40 @@ def _em_steps(X, mix, steps, var_floor):
     return drain(_iter_em(X, mix, steps, var_floor))
 
 
-def _iter_em(X, mix, steps, var_floor):
+def _iter_em(X, mix, steps, var_floor, cache=None):
     """:func:`_em_steps` as a job: a :class:`~car_napari.Progress` record
     ("mixture", "EM") after each iteration (a job stops between them);
-    returns the mixture."""
+    returns the mixture.
+
+    ``cache`` (a dict, optional) keeps ``X**2`` and the posteriors of the
+    mixture returned: a next call on the same data and the same, unchanged
+    mixture (its arrays are replaced at every step) starts from them instead
+    of computing them again (the same numbers)."""
+    if cache is not None and cache.get("X") is X:
+        X2 = cache["X2"]
+    else:
+        X2 = X**2  # once for all the steps
+    known = (cache is not None and cache.get("X") is X
+             and all(a is b for a, b in zip(cache["arrays"], _arrays(mix), strict=True)))
     for step in range(steps):
-        post, loglik = _posteriors(X, mix)
+        post, loglik = cache["post"] if known and step == 0 else _posteriors(X, mix, X2)
         nk = post.sum(axis=0) + 1e-12
         mix.weights = nk / nk.sum()
         mix.means = (post.T @ X) / nk[:, None]
-        mix.variances = np.maximum((post.T @ X**2) / nk[:, None] - mix.means**2, var_floor)
+        mix.variances = np.maximum((post.T @ X2) / nk[:, None] - mix.means**2, var_floor)
         mix.loglik = loglik
         del post
         yield Progress("mixture", (step + 1) / (steps + 1), "EM")
-    _, mix.loglik = _posteriors(X, mix)
+    post, mix.loglik = _posteriors(X, mix, X2)
+    if cache is not None:
+        cache.update(X=X, X2=X2, arrays=_arrays(mix), post=(post, mix.loglik))
     return mix
+
+
+def _arrays(mix):
+    """What identifies a mixture's parameters: its arrays (EM replaces them,
+    nothing changes them in place after an EM)."""
+    return mix.weights, mix.means, mix.variances
 
 
 def _block_init(features, n_init, var_floor):

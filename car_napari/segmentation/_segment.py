@@ -46,6 +46,10 @@ _EM_SAMPLE = 40000
 # proportional to K + _ABSORB_WORK each)
 _FEATURES_END, _INIT_END, _MERGES_END = 0.7, 0.72, 1.0
 _ABSORB_WORK = 3.0
+# images at least this many pixels a side are labelled from the posteriors of
+# every second row and column, interpolated (4x less work; the features vary
+# over ~10 pixels)
+_LABEL_STEP_SIDE = 256
 
 
 @dataclass
@@ -66,6 +70,9 @@ class SegmentationResult:
         The per-pixel features the mixtures were fitted on.
     smoothing, min_area, threshold : float, int, float
         The labelling options used (reused by :meth:`labels_at`).
+    label_step : int
+        The posteriors are computed on every ``label_step``-th row and
+        column and interpolated (1 on small images, else 2).
     mask : (H, W) ndarray of bool or None
         The segmented pixels (others are 0), or None for all.
 
@@ -88,6 +95,7 @@ class SegmentationResult:
     min_area: int = 0
     threshold: float = 0.0
     mask: np.ndarray | None = field(default=None, repr=False)
+    label_step: int = 1
     # the labels of every history state (compressed, before the threshold
     # and the mask) and a few states' probabilities: re-cuts are look-ups
     _cuts: dict = field(default_factory=dict, init=False, repr=False, compare=False)
@@ -209,7 +217,7 @@ class SegmentationResult:
             mix = self.history[i]
             labels, prob = yield from stage(
                 _iter_label(self.features, mix, smoothing=self.smoothing,
-                            min_area=self.min_area),
+                            min_area=self.min_area, step=self.label_step),
                 0.0, 1.0, prefix=f"K = {mix.k}: ")
             self._store(i, None if i in self._cuts else labels, prob)
         return self._finish(labels, prob, threshold)
@@ -473,14 +481,17 @@ def iter_segment(
     def at(extra=0.0):
         return _INIT_END + (_MERGES_END - _INIT_END) * min(1.0, (work[0] + extra) / total)
 
+    cache = {}  # the last EM's posteriors: the next EM on that mixture starts from them
+
     def em(mix, steps):
-        return (yield from stage(_iter_em(sample, mix, steps, var_floor), at(), at(),
+        return (yield from stage(_iter_em(sample, mix, steps, var_floor, cache), at(), at(),
                                  name="merging", prefix=f"K = {mix.k}: "))
 
     result = SegmentationResult(
         labels=None, n_segments=n_segments, history=[], probability=None,
         features=features, smoothing=smoothing, min_area=min_area, threshold=threshold,
         mask=None if mask is None else np.asarray(mask, bool),
+        label_step=2 if min(h, w) >= _LABEL_STEP_SIDE else 1,
     )
     history = result.history
 
@@ -491,7 +502,8 @@ def iter_segment(
         mix_i = history[i]
         share = mix_i.k + _ABSORB_WORK
         labels, prob = yield from stage(
-            _iter_label(features, mix_i, smoothing=smoothing, min_area=min_area),
+            _iter_label(features, mix_i, smoothing=smoothing, min_area=min_area,
+                        step=result.label_step),
             at(), at(share), name=stage_name, prefix=f"K = {mix_i.k}: ")
         if i > 0 and result._final is None and _is_final(history, i - 1, n_segments,
                                                          merge_threshold):
@@ -518,7 +530,8 @@ def iter_segment(
     result._final = final
     if prob is None:  # not kept (the rule of _is_final keeps it): label again
         labels, prob = yield from stage(
-            _iter_label(features, history[final], smoothing=smoothing, min_area=min_area),
+            _iter_label(features, history[final], smoothing=smoothing, min_area=min_area,
+                        step=result.label_step),
             at(), at(), name="merging", prefix=f"K = {history[final].k}: ")
     for j in [j for j in result._probs if j != final]:
         del result._probs[j]

@@ -74,7 +74,10 @@ def _reference(image, *, levels=3, neighbourhood=2, forgetting=0.99, components=
     def pca(X, n, rng):
         S = X[rng.choice(X.shape[0], size=min(20000, X.shape[0]), replace=False)]
         mean = S.mean(axis=0)
-        return mean, np.linalg.svd(S - mean, full_matrices=False)[2][:n].T
+        axes = np.linalg.svd(S - mean, full_matrices=False)[2][:n].T
+        # the sign convention of the features: each axis's largest entry positive
+        top = np.abs(axes).argmax(axis=0)
+        return mean, axes * np.sign(axes[top, np.arange(n)])
 
     data = as_channel_last_float(image, channel_axis=channel_axis)
     check_not_constant(data)

@@ -340,3 +340,61 @@ def test_records_come_often_on_a_large_image():
     # the job stops at its next record: a Cancel is prompt (bound for a loaded CI
     # machine; the GUI benchmark gives the figure on 4000x4000)
     assert max(gaps) < 1.5, f"longest {max(gaps):.2f} s between records"
+
+
+def _reference_coarse_labelling(features, mix, smoothing, step):
+    """Posteriors of every ``step``-th pixel (whole image, float64), smoothed by
+    ``smoothing / step``, interpolated bilinearly to every pixel with
+    scipy's map_coordinates (edges repeated), and their best."""
+    from scipy import ndimage
+
+    coarse = np.ascontiguousarray(features[::step, ::step]).astype(np.float64)
+    hc, wc, d = coarse.shape
+    x = coarse.reshape(-1, d)
+    inv = 1.0 / mix.variances
+    const = -0.5 * np.log(2 * np.pi * mix.variances).sum(axis=1) + np.log(mix.weights)
+    logd = const - 0.5 * (((x[:, None, :] - mix.means[None]) ** 2) * inv[None]).sum(axis=2)
+    dens = np.exp(logd - logd.max(axis=1, keepdims=True))
+    post = (dens / dens.sum(axis=1, keepdims=True)).reshape(hc, wc, mix.k)
+    if smoothing > 0:
+        post = ndimage.gaussian_filter(post, sigma=(smoothing / step, smoothing / step, 0))
+    h, w = features.shape[:2]
+    yy, xx = np.mgrid[0:h, 0:w] / step
+    yy, xx = np.minimum(yy, hc - 1), np.minimum(xx, wc - 1)
+    full = np.stack([ndimage.map_coordinates(post[..., j], [yy, xx], order=1, mode="nearest")
+                     for j in range(mix.k)], axis=-1)
+    best = full.argmax(axis=2)
+    return mix.ids[best].astype(np.int32), np.take_along_axis(full, best[..., None], 2)[..., 0]
+
+
+@pytest.mark.parametrize("shape", [(128, 128), (97, 130)])
+def test_labelling_from_every_second_pixel_is_interpolated_posteriors(small_bands, shape):
+    from car_napari.segmentation._labelling import _iter_label
+
+    image, _ = _two_textures()
+    result = segment(image, levels=2, n_init=8)
+    features = result.features[: shape[0], : min(shape[1], 128)]
+    if shape[1] > 128:
+        features = np.concatenate([features, features[:, : shape[1] - 128]], axis=1)
+    for mix in result.history[::3]:
+        for smoothing in (2.0, 0.0):
+            labels, prob = drain(_iter_label(features, mix, smoothing=smoothing, step=2))
+            ref_labels, ref_prob = _reference_coarse_labelling(features, mix, smoothing, 2)
+            np.testing.assert_allclose(prob, ref_prob, rtol=0, atol=1e-6)
+            # equal except where two components tie to rounding
+            assert np.mean(labels == ref_labels) > 0.999
+
+
+def test_large_images_are_labelled_from_every_second_pixel():
+    image, _ = _two_textures()
+    features = _mirror(local_features(image, levels=1), 256, 256)
+    big = np.zeros(features.shape[:2])
+    big[::7, ::5] = 1.0
+    result = segment(big, features=features, n_init=4)
+    assert result.label_step == 2
+    from car_napari.segmentation._labelling import _iter_label, _renumber
+
+    for mix in result.history:
+        expected, _ = drain(_iter_label(features, mix, smoothing=2.0,
+                                        min_area=result.min_area, step=2))
+        np.testing.assert_array_equal(result.cached_labels_at(mix.k), _renumber(expected))
