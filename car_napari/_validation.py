@@ -10,16 +10,12 @@ from numba import njit
 
 
 @njit(cache=True, nogil=True)
-def channel_summary(data):
-    """One pass over (N, d) data: per-channel min, max, mean, variance, and
-    the count of non-finite values (which are left out of the others)."""
+def summary_first_pass(data, lo, hi, total, count, bad):
+    """The first pass of :func:`channel_summary`, continued over the rows of
+    (N, d) ``data``: per-channel min, max, sum and count of the finite
+    values (in ``lo``, ``hi``, ``total``, ``count``) and count of the others
+    (``bad``), updated in place."""
     n, d = data.shape
-    out = np.zeros((5, d))
-    lo = np.full(d, np.inf)
-    hi = np.full(d, -np.inf)
-    total = np.zeros(d)
-    count = np.zeros(d)
-    bad = np.zeros(d)
     for i in range(n):
         for c in range(d):
             val = data[i, c]
@@ -30,32 +26,73 @@ def channel_summary(data):
                 count[c] += 1.0
             else:
                 bad[c] += 1.0
+
+
+@njit(cache=True, nogil=True)
+def summary_second_pass(data, mean, acc):
+    """The second pass of :func:`channel_summary`, continued over the rows of
+    (N, d) ``data``: per-channel sum of the finite values' squared
+    deviations from ``mean``, added to ``acc`` in place."""
+    n, d = data.shape
     for c in range(d):
-        mean = total[c] / max(count[c], 1.0)
-        acc = 0.0
+        m = mean[c]
+        total = acc[c]
         for i in range(n):
             val = data[i, c]
             if math.isfinite(val):
-                acc += (val - mean) * (val - mean)
-        out[0, c] = lo[c]
-        out[1, c] = hi[c]
-        out[2, c] = mean
-        out[3, c] = acc / max(count[c], 1.0)
-        out[4, c] = bad[c]
-    return out
+                total += (val - m) * (val - m)
+        acc[c] = total
 
 
-def as_channel_last_float(image, *, channel_axis=-1, name="image", with_summary=False,
-                          copy=True):
-    """Return ``image`` as a C-contiguous float64 array of shape (H, W, d)
-    (and its :func:`summarize`, computed anyway, with ``with_summary``).
+class SummaryPasses:
+    """The two passes of :func:`channel_summary`, resumable over blocks of rows.
 
-    Integer images are scaled to [0, 1] like ``skimage.util.img_as_float``;
-    float images keep their values. ``channel_axis=None`` means a grey image.
-    The input is never modified (a copy is made whenever the dtype or layout
-    changes; a float64 C-contiguous input is copied too, so callers may write,
-    unless ``copy`` is False: then it may be returned as it is, read only).
+    Feed every block of (N, d) rows to :meth:`first`, then every block, in
+    the same order, to :meth:`second`; :meth:`result` is then the
+    :class:`Summary` of all the rows, bit for bit whatever the blocks (each
+    channel's sums run over the rows in order, carried from block to block).
     """
+
+    def __init__(self, d):
+        self.lo, self.hi = np.full(d, np.inf), np.full(d, -np.inf)
+        self.total, self.count, self.bad = np.zeros(d), np.zeros(d), np.zeros(d)
+        self.acc = np.zeros(d)
+        self.mean = None
+
+    def first(self, rows):
+        """Min, max, sum and counts over (N, d) ``rows``."""
+        summary_first_pass(rows, self.lo, self.hi, self.total, self.count, self.bad)
+
+    def second(self, rows):
+        """Squared deviations over (N, d) ``rows`` (after every :meth:`first`)."""
+        if self.mean is None:
+            self.mean = self.total / np.maximum(self.count, 1.0)
+        summary_second_pass(rows, self.mean, self.acc)
+
+    def result(self):
+        """The :class:`Summary` of the rows seen."""
+        if self.mean is None:
+            self.mean = self.total / np.maximum(self.count, 1.0)
+        var = self.acc / np.maximum(self.count, 1.0)
+        return Summary(*np.stack([self.lo, self.hi, self.mean, var, self.bad]))
+
+
+def channel_summary(data):
+    """Two passes over (N, d) data: per-channel min, max, mean, variance, and
+    the count of non-finite values (which are left out of the others), as a
+    (5, d) array; the mean and variance are sums in row order divided by the
+    count of finite values."""
+    passes = SummaryPasses(data.shape[1])
+    passes.first(data)
+    passes.second(data)
+    return np.stack(passes.result())
+
+
+def channel_last_view(image, *, channel_axis=-1, name="image"):
+    """``image`` as an (H, W, d) array (a view where it can be), checked for
+    everything but its values: type, size, dimensions, channel axis, number
+    of channels, with the messages of :func:`as_channel_last_float`. No pass
+    over the values (cheap on any image)."""
     if image is None:
         raise TypeError(f"{name} is None: pass a 2-D grey or 3-D multichannel array.")
     try:
@@ -82,6 +119,32 @@ def as_channel_last_float(image, *, channel_axis=-1, name="image", with_summary=
             f"{name} must be 2-D (H, W) or 3-D (H, W, C) with channel_axis; got "
             f"{arr.ndim}-D shape {arr.shape}. For a stack, pass one image at a time."
         )
+    if arr.shape[-1] > 64:
+        raise ValueError(
+            f"{name} has {arr.shape[-1]} channels on axis {channel_axis}; is the channel "
+            "axis right? Pass channel_axis=None for a grey image or the correct axis."
+        )
+    return arr
+
+
+def channel_last_shape(image, *, channel_axis=-1, name="image"):
+    """The (H, W, d) shape :func:`as_channel_last_float` gives ``image``,
+    checked as :func:`channel_last_view` checks it (no pass over the values)."""
+    return channel_last_view(image, channel_axis=channel_axis, name=name).shape
+
+
+def as_channel_last_float(image, *, channel_axis=-1, name="image", with_summary=False,
+                          copy=True):
+    """Return ``image`` as a C-contiguous float64 array of shape (H, W, d)
+    (and its :func:`summarize`, computed anyway, with ``with_summary``).
+
+    Integer images are scaled to [0, 1] like ``skimage.util.img_as_float``;
+    float images keep their values. ``channel_axis=None`` means a grey image.
+    The input is never modified (a copy is made whenever the dtype or layout
+    changes; a float64 C-contiguous input is copied too, so callers may write,
+    unless ``copy`` is False: then it may be returned as it is, read only).
+    """
+    arr = channel_last_view(image, channel_axis=channel_axis, name=name)
     if arr.dtype.kind in "biu":
         if arr.dtype.kind == "b":
             out = arr.astype(np.float64)
@@ -93,11 +156,6 @@ def as_channel_last_float(image, *, channel_axis=-1, name="image", with_summary=
     else:
         out = arr.astype(np.float64, copy=copy)
     out = np.ascontiguousarray(out)
-    if out.shape[-1] > 64:
-        raise ValueError(
-            f"{name} has {out.shape[-1]} channels on axis {channel_axis}; is the channel "
-            "axis right? Pass channel_axis=None for a grey image or the correct axis."
-        )
     summary = summarize(out)
     check_values(summary, name=name)
     return (out, summary) if with_summary else out
@@ -134,9 +192,13 @@ Summary = namedtuple("Summary", "min max mean var nonfinite")
 
 def summarize(image):
     """Per-channel min, max, mean, variance and non-finite count of (H, W, d)
-    in one Numba pass (numpy's axis=(0, 1) reductions take several slow
-    passes over channel-last data)."""
-    return Summary(*channel_summary(image.reshape(-1, image.shape[-1])))
+    in two Numba passes (:class:`SummaryPasses`; numpy's axis=(0, 1)
+    reductions take several slow passes over channel-last data)."""
+    passes = SummaryPasses(image.shape[-1])
+    flat = image.reshape(-1, image.shape[-1])
+    passes.first(flat)
+    passes.second(flat)
+    return passes.result()
 
 
 def check_not_constant(image, *, name="image", summary=None):

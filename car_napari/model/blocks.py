@@ -2,7 +2,7 @@
 
 A NumPy pass over a 4000x4000 RGB image in float64 takes ~0.1-0.5 s; the job
 protocol wants a yield every ~0.1-0.25 s, so the jobs' preparation (the float
-copy, the centring, the whitening) runs in blocks of about ``BLOCK_VALUES``
+copy and its summary, the centring, the whitening) runs in blocks of about ``BLOCK_VALUES``
 values. Every helper here gives, bit for bit, what the one-call form gives
 (elementwise operations, or per-row linear algebra checked in the tests).
 """
@@ -12,7 +12,12 @@ from __future__ import annotations
 import numpy as np
 
 from .._progress import Progress
-from .._validation import as_channel_last_float, check_values, summarize
+from .._validation import (
+    SummaryPasses,
+    as_channel_last_float,
+    channel_last_view,
+    check_values,
+)
 
 __all__ = ["BLOCK_VALUES", "iter_centre", "iter_channel_last_float", "row_ranges"]
 
@@ -47,14 +52,18 @@ def row_ranges(n_rows, values_per_row, budget=None):
     return [(start, min(start + step, n_rows)) for start in range(0, n_rows, step)]
 
 
-def iter_channel_last_float(image, *, channel_axis=-1, name="image", stage="prepare"):
+def iter_channel_last_float(image, *, channel_axis=-1, name="image", stage="prepare",
+                            copy=True):
     """The image as C-contiguous channel-last float64, by blocks of rows, as a job.
 
-    What ``as_channel_last_float(image, with_summary=True)`` of
-    :mod:`car_napari._validation` returns, with the same validation and
-    errors, in blocks of about ``BLOCK_VALUES`` values with a Progress record
-    after each (the integer scaling is elementwise; it is repeated here, and
-    a test holds the two equal for every dtype). Small images take the one call.
+    What ``as_channel_last_float(image, with_summary=True, copy=copy)`` of
+    :mod:`car_napari._validation` returns, bit for bit, with the same
+    validation and errors (the NaN and magnitude checks included), in blocks
+    of about ``BLOCK_VALUES`` values with a Progress record after each: the
+    integer scaling is elementwise (it is repeated here, and a test holds
+    the two equal for every dtype); the summary's two passes
+    (:class:`~car_napari._validation.SummaryPasses`) carry their sums from
+    block to block, in the same order. Small images take the one call.
 
     Parameters
     ----------
@@ -66,25 +75,30 @@ def iter_channel_last_float(image, *, channel_axis=-1, name="image", stage="prep
         How errors and messages call the image.
     stage : str, optional
         The records' stage name.
+    copy : bool, optional
+        With False, a C-contiguous float64 channel-last input may be returned
+        as it is (not to be written to).
 
     Returns
     -------
     data : (H, W, C) ndarray of float64
-        The converted copy.
+        The converted copy (or, without ``copy``, maybe ``image`` itself).
     summary : Summary
         Its per-channel min, max, mean, variance and non-finite count.
 
     Yields
     ------
     Progress
-        After each block (message like ``"image: rows 512/4000"``) and after
-        the summary.
+        After each block, converted and in the summary's first pass (message
+        like ``"image: rows 512/4000"``), and after each block of the second
+        pass (``"image: summary 512/4000"``).
 
     Raises
     ------
     ValueError
         As ``as_channel_last_float``: empty, not 2-D or 3-D, too many
-        channels, NaN or infinite values.
+        channels, NaN or infinite values, values too large or too finely
+        spread for the models' squares.
     TypeError
         As ``as_channel_last_float``: None or not numeric.
 
@@ -96,34 +110,31 @@ def iter_channel_last_float(image, *, channel_axis=-1, name="image", stage="prep
     >>> data.shape, float(data[0, 0, 0]), float(summary.max[0])
     ((4, 5, 1), 0.2, 0.2)
     """
-    arr = np.asarray(image) if image is not None else None
-    simple = (
-        arr is None or arr.dtype == object or arr.dtype.kind not in "biuf" or arr.size == 0
-        or arr.ndim not in (2, 3) or (arr.ndim == 3 and channel_axis is None)
-        or arr.size <= BLOCK_VALUES
-    )
-    if not simple:
-        view = arr[..., np.newaxis] if arr.ndim == 2 else np.moveaxis(arr, channel_axis, -1)
-        simple = view.shape[-1] > 64
-    if simple:  # small, or an error as_channel_last_float words
-        return as_channel_last_float(image, channel_axis=channel_axis, name=name,
-                                     with_summary=True)
+    view = channel_last_view(image, channel_axis=channel_axis, name=name)
+    if view.size <= BLOCK_VALUES:
+        return as_channel_last_float(view, channel_axis=-1, name=name, with_summary=True,
+                                     copy=copy)
     h, w, c = view.shape
-    out = np.empty((h, w, c))
-    kind = arr.dtype.kind
-    info = np.iinfo(arr.dtype) if kind in "iu" else None
+    keep = view.dtype == np.float64 and not copy and view.flags.c_contiguous
+    out = view if keep else np.empty((h, w, c))
+    info = np.iinfo(view.dtype) if view.dtype.kind in "iu" else None
+    passes = SummaryPasses(c)
     blocks = row_ranges(h, w * c)
     for k, (start, stop) in enumerate(blocks, start=1):
         part = out[start:stop]
-        part[...] = view[start:stop]
-        if info is not None:
-            part /= info.max
-            if info.min < 0:
-                np.maximum(part, -1.0, out=part)
-        yield Progress(stage, k / (len(blocks) + 1), f"{name}: rows {stop}/{h}")
-    summary = summarize(out)
+        if not keep:
+            part[...] = view[start:stop]  # exact: every integer and float fits a float64
+            if info is not None:
+                part /= info.max
+                if info.min < 0:
+                    np.maximum(part, -1.0, out=part)
+        passes.first(part.reshape(-1, c))
+        yield Progress(stage, 0.7 * k / len(blocks), f"{name}: rows {stop}/{h}")
+    for k, (start, stop) in enumerate(blocks, start=1):
+        passes.second(out[start:stop].reshape(-1, c))
+        yield Progress(stage, 0.7 + 0.3 * k / len(blocks), f"{name}: summary {stop}/{h}")
+    summary = passes.result()
     check_values(summary, name=name)
-    yield Progress(stage, 1.0, f"{name}: summarised")
     return out, summary
 
 

@@ -17,7 +17,8 @@ from typing import NamedTuple
 import numpy as np
 
 from .._progress import Progress, drain, stage
-from .._validation import check_not_constant, summarize
+from .._validation import channel_last_shape, check_not_constant, summarize
+from ..model.blocks import iter_channel_last_float
 from ..model.neighbourhood import Context
 from ._checks import check_kappa, check_options, resolve_offsets
 from ._combine import (
@@ -28,7 +29,6 @@ from ._combine import (
     iter_edge_rule,
     row_chunks,
 )
-from ._input import channel_last_shape, iter_channel_last_float
 from ._noise import estimate_noise, noise_from_medians
 from ._single import DEFAULT_WINDOW, RestorationResult, _spans, iter_restoration
 from ._windowed import median_abs_laplacian
@@ -202,8 +202,9 @@ def _iter_versions(arr, position):
     n = len(arr)
     for i, v in enumerate(arr):
         data, _ = yield from stage(
-            iter_channel_last_float(v, channel_axis=position, name=f"version {i}"),
-            i / n, (i + 1) / n, prefix=f"version {i + 1}/{n}: ")
+            iter_channel_last_float(v, channel_axis=position, name=f"version {i}",
+                                    stage="reading"),
+            i / n, (i + 1) / n)
         versions.append(data)
     return versions
 

@@ -24,7 +24,8 @@ from functools import partial
 import numpy as np
 
 from .._progress import Progress, drain, stage
-from .._validation import check_not_constant, check_size
+from .._validation import channel_last_shape, check_not_constant, check_size
+from ..model.blocks import iter_channel_last_float
 from ..model.directions import DIRECTIONS
 from ..model.neighbourhood import Context
 from ._checks import check_kappa, check_options, resolve_offsets
@@ -37,7 +38,6 @@ from ._combine import (
     iter_edge_rule,
     row_chunks,
 )
-from ._input import channel_last_shape, iter_channel_last_float
 from ._noise import noise_channel_last, noise_from_medians
 from ._windowed import (
     block_moments,
@@ -418,7 +418,8 @@ def iter_restoration(image, *, neighbourhood, estimator, window, forgetting, dir
     yield Progress("start", 0.0, f"{H} x {W} image")
     # blend: nothing keeps the image, so a float64 input need not be copied
     data, summary = yield from stage(
-        iter_channel_last_float(image, channel_axis=channel_axis, copy=not blend),
+        iter_channel_last_float(image, channel_axis=channel_axis, stage="reading",
+                                copy=not blend),
         *span("reading"))
     check_not_constant(data, summary=summary)
     offsets = resolve_offsets(neighbourhood, data)

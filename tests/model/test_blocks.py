@@ -7,7 +7,7 @@ import pytest
 from skimage import data as skdata
 
 from car_napari._progress import drain
-from car_napari._validation import as_channel_last_float
+from car_napari._validation import as_channel_last_float, channel_last_shape, summarize
 from car_napari.model import blocks, estimation, fit_car, iter_fit_car, select_support
 from car_napari.model.blocks import iter_centre, iter_channel_last_float, row_ranges
 
@@ -64,6 +64,77 @@ def test_non_finite_values_are_counted_over_the_whole_image(small_blocks):
     image[[3, 30, 59], [1, 2, 3]] = [np.nan, np.inf, -np.inf]
     with pytest.raises(ValueError, match="contains 3 NaN or infinite values"):
         drain(iter_channel_last_float(image))
+
+
+@pytest.mark.parametrize("budget", [7, 500, 4096, 10**9])
+def test_reader_is_as_channel_last_float_for_every_dtype_and_strip(monkeypatch, budget):
+    """Bit for bit the one-call conversion and summary, whatever the strips
+    (one row, a few rows, whole; the last one shorter), for every dtype,
+    channel-first layouts, NaN-free and with copy=False."""
+    monkeypatch.setattr(blocks, "BLOCK_VALUES", budget)
+    rng = np.random.default_rng(6)
+    rgb = skdata.astronaut()[:47, :43]
+    images = [
+        (rgb, {}),
+        ((rng.random((45, 41, 2)) * 65535).astype(np.uint16), {}),
+        ((rng.standard_normal((43, 39, 3)) * 20000).astype(np.int16), {}),
+        ((rng.standard_normal((43, 39, 3)) * 1e4).astype(np.float32), {}),
+        (rng.standard_normal((41, 37, 4)) * 1e6 + 3, {}),
+        (np.moveaxis(rng.random((40, 38, 3)), -1, 0), {"channel_axis": 0}),
+        (np.moveaxis(rgb, -1, 1), {"channel_axis": 1}),
+        (rng.random((39, 44)), {"channel_axis": None}),
+    ]
+    for image, kwargs in images:
+        want, want_summary = as_channel_last_float(image, with_summary=True, **kwargs)
+        for copy in (True, False):
+            got, summary = drain(iter_channel_last_float(image, copy=copy, **kwargs))
+            np.testing.assert_array_equal(got, want)
+            assert got.dtype == np.float64 and got.flags.c_contiguous
+            for a, b in zip(summary, want_summary, strict=True):
+                np.testing.assert_array_equal(a, b)
+                assert a.dtype == b.dtype == np.float64
+        assert not np.shares_memory(drain(iter_channel_last_float(image, **kwargs))[0], image)
+    grey = images[-1][0]
+    # copy=False keeps a float64 C-contiguous input (a view with the channel axis)
+    assert drain(iter_channel_last_float(grey, copy=False))[0].base is grey
+
+
+def test_summary_is_the_sequential_sums():
+    """Independently (NumPy's cumsum adds in order, as the passes do): the
+    min, max, mean and variance of the finite values, the non-finite count."""
+    rng = np.random.default_rng(8)
+    data = rng.standard_normal((3001, 3)) * [1.0, 1e3, 1e-3] + [0.5, -7.0, 1e3]
+    data[[5, 70, 3000], [0, 0, 2]] = [np.nan, np.inf, -np.inf]
+    summary = summarize(data.reshape(1, -1, 3))
+    for c in range(3):
+        x = data[np.isfinite(data[:, c]), c]
+        mean = np.cumsum(x)[-1] / x.size
+        assert summary.min[c] == x.min() and summary.max[c] == x.max()
+        assert summary.mean[c] == mean
+        assert summary.var[c] == np.cumsum((x - mean) * (x - mean))[-1] / x.size
+        assert summary.nonfinite[c] == data.shape[0] - x.size
+    np.testing.assert_allclose(summary.var, np.nanvar(np.where(np.isfinite(data), data,
+                                                               np.nan), axis=0), rtol=1e-12)
+
+
+def test_values_beyond_the_magnitude_limit_in_a_later_block(small_blocks):
+    image = np.random.default_rng(9).random((60, 50))
+    image[55, 3] = -2e151
+    with pytest.raises(ValueError, match="magnitude 2e.151: .* Rescale") as ours:
+        drain(iter_channel_last_float(image))
+    with pytest.raises(ValueError) as theirs:
+        as_channel_last_float(image)
+    assert str(ours.value) == str(theirs.value)
+
+
+def test_channel_last_shape_needs_no_pass(small_blocks):
+    rgb = skdata.astronaut()[:40, :30]
+    assert channel_last_shape(np.moveaxis(rgb, -1, 0), channel_axis=0) == (40, 30, 3)
+    assert channel_last_shape(rgb[..., 0], channel_axis=None) == (40, 30, 1)
+    bad = np.full((40, 30), np.nan)
+    assert channel_last_shape(bad) == (40, 30, 1)  # the values are the reader's business
+    with pytest.raises(ValueError, match="70 channels"):
+        channel_last_shape(np.zeros((40, 40, 70)))
 
 
 def test_centring_by_blocks(small_blocks):

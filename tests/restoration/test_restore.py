@@ -450,6 +450,31 @@ def test_bad_input():
         restore(image, channel_axis=None, estimator="recursive", directions=("up-left",))
 
 
+def test_large_input_with_a_huge_value_is_rejected(monkeypatch):
+    """The strip-wise reader ends with the whole image's value checks: a
+    value beyond 1e150 in an image of several strips is a clear error (as
+    it is for a small image), a NaN is counted over every strip."""
+    from car_napari.model import blocks
+
+    monkeypatch.setattr(blocks, "BLOCK_VALUES", 600)  # 10 rows a strip
+    image = np.random.default_rng(5).random((70, 60))
+    image[65, 7] = 3e150  # in the last strip
+    for kwargs in ({}, {"estimator": "recursive"}, {"return_result": True}):
+        with pytest.raises(ValueError, match="magnitude 3e.150: .* Rescale"):
+            restore(image, channel_axis=None, **kwargs)
+    with pytest.raises(ValueError, match="magnitude 3e.150"):
+        restore_multichannel(np.stack([image[::-1], image]))
+    records = []
+    with pytest.raises(ValueError, match="magnitude 3e.150"):
+        drain(iter_restore(image, channel_axis=None), records.append)
+    reading = [r.message for r in records if r.stage == "reading"]
+    assert reading[0] == "image: rows 10/70" and reading[-1] == "image: summary 70/70"
+    image[65, 7] = np.nan
+    image[2, 3] = np.inf
+    with pytest.raises(ValueError, match="contains 2 NaN or infinite"):
+        restore(image, channel_axis=None)
+
+
 def test_return_result_matches_the_plain_call():
     rng = np.random.default_rng(0)
     noisy = _degraded(img_as_float(skdata.camera())[:64, :64], rng)
@@ -474,10 +499,10 @@ def test_chunked_stages_give_the_outputs_of_one_call(monkeypatch):
     edge rule run in chunks with a record between them; any chunking gives,
     bit for bit, the results of the whole-image calls (large chunks here),
     and the conversion is exactly as_channel_last_float's."""
-    from car_napari._validation import as_channel_last_float
-    from car_napari.model import recursive
-    from car_napari.restoration import _combine, _input
-    from car_napari.restoration._input import channel_last_shape, iter_channel_last_float
+    from car_napari._validation import as_channel_last_float, channel_last_shape
+    from car_napari.model import blocks, recursive
+    from car_napari.model.blocks import iter_channel_last_float
+    from car_napari.restoration import _combine
 
     rng = np.random.default_rng(4)
     colour = (np.clip(_degraded(img_as_float(skdata.astronaut())[:71, :53], rng), 0, 1)
@@ -492,7 +517,7 @@ def test_chunked_stages_give_the_outputs_of_one_call(monkeypatch):
 
     whole = run_all()
     monkeypatch.setattr(_combine, "CHUNK_VALUES", 200)  # a few rows a chunk
-    monkeypatch.setattr(_input, "STRIP_VALUES", 500)
+    monkeypatch.setattr(blocks, "BLOCK_VALUES", 500)
     monkeypatch.setattr(recursive, "_CHUNK_WORK", 5e4)
     records = []
     drain(iter_restore(colour, return_result=True), records.append)
