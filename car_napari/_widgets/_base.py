@@ -145,7 +145,7 @@ class JobWidget(Container):
 
     # --- input ----------------------------------------------------------------------
 
-    def input_array(self, *, region=True, ndims=(2,), hint=None):
+    def input_array(self, *, region=True, ndims=(2,), hint=None, copy=True):
         """The picked layer's data (a copy), cropped to the rectangle if any.
 
         Parameters
@@ -157,6 +157,10 @@ class JobWidget(Container):
             The accepted numbers of non-colour axes.
         hint : str, optional
             What to do when the layer has another number of axes.
+        copy : bool, optional
+            False: the layer's data itself, for a job that only reads it in
+            its worker (the core never writes its input): no copy of a large
+            layer in the viewer's thread.
 
         Returns
         -------
@@ -170,7 +174,7 @@ class JobWidget(Container):
         """
         shapes = self._region.value if region and self._region is not None else None
         options = {} if hint is None else {"hint": hint}
-        return layer_array(self._image.value, shapes, ndims=ndims, **options)
+        return layer_array(self._image.value, shapes, ndims=ndims, copy=copy, **options)
 
     # --- running --------------------------------------------------------------------
 

@@ -199,7 +199,7 @@ class InpaintingWidget(JobWidget):
         Job or None
             The running job; None without a usable source (notified).
         """
-        data, channel_axis = self.input_array(ndims=(2, 3), hint=FRAME_OR_CLIP)
+        data, channel_axis = self.input_array(ndims=(2, 3), hint=FRAME_OR_CLIP, copy=False)
         return self.run(_with_indices(iter_detect_scratches(data, channel_axis=channel_axis)),
                         done=self._add_proposal)
 

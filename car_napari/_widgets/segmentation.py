@@ -64,7 +64,7 @@ class SegmentationWidget(JobWidget):
 
     def _start(self):
         """Segment the picked layer, the merges shown live."""
-        data, channel_axis = self.input_array()
+        data, channel_axis = self.input_array(copy=False)  # read in the worker only
         self._stop_recut()
         self._name = f"{self._image.value.name} segments"
         self.updates = 0
