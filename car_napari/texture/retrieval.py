@@ -40,7 +40,13 @@ import numpy as np
 from scipy import ndimage as ndi
 
 from .._progress import Progress, drain
-from .._validation import Summary, as_channel_last_float, check_not_constant, check_size
+from .._validation import (
+    Summary,
+    as_channel_last_float,
+    channel_last_view,
+    check_not_constant,
+    check_size,
+)
 from ..model.neighbourhood import Context, as_offsets
 from ..model.statistics import design_chunks, estimate_parameters
 
@@ -57,7 +63,6 @@ BAND_PIXELS = 1 << 17
 _SIGMA = 2 * 2 / 6.0
 _TRUNCATE = 4.0
 _RADIUS = int(_TRUNCATE * _SIGMA + 0.5)  # rows of the smoothing kernel on each side (3)
-_MAX_CHANNELS = 64
 
 
 def _check_levels(levels):
@@ -113,46 +118,10 @@ def _level_shapes(height, width, levels):
     return shapes
 
 
-def _channel_last(arr, channel_axis, name):
-    """A view ``(H, W, d)`` of a numeric 2-D or 3-D array (no copy), checked
-    as :func:`~car_napari._validation.as_channel_last_float` checks it."""
-    if arr.size == 0:
-        raise ValueError(f"{name} is empty (shape {arr.shape}); pass a non-empty image.")
-    if arr.ndim == 2:
-        view = arr[..., np.newaxis]
-    elif arr.ndim == 3:
-        if channel_axis is None:
-            raise ValueError(
-                f"{name} is 3-D {arr.shape} but channel_axis=None; pass the channel "
-                "axis (e.g. channel_axis=-1 for (H, W, C)) or a 2-D grey image."
-            )
-        view = np.moveaxis(arr, channel_axis, -1)
-    else:
-        raise ValueError(
-            f"{name} must be 2-D (H, W) or 3-D (H, W, C) with channel_axis; got "
-            f"{arr.ndim}-D shape {arr.shape}. For a stack, pass one image at a time."
-        )
-    if view.shape[-1] > _MAX_CHANNELS:
-        raise ValueError(
-            f"{name} has {view.shape[-1]} channels on axis {channel_axis}; is the channel "
-            "axis right? Pass channel_axis=None for a grey image or the correct axis."
-        )
-    return view
-
-
 def _as_image(image, *, levels, offsets, channel_axis, name):
     """The image as a channel-last view, with every check that needs no pass
     over its values: numeric, 2-D or 3-D, large enough for every level."""
-    if image is None:
-        raise TypeError(f"{name} is None: pass a 2-D grey or 3-D multichannel array.")
-    try:
-        arr = np.asarray(image)
-    except Exception as exc:
-        raise TypeError(f"{name} could not be converted to an array: {exc}") from None
-    if arr.dtype == object or arr.dtype.kind not in "biuf":
-        raise TypeError(f"{name} has dtype {arr.dtype}; pass a numeric (integer or float) "
-                        "array.")
-    view = _channel_last(arr, channel_axis, name)
+    view = channel_last_view(image, channel_axis=channel_axis, name=name)
     need = minimum_size(levels=levels, neighbourhood=offsets)
     if min(view.shape[:2]) < need:
         raise ValueError(
