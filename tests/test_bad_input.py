@@ -127,3 +127,13 @@ def test_local_parameters_options_checked_first(option, value, error):
     # a string image would fail too: the option's message must come first
     with pytest.raises(error, match=option):
         local_parameters("not an image", 1, **{option: value})
+
+
+@pytest.mark.parametrize("margin, error", [(-5, ValueError), (2.5, ValueError),
+                                           (10**7, ValueError), ("8", TypeError)])
+def test_synthesis_margin_is_checked(margin, error):
+    from car_napari import synthesize
+
+    with pytest.raises(error, match="margin"):
+        synthesize(fit_car(GOOD, 1), (16, 16), margin=margin)
+    assert synthesize(fit_car(GOOD, 1), (16, 16), margin=0, seed=0).shape == (16, 16, 3)

@@ -8,7 +8,7 @@ import math
 import numpy as np
 
 from .._progress import Progress, drain
-from .._validation import output_shape
+from .._validation import check_real, output_shape
 from ._kernels import synthesize_field
 from .blocks import row_ranges
 from .directions import unscan_view
@@ -245,6 +245,8 @@ def iter_synthesize(model, shape, *, seed=None, margin=None, chunk_rows=None):
     if margin is None:
         margin = math.ceil(math.log(_MARGIN_TOLERANCE) / math.log(max(radius, 1e-3)))
         margin = int(min(max(margin, 16), 256))
+    else:  # a negative margin would crop into the output: (4, 0) for margin=-5
+        margin = check_real(margin, "margin (burn-in pixels)", low=0, high=4096, integer=True)
     rng = np.random.default_rng(seed)
     d = model.n_channels
     hs, ws = (w, h) if model.direction in ("right", "left") else (h, w)
