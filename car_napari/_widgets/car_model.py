@@ -54,6 +54,13 @@ def _for_display(job, value_range):
     return np.clip(sample, *value_range).astype(np.float32)
 
 
+def _with_range(job, data):
+    """The fit, then (in the worker) the value range of its input, to which the
+    samples are clipped: ``(model, (low, high))``."""
+    model = yield from job
+    return model, value_range(data)
+
+
 class CARModelWidget(ModelWidget):
     """Fit a CAR model to an image layer (or a rectangle on it) and synthesise.
 
@@ -80,14 +87,19 @@ class CARModelWidget(ModelWidget):
 
     def _start(self):
         """Fit a model to the picked layer (or its rectangle)."""
-        data, channel_axis = self.input_array()
-        self._fitting = self._image.value.name, value_range(data)
+        # the layer's data itself, read in the worker only (the core never writes its
+        # input): no copy and no scan of a large image in the viewer's thread
+        data, channel_axis = self.input_array(copy=False)
+        self._fitting = self._image.value.name
         orders = range(1, int(self._max_order.value) + 1)
-        return self.run(iter_fit_car(data, "auto", orders=orders, channel_axis=channel_axis),
-                        done=self._fitted)
+        job = _with_range(iter_fit_car(data, "auto", orders=orders, channel_axis=channel_axis),
+                          data)
+        return self.run(job, done=self._fitted)
 
-    def _fitted(self, model):
-        self._source, self._range = self._fitting  # what the samples are named and clipped to
+    def _fitted(self, fitted):
+        model, value_range_ = fitted
+        # what the samples are named after and clipped to
+        self._source, self._range = self._fitting, value_range_
         self.model = model
         self._report.value = describe(model)
         self._status.value = f"order {model.order} chosen"
@@ -104,7 +116,11 @@ class CARModelWidget(ModelWidget):
         return self.run(job, done=self._add_sample)
 
     def _add_sample(self, sample):
+        """Show the sample (a generator: the job runs it a step per event-loop turn)."""
         # the model lives in the core's float units (integers scaled to [0, 1])
         rgb = sample.ndim == 3 and sample.shape[2] == 3
         self.record.add(lambda: self._viewer.add_image(sample, name=f"{self._source} CAR sample",
                                                        rgb=rgb, contrast_limits=self._range))
+        # The layer is made (napari's cost, whatever the size); its first paint (the
+        # texture upload, growing with the size) comes on the next turn, not in this one.
+        yield

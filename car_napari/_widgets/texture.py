@@ -123,11 +123,14 @@ class TextureSynthesisWidget(ModelWidget):
         """Fit the model of the chosen input kind to the picked layer."""
         mode = self._mode.value
         levels = int(self._levels.value)
+        # the layer's data itself, read in the worker only (the core never writes
+        # its input): no copy of a large image in the viewer's thread
         if mode == SINGLE:
-            data, channel_axis = self.input_array()
+            data, channel_axis = self.input_array(copy=False)
             job = iter_fit_texture(data, levels=levels, channel_axis=channel_axis)
         else:
-            data, channel_axis = self.input_array(region=False, ndims=(3,), hint=NOT_A_STACK)
+            data, channel_axis = self.input_array(region=False, ndims=(3,), hint=NOT_A_STACK,
+                                                  copy=False)
             if mode == BTF:
                 job = iter_fit_btf(data, n_subspaces=min(int(self._subspaces.value), len(data)),
                                levels=levels, channel_axis=channel_axis)
@@ -179,6 +182,7 @@ class TextureSynthesisWidget(ModelWidget):
         return self.run(job, done=self._show)
 
     def _show(self, synthesis):
+        """Show the synthesis (a generator: the job runs it a step per event-loop turn)."""
         name, stacked = self._target
         # a single texture is (H, W[, C]); a BTF or dynamic synthesis has a leading axis
         rgb = synthesis.ndim == (4 if stacked else 3)
@@ -188,6 +192,9 @@ class TextureSynthesisWidget(ModelWidget):
         else:
             self.record.replace(name, lambda name: self._viewer.add_image(synthesis, name=name,
                                                                           rgb=rgb))
+        # the layer made or updated in this turn, its first paint (the texture
+        # upload, growing with the size) on the next one
+        yield
 
     def save_model_as(self, *_):
         """Ask for a file name (a save dialog) and write the model there.

@@ -169,3 +169,45 @@ def test_synthesize_reports_progress_and_cancel_ends_it_quickly(widget, qtbot, c
     assert [layer.name for layer in viewer.layers] == ["grass"]
     assert w.model is model and w._synth.enabled and w._fit.enabled
     assert not w._cancel.enabled and w._status.value == "cancelled"
+
+
+def test_fit_reads_the_layer_in_the_worker_and_shows_the_sample_in_two_turns(widget, qtbot,
+                                                                            monkeypatch):
+    # The viewer froze at the start of a large fit (a copy of the layer and a scan
+    # of its range, in the viewer's thread) and when the sample was shown (the
+    # layer made and its first paint in one turn).
+    import threading
+
+    from car_napari._widgets import car_model
+
+    viewer, w = widget
+    texture = skdata.astronaut()[300:428, 0:128]
+    layer = viewer.add_image(texture, name="grass", rgb=True)
+    w._image.value, w._max_order.value = layer, 1
+    seen = {}
+    fit, value_range = car_model.iter_fit_car, car_model.value_range
+
+    def spy_fit(data, *args, **kwargs):
+        seen["shares"] = np.shares_memory(data, layer.data)
+        return fit(data, *args, **kwargs)
+
+    def spy_range(data):
+        seen["range thread"] = threading.current_thread()
+        return value_range(data)
+
+    monkeypatch.setattr(car_model, "iter_fit_car", spy_fit)
+    monkeypatch.setattr(car_model, "value_range", spy_range)
+    _wait(qtbot, w.start_fit())
+    assert seen["shares"], "the layer was copied in the viewer's thread"
+    assert seen["range thread"] is not threading.main_thread()
+    assert w._range == value_range(texture)
+    np.testing.assert_array_equal(layer.data, texture)  # read, never written
+    w._height.value, w._width.value, w._seed.value = 24, 30, 2
+    # the state of the job when the layer is made
+    viewer.layers.events.inserted.connect(
+        lambda event: seen.setdefault("adding", (w._job.showing, w._job.done)))
+    job = w.start_synthesis()
+    _wait(qtbot, job)
+    assert seen["adding"] == (True, False)  # the layer made; its paint on the next turn
+    assert w._synth.enabled and not w._cancel.enabled
+    assert viewer.layers["grass CAR sample"].data.shape == (24, 30, 3)

@@ -246,3 +246,35 @@ def test_synthesize_reports_progress_and_cancel_ends_it_quickly(widget, qtbot, c
     assert [layer.name for layer in viewer.layers] == names
     assert w.model is model and w._synth.enabled and not w._cancel.enabled
     assert w._status.value == "cancelled"
+
+
+def test_fit_reads_the_layer_in_the_worker_and_shows_the_synthesis_in_two_turns(widget, qtbot,
+                                                                               monkeypatch):
+    # No copy of a large layer in the viewer's thread at the start of the fit, and
+    # the synthesis layer made in one turn, its first paint on the next.
+    from car_napari._widgets import texture as texture_widget
+
+    viewer, w = widget
+    texture = skdata.astronaut()[300:428, 0:128]
+    layer = viewer.add_image(texture, name="grass", rgb=True)
+    w._image.value, w._levels.value = layer, 2
+    seen = {}
+    fit = texture_widget.iter_fit_texture
+
+    def spy(data, *args, **kwargs):
+        seen["shares"] = np.shares_memory(data, layer.data)
+        return fit(data, *args, **kwargs)
+
+    monkeypatch.setattr(texture_widget, "iter_fit_texture", spy)
+    job = w.start_fit()
+    qtbot.waitUntil(lambda: job.done, timeout=120000)
+    assert seen["shares"] and w.model is not None
+    np.testing.assert_array_equal(layer.data, texture)
+    w._height.value, w._width.value = 40, 50
+    # the state of the job when the layer is made
+    viewer.layers.events.inserted.connect(
+        lambda event: seen.setdefault("adding", (w._job.showing, w._job.done)))
+    job = w.start_synthesis()
+    qtbot.waitUntil(lambda: job.done, timeout=120000)
+    assert seen["adding"] == (True, False)  # the layer made; its paint on the next turn
+    assert not w._cancel.enabled and viewer.layers["grass synthesis"].data.shape == (40, 50, 3)
