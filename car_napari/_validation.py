@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import os
 from collections import namedtuple
 
 import numpy as np
@@ -88,6 +89,9 @@ def channel_summary(data):
     return np.stack(passes.result())
 
 
+MAX_CHANNELS = 64  # more channels than this: the channel axis is probably wrong
+
+
 def channel_last_view(image, *, channel_axis=-1, name="image"):
     """``image`` as an (H, W, d) array (a view where it can be), checked for
     everything but its values: type, size, dimensions, channel axis, number
@@ -105,6 +109,8 @@ def channel_last_view(image, *, channel_axis=-1, name="image"):
         )
     if arr.size == 0:
         raise ValueError(f"{name} is empty (shape {arr.shape}); pass a non-empty image.")
+    if channel_axis is not None:
+        channel_axis = check_axis(channel_axis, 3, "channel_axis")
     if arr.ndim == 2:
         arr = arr[..., np.newaxis]
     elif arr.ndim == 3:
@@ -119,7 +125,7 @@ def channel_last_view(image, *, channel_axis=-1, name="image"):
             f"{name} must be 2-D (H, W) or 3-D (H, W, C) with channel_axis; got "
             f"{arr.ndim}-D shape {arr.shape}. For a stack, pass one image at a time."
         )
-    if arr.shape[-1] > 64:
+    if arr.shape[-1] > MAX_CHANNELS:
         raise ValueError(
             f"{name} has {arr.shape[-1]} channels on axis {channel_axis}; is the channel "
             "axis right? Pass channel_axis=None for a grey image or the correct axis."
@@ -201,6 +207,30 @@ def summarize(image):
     return passes.result()
 
 
+# Spreads between 2**-SCALE_EXPONENT and 2**SCALE_EXPONENT are left as they
+# are; beyond, :func:`scale_exponent` says by which power of two to scale
+SCALE_EXPONENT = 32
+
+
+def scale_exponent(image):
+    """The ``e`` such that ``image * 2**-e`` has a spread near 1, when the
+    spread of the finite float ``image`` is beyond ``2**±SCALE_EXPONENT``;
+    0 otherwise (ordinary images, integers, constant or non-finite ones and
+    values beyond ``MAGNITUDE_LIMIT``, whose reading gives its own
+    message). Scaling by a power of two is exact, so a model that is
+    scale-equivariant in its arithmetic gives, scaled back, exactly the
+    result of the image at a moderate scale."""
+    arr = np.asarray(image)
+    if arr.dtype.kind != "f" or arr.size == 0:
+        return 0
+    low, high = float(np.min(arr)), float(np.max(arr))
+    spread = high - low
+    if not math.isfinite(spread) or spread <= 0 or max(-low, high) > MAGNITUDE_LIMIT:
+        return 0  # beyond the limit: the reading's message (a huge outlier is likelier)
+    exponent = int(np.round(np.log2(spread)))
+    return exponent if abs(exponent) > SCALE_EXPONENT else 0
+
+
 def check_not_constant(image, *, name="image", summary=None):
     """A CAR model needs variation: a constant channel has no texture to fit."""
     summary = summary if summary is not None else summarize(image)
@@ -228,15 +258,104 @@ def check_size(image, reach, *, minimum_pixels=1, name="image"):
         )
 
 
-def output_shape(shape):
-    """(height, width) as positive ints, or a ValueError that says so."""
+# the largest side and area an output may have: beyond them the arrays of a
+# synthesis (several float64 copies of the output) would not fit in memory
+MAX_SIDE = 1 << 20
+MAX_PIXELS = 1 << 28
+
+
+def output_shape(shape, *, name="shape"):
+    """(height, width) as positive ints of a size that fits in memory, or a
+    ValueError that says so."""
+    if isinstance(shape, (str, bytes)) or not hasattr(shape, "__len__"):
+        raise ValueError(f"{name} must be (height, width); got {shape!r}.")
+    if len(shape) != 2:
+        raise ValueError(f"{name} must be (height, width); got {shape!r}.")
     try:
-        h, w = (int(v) for v in shape)
-    except Exception:
-        raise ValueError(f"shape must be (height, width); got {shape!r}.") from None
+        h, w = (check_real(v, name, integer=True) for v in shape)
+    except (TypeError, ValueError):
+        raise ValueError(
+            f"{name} must be (height, width), two positive integers; got {shape!r}."
+        ) from None
     if h < 1 or w < 1:
-        raise ValueError(f"shape must be positive; got {(h, w)}.")
+        raise ValueError(f"{name} must be positive; got {(h, w)}.")
+    if max(h, w) > MAX_SIDE or h * w > MAX_PIXELS:
+        raise ValueError(
+            f"{name} {(h, w)} is too large: at most {MAX_SIDE} pixels a side and "
+            f"{MAX_PIXELS} pixels in all (the arrays would not fit in memory). "
+            "Synthesise smaller pieces."
+        )
     return h, w
+
+
+def memory_bytes():
+    """The machine's physical memory in bytes (None when unknown)."""
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (AttributeError, ValueError, OSError):  # pragma: no cover - not POSIX
+        return None
+
+
+def check_memory(n_bytes, what):
+    """A ValueError, before any allocation, when a call would need more than
+    the machine's physical memory (``n_bytes``, estimated by the caller);
+    ``what`` names the argument that decides it."""
+    total = memory_bytes()
+    if total is not None and n_bytes > total:
+        raise ValueError(
+            f"{what} would need about {n_bytes / 2**30:.1f} GiB, more than this machine's "
+            f"{total / 2**30:.1f} GiB of memory. Ask for a smaller size."
+        )
+
+
+def check_axis(axis, ndim, name="axis"):
+    """``axis`` as an int in [-ndim, ndim) (not a bool), or a TypeError /
+    ValueError naming it and the allowed range."""
+    if isinstance(axis, (bool, np.bool_)) or not isinstance(axis, (int, np.integer)):
+        raise TypeError(f"{name} must be an integer in {-ndim}..{ndim - 1} (or None where "
+                        f"allowed); got {axis!r}.")
+    if not -ndim <= axis < ndim:
+        raise ValueError(f"{name}={axis} is out of range for {ndim}-D data: use "
+                         f"{-ndim}..{ndim - 1}.")
+    return int(axis)
+
+
+def check_flag(value, name):
+    """``value`` as a bool (True, False or a numpy bool), or a TypeError naming it."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise TypeError(f"{name} must be True or False; got {value!r}.")
+    return bool(value)
+
+
+def check_shape(shape, name, *, lengths=(2, 3), high=1 << 40):
+    """A tuple of positive ints (up to ``high``) of one of ``lengths``, or a
+    ValueError naming ``name``."""
+    if isinstance(shape, (str, bytes)) or not hasattr(shape, "__len__") \
+            or len(shape) not in lengths:
+        raise ValueError(f"{name} must be a tuple of {' or '.join(map(str, lengths))} "
+                         f"positive ints; got {shape!r}.")
+    try:
+        out = tuple(check_real(v, name, low=1, high=high, integer=True) for v in shape)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a tuple of positive ints; got {shape!r}.") from None
+    return out
+
+
+def check_seed(seed, name="seed"):
+    """``seed`` (None, a non-negative int, a SeedSequence, BitGenerator or
+    Generator) as a numpy Generator, or a TypeError / ValueError naming it."""
+    if isinstance(seed, np.random.Generator):
+        return seed
+    if seed is not None and not isinstance(
+            seed, (np.random.SeedSequence, np.random.BitGenerator)):
+        if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)):
+            raise TypeError(
+                f"{name} must be None, a non-negative int or a numpy Generator; got {seed!r}."
+            )
+        if seed < 0:
+            raise ValueError(f"{name} must be a non-negative int; got {seed!r}.")
+        seed = int(seed)
+    return np.random.default_rng(seed)
 
 
 def float_range(image):
@@ -301,11 +420,16 @@ def check_real(value, name, *, low=None, high=None, low_open=False, high_open=Fa
     kind = "an integer" if integer else "a number"
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.number)):
         raise TypeError(f"{name} must be {kind}; got {value!r}.")
-    if integer and not float(value).is_integer():
-        raise ValueError(f"{name} must be {kind}; got {value!r}.")
-    number = int(value) if integer else float(value)
-    if not math.isfinite(number):
-        raise ValueError(f"{name} must be a finite number; got {value!r}.")
+    if isinstance(value, (int, np.integer)):
+        number = int(value) if integer else _as_float(value, name)
+    else:
+        number = float(value)
+        if not math.isfinite(number):
+            raise ValueError(f"{name} must be a finite number; got {value!r}.")
+        if integer:
+            if not number.is_integer():
+                raise ValueError(f"{name} must be {kind}; got {value!r}.")
+            number = int(number)
     below = low is not None and (number <= low if low_open else number < low)
     above = high is not None and (number >= high if high_open else number > high)
     if below or above:
@@ -314,3 +438,12 @@ def check_real(value, name, *, low=None, high=None, low_open=False, high_open=Fa
         span = f"{left}{'-inf' if low is None else low}, {'inf' if high is None else high}{right}"
         raise ValueError(f"{name} must be in {span}; got {value!r}.")
     return number
+
+
+def _as_float(value, name):
+    """An int as a float, or the ValueError of one beyond float64's range."""
+    try:
+        return float(value)
+    except OverflowError:
+        raise ValueError(f"{name} must be a finite number; got an integer of "
+                         f"{len(str(abs(int(value))))} digits.") from None

@@ -34,8 +34,6 @@ def test_nan_or_inf(call, bad):
 
 @pytest.mark.parametrize("call", ENTRY_POINTS + [
     lambda im, **kw: predict(fit_car(GOOD, 1), im, **kw),
-    lambda im, **kw: restore(im, **kw),
-    lambda im, **kw: restore(im, estimator="recursive", **kw),
 ])
 @pytest.mark.parametrize("scale", [1e-300, 1e-160, 1e160, 1e300])
 def test_extreme_magnitude_is_a_clear_error(call, scale):
@@ -44,6 +42,32 @@ def test_extreme_magnitude_is_a_clear_error(call, scale):
     with pytest.raises(ValueError, match="magnitude .* Rescale"):
         call(img)
     np.testing.assert_array_equal(img, GOOD * scale)  # the input is untouched
+
+
+def _restore_multichannel(stack):
+    from car_napari import restore_multichannel
+
+    return restore_multichannel(stack).restored
+
+
+@pytest.mark.parametrize("call, data", [
+    (lambda im: restore(im), GOOD),
+    (lambda im: restore(im, estimator="recursive"), GOOD),
+    (_restore_multichannel, np.stack([GOOD[..., 0], GOOD[..., 0] * 0.9 + 0.05, GOOD[..., 1]])),
+])
+@pytest.mark.parametrize("scale", [1e-300, 1e-160, 1e-20, 1e20, 1e160, 1e300])
+def test_restorations_at_extreme_magnitudes(call, data, scale):
+    # a clear error, or the result at scale 1 scaled (restorations scale the
+    # data internally by a power of two: exact but for the input's rounding)
+    img = data * scale
+    try:
+        out = call(img)
+    except ValueError as exc:
+        assert "magnitude" in str(exc) and "Rescale" in str(exc)
+    else:
+        assert np.isfinite(out).all()
+        np.testing.assert_allclose(out / scale, call(data), rtol=1e-9, atol=1e-9)
+    np.testing.assert_array_equal(img, data * scale)  # the input is untouched
 
 
 @pytest.mark.parametrize("call", ENTRY_POINTS)
@@ -137,3 +161,274 @@ def test_synthesis_margin_is_checked(margin, error):
     with pytest.raises(error, match="margin"):
         synthesize(fit_car(GOOD, 1), (16, 16), margin=margin)
     assert synthesize(fit_car(GOOD, 1), (16, 16), margin=0, seed=0).shape == (16, 16, 3)
+
+
+# ---------------------------------------------------------------- model files
+@pytest.fixture(scope="module")
+def model_file(tmp_path_factory):
+    """A small saved texture model, its arrays and its header."""
+    import json
+
+    from car_napari.texture import TextureModel
+
+    model = TextureModel.fit(np.random.default_rng(1).random((32, 32, 3)), levels=2,
+                             neighbourhood=1)
+    path = tmp_path_factory.mktemp("models") / "good.npz"
+    model.save(path)
+    with np.load(path) as archive:
+        arrays = {k: archive[k] for k in archive.files}
+    return path, arrays, json.loads(str(arrays["header"]))
+
+
+def _edited(arrays, head, **changes):
+    import json
+
+    head = {**head, **changes.pop("header", {})}
+    out = {**arrays, "header": np.array(json.dumps(head))}
+    for key, value in changes.items():
+        if value is None:
+            out.pop(key)
+        else:
+            out[key] = value
+    return out
+
+
+def _set(array, index, value):
+    array = array.copy()
+    array[index] = value
+    return array
+
+
+def _corrupt_deflate(raw):
+    """The first compressed byte of a member set to an invalid deflate block."""
+    import io
+    import struct
+    import zipfile
+
+    with zipfile.ZipFile(io.BytesIO(raw)) as archive:
+        offset = archive.getinfo("band0_gamma.npy").header_offset
+    n, m = struct.unpack("<HH", raw[offset + 26: offset + 30])
+    raw = bytearray(raw)
+    raw[offset + 30 + n + m] = 0xFF
+    return bytes(raw)
+
+
+# name: (edit of the arrays (None: of the raw bytes), words the message must hold)
+MODEL_FILE_CASES = {
+    "zlib error": (lambda raw: _corrupt_deflate(raw), "not a readable"),
+    "truncated": (lambda raw: raw[: len(raw) // 2], "not a readable"),
+    "not an archive": (lambda raw: b"hello, world", "not a readable"),
+    "npy file": ("npy", r"\.npy"),
+    "empty gamma": (dict(band0_gamma=np.zeros(0, np.float32)), "band0_gamma.*needs"),
+    "empty offsets": (dict(band0_offsets=np.zeros((0, 2), np.int16)), "band0_offsets"),
+    "missing member": (dict(band1_sigma=None), "band1_sigma.*missing"),
+    "nan gamma": ("nan_gamma", "band0_gamma holds NaN"),
+    "inf std": (dict(std=np.array([np.inf, 1, 1], np.float32)), "std holds NaN"),
+    "offset (200, 0)": ("far_offset", "reaching 200 pixels"),
+    "unstable": ("unstable", "unstable"),
+    "negative variance": ("bad_sigma", "covariance"),
+    "pickled member": (dict(mean=np.array([1, "a", None], dtype=object)), "dtype object"),
+    "huge member": (dict(band0_gamma=np.zeros(10**6, np.uint8)), "declares .* bytes"),
+    "levels 10**9": (dict(header={"levels": 10**9}), "levels"),
+    "nan beta": (dict(header={"beta": [float("nan")] * 2}), "beta"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(MODEL_FILE_CASES))
+def test_damaged_model_files_are_refused_with_the_file_named(case, model_file, tmp_path):
+    from car_napari.texture import TextureModel
+
+    good, arrays, header = model_file
+    edit, match = MODEL_FILE_CASES[case]
+    path = tmp_path / "edited.npz"
+    if callable(edit):
+        path.write_bytes(edit(good.read_bytes()))
+    elif edit == "npy":
+        path = tmp_path / "array.npy"
+        np.save(path, arrays["mean"])
+    else:
+        if isinstance(edit, str):
+            edit = {
+                "nan_gamma": dict(band0_gamma=_set(arrays["band0_gamma"], (0, 0), np.nan)),
+                "far_offset": dict(band0_offsets=_set(arrays["band0_offsets"], 0, (200, 0))),
+                "unstable": dict(band0_gamma=arrays["band0_gamma"] * 50),
+                "bad_sigma": dict(band0_sigma=_set(arrays["band0_sigma"], (0, 0), -1.0)),
+            }[edit]
+        np.savez_compressed(path, **_edited(arrays, header, **edit))
+    with pytest.raises(ValueError, match=match) as info:
+        TextureModel.load(path)
+    assert str(path) in str(info.value)
+
+
+def test_unknown_members_are_never_read(model_file, tmp_path):
+    # 50 MB of zeros under an unknown name: not read (the loader opens only
+    # the members it knows), so loading costs what the model costs
+    import tracemalloc
+
+    from car_napari.texture import TextureModel
+
+    good, arrays, header = model_file
+    path = tmp_path / "padded.npz"
+    np.savez_compressed(path, **arrays, padding=np.zeros(50_000_000, np.uint8))
+    assert path.stat().st_size < 1_000_000
+    tracemalloc.start()
+    TextureModel.load(path)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert peak < 5_000_000
+
+
+# ------------------------------------------------------------ output shapes
+@pytest.mark.parametrize("shape", [(1, 1), (1, 500), (64, 1), (2, 2), (2, 40)])
+def test_tileable_synthesis_refuses_shapes_it_cannot_tile(shape, model_file):
+    from car_napari.texture import TextureModel
+
+    model = TextureModel.load(model_file[0])  # 2 levels: at least 3 pixels a side
+    with pytest.raises(ValueError, match="at least 3 pixels"):
+        model.synthesize(shape, seed=0, tileable=True)
+    assert model.synthesize((3, 5), seed=0, tileable=True).shape == (3, 5, 3)
+    assert model.synthesize(shape, seed=0).shape == (*shape, 3)  # not tileable: any size
+
+
+STACK = rng.random((3, 32, 32))
+
+
+@pytest.mark.parametrize("kwargs, error, match", [
+    (dict(axis=5), ValueError, "axis=5 is out of range"),
+    (dict(axis=1), ValueError, "axis=1 gives 32 versions .* Is axis right"),
+    (dict(axis=True), TypeError, "axis must be an integer"),
+    (dict(axis=1.0), TypeError, "axis must be an integer"),
+    (dict(reference=np.inf), ValueError, "reference"),
+    (dict(reference=3), ValueError, "reference"),
+    (dict(kappa=10**400), ValueError, "kappa"),
+    (dict(forgetting="0.9"), TypeError, "forgetting"),
+    (dict(directions=5), TypeError, "directions"),
+    (dict(keep_edges="no"), TypeError, "keep_edges"),
+    (dict(neighbourhood=[[0, -1]]), ValueError, "not causal"),
+])
+def test_restore_multichannel_options(kwargs, error, match):
+    from car_napari import restore_multichannel
+
+    with pytest.raises(error, match=match):
+        restore_multichannel(STACK, **kwargs)
+
+
+@pytest.mark.parametrize("kwargs, error, match", [
+    (dict(size=63), ValueError, r"size .* \[1, 31\]"),
+    (dict(size=31), ValueError, "too large for the image of 32x32.*size <= "),
+    (dict(size=8), ValueError, "odd"),
+    (dict(size=np.nan), ValueError, "size"),
+    (dict(size=np.inf), ValueError, "size"),
+    (dict(size=True), TypeError, "size"),
+    (dict(window=np.inf), ValueError, "window"),
+    (dict(window=3), ValueError, "window"),
+    (dict(window=200), ValueError, "larger than the image"),
+])
+def test_estimate_psf_size_is_bounded_up_front(kwargs, error, match):
+    from car_napari import estimate_psf
+
+    image = rng.random((32, 32))
+    with pytest.raises(error, match=match):
+        estimate_psf(image, image, **kwargs)
+    if "image" not in match:  # what needs no image is checked before the images
+        with pytest.raises(error, match=match):
+            estimate_psf(image, "not an image", **kwargs)
+
+
+# ---------------------------------------------------- options of the models
+def _texture():
+    from car_napari.texture import TextureModel
+
+    return TextureModel.fit(rng.random((32, 32)), levels=1, neighbourhood=1)
+
+
+def _dynamic():
+    from car_napari.texture import DynamicTextureModel
+
+    return DynamicTextureModel.fit(rng.random((3, 16, 16)), neighbourhood=1)
+
+
+def _btf_fit(**kw):
+    from car_napari.texture import BTFModel
+
+    image = rng.random((16, 16))
+    return BTFModel.fit(np.stack([image, image * 0.5]), levels=1, **kw)
+
+
+def _call(name):
+    """Entry points by name, for the table below (built lazily: fits cost)."""
+    from car_napari import estimate_noise, illumination_invariants, synthesize, texture_features
+    from car_napari.restoration import multichannel_context, psf_width
+    from car_napari.texture import (
+        collapse_pyramid,
+        cumulative_histograms,
+        laplacian_pyramid,
+        minimum_size,
+        temporal_context,
+    )
+
+    image = rng.random((32, 32))
+    return {
+        "synthesize": lambda **kw: synthesize(fit_car(GOOD, 1), (8, 8), **kw),
+        "synthesize_shape": lambda shape: synthesize(fit_car(GOOD, 1), shape),
+        "texture": lambda **kw: _texture().synthesize((8, 8), **kw),
+        "texture_shape": lambda shape: _texture().synthesize(shape),
+        "texture_ratio": lambda shape: _texture().compression_ratio(shape),
+        "dynamic": lambda **kw: _dynamic().synthesize(**{"n_frames": 2, "shape": (8, 8), **kw}),
+        "btf_fit": _btf_fit,
+        "histograms": lambda **kw: cumulative_histograms(image[None], **kw),
+        "pyramid": lambda **kw: laplacian_pyramid(image, **kw),
+        "collapse": lambda **kw: collapse_pyramid(laplacian_pyramid(image, levels=2), **kw),
+        "features": lambda **kw: texture_features(image, **kw),
+        "minimum_size": lambda **kw: minimum_size(**kw),
+        "invariants": lambda **kw: illumination_invariants(GOOD, 1, **kw),
+        "noise": lambda **kw: estimate_noise(GOOD, **kw),
+        "psf_width": lambda psf: psf_width(psf),
+        "temporal_context": lambda d: temporal_context([[0, 1]], d),
+        "multichannel_context": lambda **kw: multichannel_context([[0, 1]], **kw),
+    }[name]
+
+
+OPTION_CASES = [
+    ("synthesize", dict(seed=-1), ValueError, "seed"),
+    ("synthesize", dict(seed=1.5), TypeError, "seed"),
+    ("synthesize", dict(margin=5000), ValueError, "margin"),
+    ("synthesize_shape", ((10**6, 10**6),), ValueError, "too large"),
+    ("synthesize_shape", ((2.5, 8),), ValueError, "shape"),
+    ("synthesize_shape", ((np.nan, 8),), ValueError, "shape"),
+    ("texture", dict(seed="0"), TypeError, "seed"),
+    ("texture", dict(tileable="yes"), TypeError, "tileable"),
+    ("texture_shape", ((10**5, 10**5),), ValueError, "too large"),
+    ("texture_ratio", ((np.inf, 16),), ValueError, "input_shape"),
+    ("texture_ratio", ((10**400, 16),), ValueError, "input_shape"),
+    ("dynamic", dict(n_frames=np.inf), ValueError, "n_frames"),
+    ("dynamic", dict(n_frames=0), ValueError, "n_frames"),
+    ("dynamic", dict(burn_in=-5), ValueError, "burn_in"),
+    ("dynamic", dict(burn_in=10**9), ValueError, "burn_in"),
+    ("dynamic", dict(n_frames=10**5, shape=(512, 512)), ValueError, "memory"),
+    ("btf_fit", dict(n_subspaces=np.inf), ValueError, "n_subspaces"),
+    ("btf_fit", dict(n_subspaces=3), ValueError, "n_subspaces"),
+    ("btf_fit", dict(seed=-1), ValueError, "seed"),
+    ("histograms", dict(bins=10**9), ValueError, "bins"),
+    ("pyramid", dict(levels=10**9), ValueError, "levels"),
+    ("collapse", dict(wrap="no"), TypeError, "wrap"),
+    ("features", dict(levels=10**9), ValueError, "levels"),
+    ("minimum_size", dict(levels=10**9), ValueError, "levels"),
+    ("invariants", dict(levels=10**9), ValueError, "levels"),
+    ("noise", dict(channel_axis=1.5), TypeError, "channel_axis"),
+    ("noise", dict(channel_axis=7), ValueError, "channel_axis"),
+    ("noise", dict(channel_axis=10**400), ValueError, "channel_axis"),
+    ("psf_width", (np.ones((3, 3, 3)),), ValueError, "2-D"),
+    ("psf_width", (np.full((3, 3), np.nan),), ValueError, "NaN"),
+    ("temporal_context", (10**9,), ValueError, "channels"),
+    ("multichannel_context", dict(n_versions=10**9, reference=0), ValueError, "n_versions"),
+    ("multichannel_context", dict(n_versions=3, reference=np.inf), ValueError, "reference"),
+]
+
+
+@pytest.mark.parametrize("name, args, error, match", OPTION_CASES,
+                         ids=[f"{c[0]}-{c[1]}"[:60] for c in OPTION_CASES])
+def test_numeric_options_are_checked(name, args, error, match):
+    call = _call(name)
+    with pytest.raises(error, match=match):
+        call(**args) if isinstance(args, dict) else call(*args)

@@ -68,6 +68,12 @@ def _level_features(level, offsets):
         )
     V, count = data_statistics(centred, ctx)
     m = ctx.n_regressors
+    if count < m + 1:  # flat neighbourhoods are left out of the statistics
+        raise ValueError(
+            f"the image (or a pyramid level of {level.shape[0]}x{level.shape[1]}) has only "
+            f"{count} pixels whose neighbourhood varies, and this neighbourhood needs at "
+            f"least {m + 1}: it is nearly flat. Use a more textured region or a lower order."
+        )
     # Covariant prior: one pixel's worth of the data's own scatter.
     (gamma, lam, _, _, _), prior_V = _estimate(V, count, m, d, scatter / flat.shape[0])
     A = gamma.reshape(d, len(offsets), d).transpose(1, 0, 2)
@@ -91,6 +97,9 @@ def _level_features(level, offsets):
     return np.concatenate(
         [traces, eig.real.ravel(), np.abs(eig.imag).ravel(), [alpha1, alpha2, alpha3]]
     )
+
+
+_MAX_LEVELS = 16  # beyond, the coarsest level of any image is below one pixel
 
 
 def illumination_invariants(image, neighbourhood=2, *, levels=1, channel_axis=-1):
@@ -153,12 +162,13 @@ def illumination_invariants(image, neighbourhood=2, *, levels=1, channel_axis=-1
     >>> f.shape, bool(np.allclose(f, g, rtol=1e-4, atol=1e-6))
     ((17,), True)
     """
+    if isinstance(levels, (bool, np.bool_)) or not isinstance(levels, (int, np.integer)) \
+            or not 1 <= levels <= _MAX_LEVELS:
+        raise ValueError(f"levels must be a positive int up to {_MAX_LEVELS}; got {levels!r}.")
+    offsets, _ = as_offsets(neighbourhood)
     data = as_channel_last_float(image, channel_axis=channel_axis)
     check_not_constant(data)
     data = _unit_scale(data)
-    offsets, _ = as_offsets(neighbourhood)
-    if not isinstance(levels, (int, np.integer)) or levels < 1:
-        raise ValueError(f"levels must be a positive int; got {levels!r}.")
     if levels == 1:
         pyramid = [data]
     else:

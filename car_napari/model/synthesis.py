@@ -8,7 +8,7 @@ import math
 import numpy as np
 
 from .._progress import Progress, drain
-from .._validation import check_real, output_shape
+from .._validation import check_memory, check_real, check_seed, output_shape
 from ._kernels import synthesize_field
 from .blocks import row_ranges
 from .directions import unscan_view
@@ -25,10 +25,11 @@ _NOISE_COST, _FINISH_COST = 24.0, 6.0
 
 _FREQUENCIES = 256
 _MARGIN_TOLERANCE = 1e-4
+_MAX_MARGIN = 1024  # four times the default's longest: beyond it only costs time
 _RADIUS_CACHE = {}  # (gamma, offsets) bytes -> spectral radius; small and bounded
 
 
-def _cached_radius(model):
+def cached_radius(model):
     """spectral_radius, remembered for repeated synthesis from one model
     (it costs more than a 512x512 field); keyed by the numbers it uses."""
     key = (np.ascontiguousarray(model.gamma).tobytes(), model.gamma.shape,
@@ -145,8 +146,9 @@ def synthesize(model, shape, *, seed=None, margin=None):
     seed : int, numpy Generator or None, optional
         Random seed; the same seed gives the same texture.
     margin : int, optional
-        Burn-in margin in pixels on the top, left and right; by default long
-        enough for the model's transient to decay to 1e-4 (16 to 256).
+        Burn-in margin in pixels on the top, left and right, 0 to 1024; by
+        default long enough for the model's transient to decay to 1e-4 (16
+        to 256).
 
     Returns
     -------
@@ -235,7 +237,12 @@ def iter_synthesize(model, shape, *, seed=None, margin=None, chunk_rows=None):
     if not isinstance(model, CARModel):
         raise TypeError(f"model must be a CARModel (from fit_car); got {type(model).__name__}.")
     h, w = output_shape(shape)
-    radius = _cached_radius(model)
+    rng = check_seed(seed)
+    if chunk_rows is not None:
+        chunk_rows = check_real(chunk_rows, "chunk_rows", low=1, integer=True)
+    d = model.n_channels
+    check_memory(8 * d * 3 * h * w, f"shape {(h, w)}")  # the field, its noise, the output
+    radius = cached_radius(model)
     if not radius < 1.0:
         raise ValueError(
             f"the model is unstable (spectral radius {radius:.4g} >= 1): its field would "
@@ -246,9 +253,8 @@ def iter_synthesize(model, shape, *, seed=None, margin=None, chunk_rows=None):
         margin = math.ceil(math.log(_MARGIN_TOLERANCE) / math.log(max(radius, 1e-3)))
         margin = int(min(max(margin, 16), 256))
     else:  # a negative margin would crop into the output: (4, 0) for margin=-5
-        margin = check_real(margin, "margin (burn-in pixels)", low=0, high=4096, integer=True)
-    rng = np.random.default_rng(seed)
-    d = model.n_channels
+        margin = check_real(margin, "margin (burn-in pixels)", low=0, high=_MAX_MARGIN,
+                            integer=True)
     hs, ws = (w, h) if model.direction in ("right", "left") else (h, w)
     reach = int(np.abs(model.offsets).max())
     top, side = margin + reach, margin + reach

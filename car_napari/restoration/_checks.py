@@ -3,6 +3,9 @@ work, and say what to pass instead."""
 
 from __future__ import annotations
 
+import numpy as np
+
+from .._validation import check_real
 from ..model.directions import DIRECTIONS
 from ..model.estimation import select_support
 from ..model.neighbourhood import as_offsets
@@ -10,10 +13,9 @@ from ..model.neighbourhood import as_offsets
 
 def check_kappa(kappa):
     """``kappa`` as a float in [0, 1), or a TypeError/ValueError that says so."""
-    try:
-        value = float(kappa)
-    except (TypeError, ValueError):
-        raise TypeError(f"kappa must be a number in [0, 1); got {kappa!r}.") from None
+    if isinstance(kappa, (bool, np.bool_)) or not isinstance(kappa, (int, float, np.number)):
+        raise TypeError(f"kappa must be a number in [0, 1); got {kappa!r}.")
+    value = float(kappa) if not isinstance(kappa, int) or abs(kappa) < 2 else 2.0
     if not 0.0 <= value < 1.0:
         raise ValueError(
             f"kappa must be in [0, 1) (a prediction probability: 0 replaces every pixel, "
@@ -22,14 +24,24 @@ def check_kappa(kappa):
     return value
 
 
+def check_flags(**flags):
+    """Every keyword a bool (True or False), or a TypeError naming it."""
+    for name, value in flags.items():
+        if not isinstance(value, (bool, np.bool_)):
+            raise TypeError(f"{name} must be True or False; got {value!r}.")
+
+
 def check_options(forgetting, directions, names=DIRECTIONS):
     """``(forgetting, directions)`` validated: a float in (0, 1] and a
     non-empty tuple of ``names`` ('all' is every name)."""
-    if not 0.0 < float(forgetting) <= 1.0:
-        raise ValueError(f"forgetting must be in (0, 1]; got {forgetting}.")
+    forgetting = check_real(forgetting, "forgetting", low=0.0, high=1.0, low_open=True)
     if isinstance(directions, str):
         directions = names if directions == "all" else (directions,)
-    directions = tuple(directions)
+    try:
+        directions = tuple(directions)
+    except TypeError:
+        raise TypeError(f"directions must be 'all' or a sequence of {names}; got "
+                        f"{directions!r}.") from None
     bad = [d for d in directions if d not in names]
     if bad or not directions:
         raise ValueError(f"directions must be 'all' or a non-empty subset of {names}; "

@@ -17,10 +17,16 @@ from typing import NamedTuple
 import numpy as np
 
 from .._progress import Progress, drain, stage
-from .._validation import channel_last_shape, check_not_constant, summarize
+from .._validation import (
+    channel_last_shape,
+    check_not_constant,
+    check_real,
+    scale_exponent,
+    summarize,
+)
 from ..model.blocks import iter_channel_last_float
-from ..model.neighbourhood import Context
-from ._checks import check_kappa, check_options, resolve_offsets
+from ..model.neighbourhood import Context, as_offsets
+from ._checks import check_flags, check_kappa, check_options, resolve_offsets
 from ._combine import (
     DirectionalAverage,
     chunk_rows,
@@ -108,7 +114,10 @@ def multichannel_context(offsets, n_versions, reference, *, with_prediction=Fals
     >>> len(context.taps), context.targets.tolist()
     (8, [0])
     """
-    offsets = np.asarray(offsets, np.int64)
+    offsets, _ = as_offsets(offsets)
+    n_versions = check_real(n_versions, "n_versions", low=1, high=MAX_VERSIONS, integer=True)
+    reference = check_real(reference, f"reference (a version in 0..{n_versions - 1})", low=0,
+                           high=n_versions - 1, integer=True)
     taps = [(di, dj, v) for v in range(n_versions) for di, dj in offsets]
     taps += [(0, 0, v) for v in range(n_versions) if v != reference]
     if with_prediction:
@@ -116,9 +125,14 @@ def multichannel_context(offsets, n_versions, reference, *, with_prediction=Fals
     return Context(np.array(taps, np.int64), np.array([reference]))
 
 
+MAX_VERSIONS = 64  # more versions than this: the versions axis is probably wrong
+
+
 def _check_axis(axis, ndim, shape):
     """The versions axis as an index in [0, ndim), or a clear error."""
     try:
+        if isinstance(axis, (bool, np.bool_)):
+            raise TypeError
         axis = operator.index(axis)
     except TypeError:
         raise TypeError(f"axis must be an integer: the axis of the stack that holds the "
@@ -166,6 +180,8 @@ def _stack_layout(stack, *, axis, channel_axis):
                 f"the stack is 4-D {arr.shape} but channel_axis=None (grey); pass the colour "
                 "axis (e.g. channel_axis=-1 for (n, H, W, C)) or a 3-D (n, H, W) grey stack.")
         try:
+            if isinstance(channel_axis, (bool, np.bool_)):
+                raise TypeError
             ch = operator.index(channel_axis)
         except TypeError:
             raise TypeError(f"channel_axis must be an integer or None; got "
@@ -184,7 +200,14 @@ def _stack_layout(stack, *, axis, channel_axis):
             f"the stack holds {arr.shape[0]} version along axis {axis}; multichannel "
             "restoration needs at least 2 (use restore() for a single image)."
         )
-    channel_last_shape(arr[0], channel_axis=position, name="version 0")
+    plane = channel_last_shape(arr[0], channel_axis=position, name="version 0")[:2]
+    if arr.shape[0] > min(MAX_VERSIONS, *plane):
+        raise ValueError(
+            f"axis={axis} gives {arr.shape[0]} versions of {plane[0]}x{plane[1]} images: more "
+            f"versions than the images have pixels a side (or than {MAX_VERSIONS}). Is axis "
+            "right? It names the axis that holds the versions (0 for (n, H, W) or "
+            "(n, H, W, C))."
+        )
     return arr, position
 
 
@@ -374,14 +397,24 @@ def iter_restore_multichannel(stack, *, axis=0, kappa=DEFAULT_KAPPA, reference="
     """
     kappa = check_kappa(kappa)
     forgetting, directions = check_options(forgetting, directions)
+    check_flags(keep_edges=keep_edges, reference_prediction=reference_prediction,
+                return_result=return_result)
+    if not isinstance(neighbourhood, str):
+        as_offsets(neighbourhood)  # its own message, before the stack is read
     arr, position = _stack_layout(stack, axis=axis, channel_axis=channel_axis)
+    # a float stack of a spread beyond 2**±32 is restored scaled by a power of
+    # two (exact) and scaled back: the directions' weights have absolute caps
+    exponent = scale_exponent(arr)
+    if exponent:
+        arr = np.ldexp(arr.astype(np.float64), -exponent)
     n = len(arr)
-    if not isinstance(reference, str) and (int(reference) != reference
-                                           or not -n <= int(reference) < n):
-        raise ValueError(f"reference must be 'auto' or an index in 0..{n - 1}; "
-                         f"got {reference!r}.")
-    if isinstance(reference, str) and reference != "auto":
-        raise ValueError(f"reference must be 'auto' or a version index; got {reference!r}.")
+    if isinstance(reference, str):
+        if reference != "auto":
+            raise ValueError(f"reference must be 'auto' or a version index; got "
+                             f"{reference!r}.")
+    else:
+        reference = check_real(reference, f"reference ('auto' or a version index in "
+                               f"{-n}..{n - 1})", low=-n, high=n - 1, integer=True)
     C = channel_last_shape(arr[0], channel_axis=position)[2]
     steps = C * len(directions)
     # the stages' shares of the work, as measured on 4 x 2048 x 2048 colour
@@ -431,6 +464,8 @@ def iter_restore_multichannel(stack, *, axis=0, kappa=DEFAULT_KAPPA, reference="
                 weight = stop.value
                 break
             yield Progress("edges", lo + (hi - lo) * done / H, f"edge rule: rows {done}/{H}")
+    if exponent:  # back to the stack's units; probabilities and weights have none
+        observed, pred, noise = (np.ldexp(a, exponent) for a in (observed, pred, noise))
     result = RestorationResult(observed, pred, prob, weight, reference, kappa, noise)
     if return_result:
         return result

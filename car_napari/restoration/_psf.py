@@ -5,7 +5,27 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import as_channel_last_float, check_size
+from .._validation import (
+    as_channel_last_float,
+    channel_last_shape,
+    check_memory,
+    check_real,
+    check_size,
+)
+
+# the largest PSF support: 31 x 31 = 961 unknowns, a 7 MB normal system (the
+# design matrix has one column per tap and a row per pixel and channel)
+MAX_PSF_SIZE = 31
+
+
+def _largest_size(h, w, d):
+    """The largest odd size whose taps an h x w x d region determines."""
+    best = 1
+    for size in range(1, MAX_PSF_SIZE + 1, 2):
+        half = size // 2
+        if max(h - 2 * half, 0) * max(w - 2 * half, 0) * d >= size * size:
+            best = size
+    return best
 
 
 def estimate_psf(observed, restored, *, size=7, window=None, channel_axis=-1):
@@ -24,7 +44,9 @@ def estimate_psf(observed, restored, *, size=7, window=None, channel_axis=-1):
     restored : (H, W) or (H, W, C) array
         The restored (or sharp) image, of the shape of ``observed``.
     size : odd int, optional
-        The PSF support in pixels (default 7).
+        The PSF support in pixels (default 7), at most 31, and small enough
+        that the image (or a window) has as many interior pixels as the
+        PSF has taps.
     window : int or None, optional
         None: one global PSF. An int: PSFs of non-overlapping
         ``window x window`` tiles (the local PSFs of a slowly varying blur);
@@ -55,26 +77,42 @@ def estimate_psf(observed, restored, *, size=7, window=None, channel_axis=-1):
     >>> psf.shape, round(psf_width(psf), 1)
     ((9, 9), 1.0)
     """
+    size = check_real(size, "size (a positive odd integer)", low=1, high=MAX_PSF_SIZE,
+                      integer=True)
+    if size % 2 == 0:
+        raise ValueError(f"size must be a positive odd integer; got {size}.")
+    half = size // 2
+    if window is not None:
+        window = check_real(window, f"window (an integer of at least {size + 2 * half}, "
+                            "size + 2 * (size // 2), or None)", low=size + 2 * half,
+                            integer=True)
+    # the layout before any pass over the values
+    shape = channel_last_shape(observed, channel_axis=channel_axis, name="observed")
+    other = channel_last_shape(restored, channel_axis=channel_axis, name="restored")
+    if shape != other:
+        raise ValueError(f"observed {shape} and restored {other} must have one shape.")
+    H, W, d = shape
+    if window is not None and window > min(H, W):
+        raise ValueError(f"window {window} is larger than the image {(H, W)}.")
+    side_h, side_w = (H, W) if window is None else (window, window)
+    equations = max(side_h - 2 * half, 0) * max(side_w - 2 * half, 0) * d
+    if equations < size * size:
+        largest = _largest_size(side_h, side_w, d)
+        raise ValueError(
+            f"size {size} is too large for {'the image' if window is None else 'a window'} "
+            f"of {side_h}x{side_w}: its {size * size} taps need at least as many interior "
+            f"pixels, there are {equations}. Use size <= {largest}"
+            + (" or a larger window." if window is not None else ".")
+        )
+    n_rows = max(H - 2 * half, 0) * max(W - 2 * half, 0) * d
+    check_memory(8 * n_rows * (size * size + 2), f"size={size} on an image of {H}x{W}x{d}")
     obs = as_channel_last_float(observed, channel_axis=channel_axis, name="observed")
     res = as_channel_last_float(restored, channel_axis=channel_axis, name="restored")
-    if obs.shape != res.shape:
-        raise ValueError(f"observed {obs.shape} and restored {res.shape} must have one shape.")
-    if int(size) != size or size < 1 or size % 2 == 0:
-        raise ValueError(f"size must be a positive odd integer; got {size}.")
-    size = int(size)
-    half = size // 2
-    H, W, _ = obs.shape
     if window is None:
         tiles = [(slice(0, H), slice(0, W))]
         grid = None
     else:
-        if int(window) != window or window < size + 2 * half:
-            raise ValueError(f"window must be an integer of at least {size + 2 * half} "
-                             f"(size + 2 * (size // 2)); got {window}.")
-        window = int(window)
         grid = (H // window, W // window)
-        if 0 in grid:
-            raise ValueError(f"window {window} is larger than the image {obs.shape[:2]}.")
         tiles = [(slice(i * window, (i + 1) * window), slice(j * window, (j + 1) * window))
                  for i in range(grid[0]) for j in range(grid[1])]
     check_size(res, ((half, half), (half, half)), name="restored")
@@ -121,7 +159,10 @@ def psf_width(psf):
     Raises
     ------
     ValueError
-        If the PSF has no positive mass.
+        If the PSF is not a non-empty finite 2-D array, or has no positive
+        mass.
+    TypeError
+        If the PSF is not numeric.
 
     Examples
     --------
@@ -131,7 +172,14 @@ def psf_width(psf):
     >>> round(psf_width(np.exp(-(i**2 + j**2) / (2 * 1.5**2))), 2)
     1.5
     """
-    psf = np.clip(np.asarray(psf, float), 0, None)
+    arr = np.asarray(psf)
+    if arr.dtype == object or arr.dtype.kind not in "biuf":
+        raise TypeError(f"psf has dtype {arr.dtype}; pass a numeric 2-D array.")
+    if arr.ndim != 2 or arr.size == 0:
+        raise ValueError(f"psf must be a non-empty 2-D array; got shape {arr.shape}.")
+    if not np.isfinite(arr).all():
+        raise ValueError("psf contains NaN or infinite values.")
+    psf = np.clip(arr.astype(float), 0, None)
     total = psf.sum()
     if total <= 0:
         raise ValueError("the PSF has no positive mass.")

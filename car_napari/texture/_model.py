@@ -28,16 +28,28 @@ from __future__ import annotations
 import json
 import math
 import zipfile
+import zlib
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 from scipy import ndimage as ndi
 
 from .._progress import Progress, drain, stage
-from .._validation import as_channel_last_float, check_not_constant, output_shape, summarize
+from .._validation import (
+    as_channel_last_float,
+    check_flag,
+    check_memory,
+    check_not_constant,
+    check_seed,
+    check_shape,
+    output_shape,
+    summarize,
+)
+from ..model.directions import DIRECTIONS
 from ..model.estimation import CARModel, iter_fit_car
 from ..model.neighbourhood import as_offsets
-from ..model.synthesis import iter_synthesize, spectral_radius
+from ..model.synthesis import cached_radius, iter_synthesize, spectral_radius
 
 __all__ = [
     "TextureModel", "iter_fit_texture", "laplacian_pyramid", "collapse_pyramid", "FORMAT_NAME",
@@ -63,6 +75,9 @@ _SHARE_READ, _SHARE_QUANTILES, _SHARE_PYRAMID, _SHARE_FIT = 0.3, 1.0, 0.5, 20.0
 # and crop; the kernel adds its parameters a pixel), the tiling, a histogram
 # matching, the collapse, the restore of the mean and contrast
 _COST_FIELD, _COST_TORUS, _COST_MATCH, _COST_COLLAPSE, _COST_RESTORE = 30, 10, 75, 14, 25
+# float64 arrays of the output's size a synthesis holds at its peak (the
+# bands, the finest field with its margin, the collapse and the result)
+_SYNTHESIS_COPIES = 6
 
 
 def _plane_shape(image, channel_axis):
@@ -273,17 +288,23 @@ def _iter_collapse(bands, wrap):
     return out
 
 
-def _positive_int(value, name):
-    """``value`` as an int when it is a positive int (not a bool), else the
-    ValueError ``"{name} must be a positive int"``."""
+# more pyramid levels than this halve any image below one pixel
+MAX_PYRAMID_LEVELS = 32
+
+
+def _positive_int(value, name, high=None):
+    """``value`` as an int when it is a positive int (not a bool) up to
+    ``high``, else the ValueError ``"{name} must be a positive int"``."""
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) \
             or value < 1:
         raise ValueError(f"{name} must be a positive int; got {value!r}.")
+    if high is not None and value > high:
+        raise ValueError(f"{name} must be a positive int up to {high}; got {value!r}.")
     return int(value)
 
 
 def _check_pyramid_levels(levels):
-    return _positive_int(levels, "levels")
+    return _positive_int(levels, "levels", MAX_PYRAMID_LEVELS)
 
 
 def laplacian_pyramid(image, *, levels=3, channel_axis=-1):
@@ -371,7 +392,7 @@ def collapse_pyramid(bands, *, wrap=False, channel_axis=-1):
         raise ValueError("bands is empty: pass the bands of laplacian_pyramid, finest first.")
     ndims = {a.ndim for a in arrays}
     if ndims == {2}:
-        return _collapse([a[..., np.newaxis] for a in arrays], bool(wrap))[..., 0]
+        return _collapse([a[..., np.newaxis] for a in arrays], check_flag(wrap, "wrap"))[..., 0]
     if ndims != {3}:
         raise ValueError(
             f"bands must be all 2-D (grey) or all 3-D (multichannel); got dimensions "
@@ -380,7 +401,7 @@ def collapse_pyramid(bands, *, wrap=False, channel_axis=-1):
     if channel_axis is None:
         raise ValueError("the bands are 3-D but channel_axis=None; pass the channel axis "
                          "(e.g. channel_axis=-1) or 2-D grey bands.")
-    out = _collapse([np.moveaxis(a, channel_axis, -1) for a in arrays], bool(wrap))
+    out = _collapse([np.moveaxis(a, channel_axis, -1) for a in arrays], check_flag(wrap, "wrap"))
     return np.moveaxis(out, -1, channel_axis)
 
 
@@ -815,10 +836,20 @@ def _check_options(levels, model, neighbourhood):
         raise ValueError(f"levels must be between 1 and 8; got {levels}.")
     if model not in ("3d", "2d"):
         raise ValueError(f"model must be '3d' or '2d'; got {model!r}.")
-    if isinstance(neighbourhood, str) and neighbourhood != "auto":
-        raise ValueError(
-            f"neighbourhood must be 'auto', an order or offsets; got {neighbourhood!r}."
-        )
+    if isinstance(neighbourhood, str):
+        if neighbourhood != "auto":
+            raise ValueError(
+                f"neighbourhood must be 'auto', an order or offsets; got {neighbourhood!r}."
+            )
+    else:
+        offsets, _ = as_offsets(neighbourhood)
+        reach = int(np.abs(offsets).max())
+        if reach > MAX_FILE_REACH or len(offsets) > MAX_FILE_OFFSETS:
+            raise ValueError(
+                f"neighbourhood has {len(offsets)} offsets reaching {reach} pixels; a texture "
+                f"model holds at most {MAX_FILE_OFFSETS} offsets reaching {MAX_FILE_REACH} "
+                "(the file format's bounds). Use a lower order."
+            )
     return levels
 
 
@@ -1074,9 +1105,7 @@ class TextureModel:
         >>> round(model.compression_ratio((512, 512)), 1)
         1351.3
         """
-        shape = tuple(int(v) for v in input_shape)
-        if len(shape) not in (2, 3) or min(shape) < 1:
-            raise ValueError(f"input_shape must be (H, W) or (H, W, C); got {input_shape!r}.")
+        shape = check_shape(input_shape, "input_shape ((H, W) or (H, W, C))")
         values = math.prod(shape) * (self.n_channels if len(shape) == 2 else 1)
         return 4.0 * values / self.nbytes
 
@@ -1184,7 +1213,19 @@ class TextureModel:
         (1.0, True)
         """
         h, w = output_shape(shape)
-        rng = np.random.default_rng(seed)
+        if not isinstance(tileable, (bool, np.bool_)):
+            raise TypeError(f"tileable must be True or False; got {tileable!r}.")
+        if tileable:
+            # every pyramid level must keep 2 pixels a side for its cross-fade
+            least = 2 if self.levels == 1 else 2 ** (self.levels - 1) + 1
+            if min(h, w) < least:
+                raise ValueError(
+                    f"shape {(h, w)} is too small for tileable synthesis with "
+                    f"{self.levels} pyramid levels: each side needs at least {least} pixels "
+                    "(every level keeps 2). Ask for a larger shape, or tileable=False."
+                )
+        check_memory(_SYNTHESIS_COPIES * 8 * h * w * self.n_channels, f"shape {(h, w)}")
+        rng = check_seed(seed)
         # one independent stream per band, fixed by the seed
         streams = [np.random.default_rng(s) for s in rng.integers(0, 2**63, size=self.levels)]
         shapes = _level_shapes((h, w), self.levels)
@@ -1350,42 +1391,21 @@ class TextureModel:
         >>> np.array_equal(loaded.synthesize((20, 20), seed=0), model.synthesize((20, 20), seed=0))
         True
         """
+        arrays, header, version = _read_model_file(path)
         try:
-            with np.load(path, allow_pickle=False) as archive:
-                arrays = {key: archive[key] for key in archive.files}
-        except FileNotFoundError:
-            raise
-        except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError) as exc:
-            raise ValueError(
-                f"{path} is not a readable car-napari texture model (.npz): {exc}. "
-                "Re-save the model with TextureModel.save."
-            ) from exc
-        try:
-            header = json.loads(str(arrays.pop("header")))
-        except (KeyError, ValueError, TypeError) as exc:
-            raise ValueError(
-                f"{path} has no valid texture-model header ({exc}); it was not written "
-                "by TextureModel.save or is corrupt."
-            ) from exc
-        if not isinstance(header, dict) or header.get("format") != FORMAT_NAME:
-            raise ValueError(
-                f"{path} is not a car-napari texture model (format "
-                f"{header.get('format') if isinstance(header, dict) else header!r})."
-            )
-        version = header.get("version")
-        if not isinstance(version, int):
-            raise ValueError(f"{path} has an invalid format version {version!r}.")
-        if version > FORMAT_VERSION:
-            raise ValueError(
-                f"{path} uses texture-model format version {version}, newer than this "
-                f"car-napari reads (up to {FORMAT_VERSION}); upgrade car-napari to load it."
-            )
-        try:
-            return cls._from_arrays(header, arrays, version)
-        except (KeyError, ValueError, TypeError, IndexError) as exc:
+            model = cls._from_arrays(header, arrays, version)
+        except (KeyError, ValueError, TypeError, IndexError, np.linalg.LinAlgError) as exc:
             raise ValueError(
                 f"{path} is a damaged texture model: {type(exc).__name__}: {exc}."
             ) from exc
+        for k, band in enumerate(model.models):
+            radius = cached_radius(band)  # synthesis asks again: remembered
+            if not radius < 1.0:
+                raise ValueError(
+                    f"{path} is a damaged texture model: band {k} is unstable (spectral "
+                    f"radius {radius:.4g} >= 1), its field would grow without bound."
+                )
+        return model
 
     @classmethod
     def _from_arrays(cls, header, arrays, version=FORMAT_VERSION):
@@ -1426,6 +1446,224 @@ class TextureModel:
             band_quantiles=np.stack(band_quantiles) if version >= 2 else None,
             quantiles=quantiles,
         )
+
+
+# ------------------------------------------------------------ model files
+# What a model file may hold (the loader refuses anything else before reading
+# it): the bounds of the format, far beyond what a fit produces (order 5
+# reaches 2 pixels with 12 offsets, order 30 reaches 8 with 106).
+MAX_FILE_LEVELS = 8
+MAX_FILE_CHANNELS = 64
+MAX_FILE_REACH = 16  # largest |di| or |dj| of a neighbour offset
+MAX_FILE_OFFSETS = 256  # largest number of offsets per band
+_MAX_FILE_QUANTILES = 4096
+_HEADER_BYTES = 1 << 16  # the JSON header's largest size
+_NPY_HEADER_BYTES = 1 << 12  # room for an .npy member's own header
+
+
+def _model_file_error(path, what):
+    return ValueError(f"{path} is not a readable car-napari texture model (.npz): {what}. "
+                      "Re-save the model with TextureModel.save.")
+
+
+def _read_member(archive, path, key, *, kinds, count=None, max_count=None):
+    """The array ``key`` of the open ``archive``: its declared sizes and its
+    .npy header checked before any of its data is read (a bounded read)."""
+    try:
+        info = archive.getinfo(key + ".npy")
+    except KeyError:
+        raise ValueError(f"{path} is a damaged texture model: member {key!r} is missing."
+                         ) from None
+    if max_count is None:
+        max_count = count
+    limit = _NPY_HEADER_BYTES + 8 * max_count if kinds != "U" else _HEADER_BYTES
+    if info.file_size > limit:
+        raise ValueError(
+            f"{path} is a damaged texture model: member {key!r} declares "
+            f"{info.file_size} bytes, more than the {limit} it can take."
+        )
+    with archive.open(info) as stream:
+        try:
+            major, _ = np.lib.format.read_magic(stream)
+            reader = (np.lib.format.read_array_header_1_0 if major == 1
+                      else np.lib.format.read_array_header_2_0)
+            shape, fortran, dtype = reader(stream)
+        except ValueError as exc:
+            raise ValueError(f"{path} is a damaged texture model: member {key!r} is not a "
+                             f"NumPy array ({exc}).") from None
+        if dtype.hasobject or dtype.kind not in kinds:
+            raise ValueError(
+                f"{path} is a damaged texture model: member {key!r} has dtype {dtype} "
+                f"(allowed kinds {kinds!r}; objects and pickles are refused)."
+            )
+        n = math.prod(shape)
+        if (count is not None and n != count) or (max_count is not None and n > max_count) \
+                or n == 0:
+            want = count if count is not None else f"1 to {max_count}"
+            raise ValueError(
+                f"{path} is a damaged texture model: member {key!r} has shape {shape} "
+                f"({n} values) but needs {want}."
+            )
+        data = stream.read(n * dtype.itemsize)
+    if len(data) != n * dtype.itemsize:
+        raise ValueError(f"{path} is a damaged texture model: member {key!r} is truncated.")
+    return np.frombuffer(data, dtype=dtype).reshape(shape, order="F" if fortran else "C")
+
+
+def _header_value(header, path, key, kind, low, high):
+    value = header.get(key)
+    if isinstance(value, bool) or not isinstance(value, kind) or not low <= value <= high:
+        raise ValueError(f"{path} has an invalid texture-model header: {key!r} is "
+                         f"{value!r}, not in {low} to {high}.")
+    return value
+
+
+def _check_header(header, path):
+    """The header's fields that decide what is read, checked (the rest is
+    checked as the model is built)."""
+    levels = _header_value(header, path, "levels", int, 1, MAX_FILE_LEVELS)
+    d = _header_value(header, path, "n_channels", int, 1, MAX_FILE_CHANNELS)
+    for key in ("beta", "n_pixels", "order", "direction"):
+        if not isinstance(header.get(key), list) or len(header[key]) != levels:
+            raise ValueError(f"{path} has an invalid texture-model header: {key!r} must be "
+                             f"a list of {levels} entries.")
+    for k in range(levels):
+        beta, n_pixels = header["beta"][k], header["n_pixels"][k]
+        order, direction = header["order"][k], header["direction"][k]
+        if isinstance(beta, bool) or not isinstance(beta, (int, float)) \
+                or not math.isfinite(beta) or beta < 0:
+            raise ValueError(f"{path} has an invalid texture-model header: beta of band {k} "
+                             f"is {beta!r}.")
+        if isinstance(n_pixels, bool) or not isinstance(n_pixels, int) or n_pixels < 0:
+            raise ValueError(f"{path} has an invalid texture-model header: n_pixels of band "
+                             f"{k} is {n_pixels!r}.")
+        if order is not None and (isinstance(order, bool) or not isinstance(order, int)):
+            raise ValueError(f"{path} has an invalid texture-model header: order of band {k} "
+                             f"is {order!r}.")
+        if direction not in DIRECTIONS:
+            raise ValueError(f"{path} has an invalid texture-model header: direction of band "
+                             f"{k} is {direction!r}, not one of {DIRECTIONS}.")
+    if not isinstance(header.get("grey"), bool) or (header["grey"] and d != 1):
+        raise ValueError(f"{path} has an invalid texture-model header: grey is "
+                         f"{header.get('grey')!r} for {d} channels.")
+    if header.get("model", "3d") not in ("3d", "2d"):
+        raise ValueError(f"{path} has an invalid texture-model header: model is "
+                         f"{header.get('model')!r}.")
+    fallbacks = header.get("fallbacks", [])
+    if not isinstance(fallbacks, list) or not all(isinstance(f, str) for f in fallbacks):
+        raise ValueError(f"{path} has an invalid texture-model header: fallbacks is "
+                         f"{fallbacks!r}.")
+    return levels, d
+
+
+def _check_parameters(arrays, path, levels, d):
+    """Every stored number finite and every array consistent: ranges
+    ordered, quantiles non-decreasing, covariances symmetric positive
+    semi-definite, offsets causal and within the format's bounds."""
+    for key, a in arrays.items():
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"{path} is a damaged texture model: {key} holds NaN or "
+                             "infinite values.")
+    if np.any(arrays["std"] < 0):
+        raise ValueError(f"{path} is a damaged texture model: std is negative.")
+    keys = ["value_range"] + [f"band{k}_range" for k in range(levels)]
+    for key in keys:
+        lo, hi = arrays[key].reshape(2, d)
+        if np.any(lo > hi):
+            raise ValueError(f"{path} is a damaged texture model: {key} has its minimum "
+                             "above its maximum.")
+    for key in [k for k in arrays if k.endswith("quantiles")]:
+        if arrays[key].size % d or arrays[key].size < 2 * d:
+            raise ValueError(f"{path} is a damaged texture model: {key} has "
+                             f"{arrays[key].size} values, not at least 2 per channel.")
+        if np.any(np.diff(arrays[key].reshape(-1, d), axis=0) < 0):
+            raise ValueError(f"{path} is a damaged texture model: {key} are not "
+                             "non-decreasing.")
+    for k in range(levels):
+        offsets = arrays[f"band{k}_offsets"]
+        if np.abs(offsets).max() > MAX_FILE_REACH:
+            raise ValueError(
+                f"{path} is a damaged texture model: band {k} has a neighbour offset "
+                f"reaching {int(np.abs(offsets).max())} pixels (the format allows at most "
+                f"{MAX_FILE_REACH})."
+            )
+        sigma = arrays[f"band{k}_sigma"].reshape(d, d).astype(float)
+        scale = max(float(np.abs(sigma).max()), np.finfo(float).tiny)
+        symmetric = np.abs(sigma - sigma.T).max() <= 1e-5 * scale
+        if not symmetric or np.linalg.eigvalsh(sigma).min() < -1e-5 * scale:
+            raise ValueError(f"{path} is a damaged texture model: band {k}'s covariance "
+                             "is not symmetric positive semi-definite.")
+
+
+def _read_model_file(path):
+    """The header, the arrays and the format version of a model file, every
+    member checked before it is read; a ValueError naming the file and what
+    is wrong for anything else."""
+    try:
+        with open(path, "rb") as file:
+            magic = file.read(6)
+    except FileNotFoundError:
+        raise
+    except (OSError, TypeError) as exc:
+        raise _model_file_error(path, exc) from exc
+    if magic == b"\x93NUMPY":
+        raise _model_file_error(path, "it is a single NumPy array (.npy), not the .npz "
+                                "archive TextureModel.save writes")
+    try:
+        with zipfile.ZipFile(path) as archive:
+            return _read_members(archive, path)
+    except (zipfile.BadZipFile, zlib.error, EOFError, OSError, NotImplementedError,
+            RuntimeError) as exc:
+        raise _model_file_error(path, f"{type(exc).__name__}: {exc}") from exc
+
+
+def _read_members(archive, path):
+    if "header.npy" not in archive.namelist():
+        raise ValueError(f"{path} has no texture-model header; it was not written by "
+                         "TextureModel.save or is corrupt.")
+    text = _read_member(archive, path, "header", kinds="U", max_count=1)
+    try:
+        header = json.loads(str(text.reshape(())))
+    except (ValueError, TypeError) as exc:
+        raise ValueError(
+            f"{path} has no valid texture-model header ({exc}); it was not written "
+            "by TextureModel.save or is corrupt."
+        ) from exc
+    if not isinstance(header, dict) or header.get("format") != FORMAT_NAME:
+        raise ValueError(
+            f"{path} is not a car-napari texture model (format "
+            f"{header.get('format') if isinstance(header, dict) else header!r})."
+        )
+    version = header.get("version")
+    if isinstance(version, bool) or not isinstance(version, int) or version < 1:
+        raise ValueError(f"{path} has an invalid format version {version!r}.")
+    if version > FORMAT_VERSION:
+        raise ValueError(
+            f"{path} uses texture-model format version {version}, newer than this "
+            f"car-napari reads (up to {FORMAT_VERSION}); upgrade car-napari to load it."
+        )
+    levels, d = _check_header(header, path)
+    floats = "fi"
+    read = partial(_read_member, archive, path)
+    arrays = {"mean": read("mean", kinds=floats, count=d),
+              "std": read("std", kinds=floats, count=d),
+              "value_range": read("value_range", kinds=floats, count=2 * d)}
+    if version >= 2:
+        arrays["quantiles"] = read("quantiles", kinds=floats,
+                                   max_count=_MAX_FILE_QUANTILES * d)
+    for k in range(levels):
+        offsets = read(f"band{k}_offsets", kinds="iu", max_count=2 * MAX_FILE_OFFSETS)
+        arrays[f"band{k}_offsets"] = offsets
+        eta = offsets.size // 2
+        arrays[f"band{k}_gamma"] = read(f"band{k}_gamma", kinds=floats, count=d * d * eta)
+        arrays[f"band{k}_sigma"] = read(f"band{k}_sigma", kinds=floats, count=d * d)
+        arrays[f"band{k}_mean"] = read(f"band{k}_mean", kinds=floats, count=d)
+        arrays[f"band{k}_range"] = read(f"band{k}_range", kinds=floats, count=2 * d)
+        if version >= 2:
+            arrays[f"band{k}_quantiles"] = read(f"band{k}_quantiles", kinds=floats,
+                                                max_count=_MAX_FILE_QUANTILES * d)
+    _check_parameters(arrays, path, levels, d)
+    return arrays, header, version
 
 
 def iter_fit_texture(image, *, levels=3, model="3d", neighbourhood="auto", channel_axis=-1):

@@ -10,18 +10,19 @@ subspace's model, with that image's own mean, contrast and range.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from .._progress import Progress, drain, stage
-from .._validation import output_shape
+from .._validation import check_memory, check_real, check_seed, check_shape, output_shape
 from ._model import (
+    _SYNTHESIS_COPIES,
     _check_options,
     _check_texture_size,
     _iter_clip,
     _iter_restore,
-    _positive_int,
     iter_fit_texture,
 )
 from ._stack import as_stack
@@ -82,7 +83,7 @@ def cumulative_histograms(stack, *, bins=HISTOGRAM_BINS, channel_axis=-1):
     array([[1., 1., 1., 1.],
            [0., 0., 0., 1.]])
     """
-    bins = _positive_int(bins, "bins")
+    bins = check_real(bins, "bins (a positive int)", low=1, high=1 << 16, integer=True)
     images, _ = as_stack(stack, channel_axis)
     return np.stack([_cumulative_histogram(image, bins) for image in images])
 
@@ -153,12 +154,13 @@ def iter_fit_btf(stack, *, n_subspaces=4, levels=3, neighbourhood="auto", channe
     1.0
     """
     levels = _check_options(levels, "3d", neighbourhood)
+    if not isinstance(seed, (np.random.Generator, np.random.RandomState)):
+        check_real(seed, "seed (a non-negative int or a numpy Generator)", low=0,
+                   high=2**32 - 1, integer=True)
     images, grey = as_stack(stack, channel_axis)
     n = images.shape[0]
-    if isinstance(n_subspaces, (bool, np.bool_)) or int(n_subspaces) != n_subspaces \
-            or not 1 <= n_subspaces <= n:
-        raise ValueError(f"n_subspaces must be an int from 1 to the number of images "
-                         f"({n}); got {n_subspaces!r}.")
+    n_subspaces = check_real(n_subspaces, f"n_subspaces (an int from 1 to the number of "
+                             f"images, {n})", low=1, high=n, integer=True)
     _check_texture_size(images.shape[1:3], levels, name="each image of the stack")
     features = []
     for i, image in enumerate(images):
@@ -345,7 +347,9 @@ class BTFModel:
         >>> btf.compression_ratio(stack.shape) == 4 * stack.size / btf.nbytes
         True
         """
-        return 4.0 * float(np.prod(stack_shape)) / self.nbytes
+        shape = check_shape(stack_shape, "stack_shape ((n, H, W) or (n, H, W, C))",
+                            lengths=(3, 4))
+        return 4.0 * float(math.prod(shape)) / self.nbytes
 
     def synthesize(self, shape, *, seed=None):
         """Synthesise every image of the stack at any size.
@@ -432,9 +436,10 @@ class BTFModel:
         True
         """
         h, w = output_shape(shape)
-        rng = np.random.default_rng(seed)
         n = self.n_images
         d = self.image_mean.shape[1]
+        check_memory(8 * d * h * w * (n + _SYNTHESIS_COPIES), f"shape {(h, w)}")
+        rng = check_seed(seed)
         out = np.zeros((n, h, w, d))
         shown = out[..., 0] if self.grey else out
         for i in range(n):

@@ -20,7 +20,17 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._progress import Progress, drain, stage
-from .._validation import check_not_constant, check_size, output_shape, summarize
+from .._validation import (
+    MAX_CHANNELS,
+    check_memory,
+    check_not_constant,
+    check_real,
+    check_seed,
+    check_shape,
+    check_size,
+    output_shape,
+    summarize,
+)
 from ..model.blocks import row_ranges
 from ..model.estimation import CARModel
 from ..model.neighbourhood import Context, as_offsets
@@ -37,6 +47,9 @@ _SCALE_STEPS = 24  # bisection steps of the last resort (the scale to within 6e-
 # costs of a synthesis, in multiply-adds of the kernel (as model.synthesis
 # measures them): a noise draw, an output value; kernel calls of this many
 _NOISE_COST, _FINISH_COST, _CHUNK_FLOPS = 24.0, 6.0, 1.5e8
+
+_MAX_FRAMES = 1 << 20  # frames a synthesis may return
+_MAX_BURN_IN = 10_000  # frames it may discard first
 
 
 def _spatial_model(gamma, offsets, d):
@@ -138,7 +151,8 @@ def temporal_context(offsets, d):
     >>> context.n_regressors
     5
     """
-    offsets = np.asarray(offsets, np.int64)
+    offsets, _ = as_offsets(offsets)
+    d = check_real(d, "d (the number of channels)", low=1, high=MAX_CHANNELS, integer=True)
     taps = [(di, dj, c) for di, dj in offsets for c in range(d)]
     taps += [(0, 0, d + c) for c in range(d)]
     taps += [(di, dj, d + c) for di, dj in offsets for c in range(d)]
@@ -407,7 +421,9 @@ class DynamicTextureModel:
         >>> round(model.compression_ratio(clip.shape), 1)
         101.6
         """
-        return 4.0 * float(np.prod(clip_shape)) / self.nbytes
+        shape = check_shape(clip_shape, "clip_shape ((T, H, W) or (T, H, W, C))",
+                            lengths=(3, 4))
+        return 4.0 * float(math.prod(shape)) / self.nbytes
 
     def synthesize(self, n_frames, shape, *, seed=None, burn_in=10):
         """Generate a clip from the model, frame after frame.
@@ -510,11 +526,14 @@ class DynamicTextureModel:
         True
         """
         h, w = output_shape(shape)
-        if int(n_frames) != n_frames or n_frames < 1:
-            raise ValueError(f"n_frames must be a positive integer; got {n_frames!r}.")
-        n_frames, burn_in = int(n_frames), int(burn_in)
-        rng = np.random.default_rng(seed)
+        n_frames = check_real(n_frames, "n_frames (a positive integer)", low=1,
+                              high=_MAX_FRAMES, integer=True)
+        burn_in = check_real(burn_in, "burn_in (frames)", low=0, high=_MAX_BURN_IN,
+                             integer=True)
         d = self.n_channels
+        check_memory(8 * d * (n_frames * h * w + 4 * (h + 64) * (w + 128)),
+                     f"n_frames={n_frames} frames of shape {(h, w)}")
+        rng = check_seed(seed)
         reach = int(np.abs(self.offsets).max())
         margin = 32 + reach
         H, W = h + margin, w + 2 * margin

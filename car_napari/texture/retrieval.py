@@ -65,10 +65,13 @@ _TRUNCATE = 4.0
 _RADIUS = int(_TRUNCATE * _SIGMA + 0.5)  # rows of the smoothing kernel on each side (3)
 
 
+_MAX_LEVELS = 16  # beyond, the coarsest level of any image is below one pixel
+
+
 def _check_levels(levels):
     if isinstance(levels, (bool, np.bool_)) or not isinstance(levels, (int, np.integer)) \
-            or levels < 1:
-        raise ValueError(f"levels must be a positive int; got {levels!r}.")
+            or not 1 <= levels <= _MAX_LEVELS:
+        raise ValueError(f"levels must be a positive int up to {_MAX_LEVELS}; got {levels!r}.")
     return int(levels)
 
 
