@@ -1,6 +1,7 @@
 """End-to-end seconds and peak memory of the applications, run by hand.
 
-    PYTHONPATH=. python benchmarks/bench_speed.py [--repeat 2]
+    PYTHONPATH=. python benchmarks/bench_speed.py [--repeat 2] [--only 512]
+                                                  [--options '{"prior": 1.0}']
 
 Each case runs in a fresh Python process (Numba cache warm: one untimed
 small run first), so that its peak resident memory (``ru_maxrss``) is its
@@ -9,7 +10,8 @@ own. Cases:
 * segmentation: a 512x512 RGB mosaic of five VisTex textures (the segmentation
   benchmark's first, seed 0), ``segment`` with the number of segments found
   automatically; and a 1024x1024 mosaic of the first five VisTex textures
-  (mirror-tiled from 640x640). ``cpu_s`` is the process's CPU time of the
+  (mirror-tiled from 640x640); ``--options`` adds keyword options of
+  ``segment`` (JSON). ``cpu_s`` is the process's CPU time of the
   run: on a machine shared with other work it is the figure to compare (the
   job runs in one thread, so on a quiet machine it is about the seconds);
 * mammogram: ``detect_mammogram_rois`` on mini-MIAS mdb001 (1024x1024,
@@ -37,7 +39,7 @@ from car_napari.segmentation import segment
 image, truth = next(mosaic_set("vistex", count=1, seed=0))
 segment(image[:64, :64], levels=1)
 c0 = time.process_time()
-t0 = time.perf_counter(); result = segment(image); seconds = time.perf_counter() - t0
+t0 = time.perf_counter(); result = segment(image, **OPTIONS); seconds = time.perf_counter() - t0
 extra = {"segments": int(result.n_segments), "cpu_s": round(time.process_time() - c0, 2)}
 """,
     "segmentation 1024x1024 RGB": """
@@ -48,7 +50,7 @@ files = sorted((DATA / "vistex").glob("*.png"))[:5]
 image, truth = make_mosaic(files, shape=(1024, 1024), seed=0)
 segment(image[:64, :64], levels=1)
 c0 = time.process_time()
-t0 = time.perf_counter(); result = segment(image); seconds = time.perf_counter() - t0
+t0 = time.perf_counter(); result = segment(image, **OPTIONS); seconds = time.perf_counter() - t0
 extra = {"segments": int(result.n_segments), "cpu_s": round(time.process_time() - c0, 2)}
 """,
     "mammogram 1024x1024": """
@@ -79,14 +81,16 @@ extra = {"median_5x5_s": round(median, 2), "median/ours": round(median / seconds
 RUNNER = """
 import json, resource, sys, time
 sys.path.insert(0, {root!r})
+OPTIONS = json.loads({options!r})
 {body}
 peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 print(json.dumps({{"seconds": round(seconds, 3), "peak_mb": peak, **extra}}))
 """
 
 
-def run(body):
-    code = RUNNER.format(root=str(ROOT), body=body.replace("{root!r}", repr(str(ROOT))))
+def run(body, options="{}"):
+    code = RUNNER.format(root=str(ROOT), options=options,
+                         body=body.replace("{root!r}", repr(str(ROOT))))
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          cwd=ROOT, check=True)
     return json.loads(out.stdout.strip().splitlines()[-1])
@@ -96,13 +100,15 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--only", default=None, help="substring of a case name")
+    ap.add_argument("--options", default="{}",
+                    help="extra keyword options of segment (JSON), segmentation cases")
     args = ap.parse_args()
     print("| case | seconds (runs) | peak memory (MB) | notes |")
     print("|---|---|---|---|")
     for name, body in CASES.items():
         if args.only and args.only not in name:
             continue
-        runs = [run(body) for _ in range(args.repeat)]
+        runs = [run(body, args.options) for _ in range(args.repeat)]
         seconds = ", ".join(f"{r['seconds']:.2f}" for r in runs)
         peak = max(r["peak_mb"] for r in runs)
         notes = {k: [r[k] for r in runs] for k in runs[-1] if k not in ("seconds", "peak_mb")}

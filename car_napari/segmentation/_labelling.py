@@ -17,6 +17,7 @@ import numpy as np
 from numba import njit
 
 from .._progress import Progress, drain
+from ._prior import mean_field
 
 __all__ = ["label_pixels"]
 
@@ -29,7 +30,8 @@ _CHUNK_PIXELS = 1 << 20
 _TRUNCATE = 4.0
 
 
-def label_pixels(features, mix, *, smoothing=2.0, threshold=0.0, min_area=0):
+def label_pixels(features, mix, *, smoothing=2.0, threshold=0.0, min_area=0, prior=0.0,
+                 prior_iterations=5):
     """Label every pixel by its neighbourhood-weighted posterior.
 
     The posterior of every component is averaged over a Gaussian window
@@ -50,21 +52,27 @@ def label_pixels(features, mix, *, smoothing=2.0, threshold=0.0, min_area=0):
         Pixels whose best averaged posterior is below this are 0.
     min_area : int, optional
         Connected blobs smaller than this (pixels) join their neighbours.
+    prior, prior_iterations : float, int, optional
+        Strength and sweeps of the Potts prior on the labels (mean field on
+        the averaged posteriors, :mod:`._prior`); 0: none.
 
     Returns
     -------
     labels : (H, W) ndarray of int32
         Component ids, 0 where unclassified.
     probability : (H, W) ndarray of float32
-        The best averaged posterior of every pixel.
+        The best averaged posterior of every pixel (its mean-field marginal
+        with a prior).
     """
-    labels, prob = drain(_iter_label(features, mix, smoothing=smoothing, min_area=min_area))
+    labels, prob = drain(_iter_label(features, mix, smoothing=smoothing, min_area=min_area,
+                                     prior=prior, prior_iterations=prior_iterations))
     if threshold > 0:
         labels[prob < threshold] = 0
     return labels, prob
 
 
-def _iter_label(features, mix, *, smoothing=2.0, min_area=0, step=1):
+def _iter_label(features, mix, *, smoothing=2.0, min_area=0, step=1, prior=0.0,
+                prior_iterations=5):
     """:func:`label_pixels` without the threshold, as a job: a
     :class:`~car_napari.Progress` record ("labelling") after every band of
     rows and clean-up chunk; returns ``(labels, probability)``.
@@ -73,11 +81,17 @@ def _iter_label(features, mix, *, smoothing=2.0, min_area=0, step=1):
     row and column only (the window's width divided by ``step``) and
     interpolates them bilinearly to every pixel before the best is taken:
     ``step**2`` times less work, for features that vary slowly (the local
-    features are smoothed over ~10 pixels)."""
+    features are smoothed over ~10 pixels); the prior then acts on that
+    coarse grid.
+
+    ``prior`` > 0 replaces the averaged posteriors by their mean-field
+    marginals under a Potts prior of that strength (:mod:`._prior`), the
+    band's halo widened by ``prior_iterations`` rows."""
     features = np.asarray(features)
     if step > 1:
         return (yield from _iter_label_coarse(features, mix, smoothing=smoothing,
-                                              min_area=min_area, step=int(step)))
+                                              min_area=min_area, step=int(step), prior=prior,
+                                              prior_iterations=prior_iterations))
     from scipy import ndimage
 
     h, w, _ = features.shape
@@ -88,7 +102,11 @@ def _iter_label(features, mix, *, smoothing=2.0, min_area=0, step=1):
              + np.log(mix.weights)).astype(np.float64)
     ids = np.asarray(mix.ids, dtype=np.int32)
     halo = int(_TRUNCATE * float(smoothing) + 0.5) if smoothing > 0 else 0
-    rows = max(1, 4 * halo, min(_BAND_VALUES // (k * w) - 2 * halo, _CHUNK_PIXELS // w))
+    band_values = _BAND_VALUES
+    if prior > 0:
+        halo += int(prior_iterations)
+        band_values //= 3  # the mean field's two more arrays of the band
+    rows = max(1, 4 * halo, min(band_values // (k * w) - 2 * halo, _CHUNK_PIXELS // w))
     labels = np.empty((h, w), np.int32)
     prob = np.empty((h, w), np.float32)
     peak = np.empty(k)
@@ -99,11 +117,14 @@ def _iter_label(features, mix, *, smoothing=2.0, min_area=0, step=1):
         post = np.empty((k, a1 - a0, w))
         _band_posteriors(features, a0, a1, means_t, inv_t, const, post, peak)
         if smoothing > 0:
-            for j in np.flatnonzero(peak >= 0.5 / k):
+            # (with a prior every component counts in the marginals: all smoothed)
+            for j in np.flatnonzero(peak >= (0.0 if prior > 0 else 0.5 / k)):
                 # the averaged posteriors of a pixel sum to 1, so its best is at
                 # least 1/K: a component below 0.5/K all over the band cannot
                 # be best anywhere, and is left unsmoothed (the same labels)
                 ndimage.gaussian_filter(post[j], sigma=smoothing, output=post[j])
+        if prior > 0:
+            mean_field(post, prior, prior_iterations)
         _band_best(post, r0 - a0, ids, labels[r0:r1], prob[r0:r1])
         del post
         yield Progress("labelling", share * r1 / h, "labelling")
@@ -121,7 +142,8 @@ def _mixture_arrays(mix):
     return means_t, inv_t, const, np.asarray(mix.ids, dtype=np.int32)
 
 
-def _iter_label_coarse(features, mix, *, smoothing, min_area, step):
+def _iter_label_coarse(features, mix, *, smoothing, min_area, step, prior=0.0,
+                       prior_iterations=5):
     """:func:`_iter_label` with ``step`` > 1: the posteriors of the pixels
     ``features[::step, ::step]``, smoothed by ``smoothing / step``, then
     interpolated (bilinear, pixel (i, j) of the coarse grid at (step i,
@@ -135,8 +157,12 @@ def _iter_label_coarse(features, mix, *, smoothing, min_area, step):
     means_t, inv_t, const, ids = _mixture_arrays(mix)
     sigma = float(smoothing) / step
     halo = int(_TRUNCATE * sigma + 0.5) if smoothing > 0 else 0
+    band_values = _BAND_VALUES
+    if prior > 0:
+        halo += int(prior_iterations)
+        band_values //= 3
     # coarse rows of a band (a multiple of nothing in particular), its full rows
-    crows = max(1, 4 * halo, min(_BAND_VALUES // (k * wc) - 2 * halo - 1,
+    crows = max(1, 4 * halo, min(band_values // (k * wc) - 2 * halo - 1,
                                  _CHUNK_PIXELS // (w * step)))
     labels = np.empty((h, w), np.int32)
     prob = np.empty((h, w), np.float32)
@@ -150,8 +176,10 @@ def _iter_label_coarse(features, mix, *, smoothing, min_area, step):
         post = np.empty((k, a1 - a0, wc))
         _band_posteriors(coarse, a0, a1, means_t, inv_t, const, post, peak)
         if smoothing > 0:
-            for j in np.flatnonzero(peak >= 0.5 / k):
+            for j in np.flatnonzero(peak >= (0.0 if prior > 0 else 0.5 / k)):
                 ndimage.gaussian_filter(post[j], sigma=sigma, output=post[j])
+        if prior > 0:
+            mean_field(post, prior, prior_iterations)
         _band_best_interpolated(post, a0, step, r0, ids, labels[r0:r1], prob[r0:r1])
         del post
         yield Progress("labelling", share * r1 / h, "labelling")
@@ -165,10 +193,25 @@ def _iter_label_coarse(features, mix, *, smoothing, min_area, step):
 def _band_best_interpolated(post, a0, step, r0, ids, labels, prob):
     """Each pixel's best component (the first of equals) and its posterior,
     interpolated bilinearly from the coarse posteriors ``post`` (K, rows,
-    Wc) whose first row is coarse row ``a0``, for the full rows ``r0..``."""
+    Wc) whose first row is coarse row ``a0``, for the full rows ``r0..``.
+
+    Where the four coarse pixels around a pixel have the same best component
+    (the first of equals), that component is the pixel's: every other one
+    is below it (or equal to it and later) at all four, so in any convex
+    combination of them; only its value is interpolated."""
     k, n_rows, wc = post.shape
     rows, w = labels.shape
     hc_last = a0 + n_rows - 1
+    coarse_best = np.empty((n_rows, wc), np.int64)
+    for i in range(n_rows):
+        for jx in range(wc):
+            best = 0
+            top = post[0, i, jx]
+            for j in range(1, k):
+                if post[j, i, jx] > top:
+                    top = post[j, i, jx]
+                    best = j
+            coarse_best[i, jx] = best
     for y in range(rows):
         fy = (r0 + y) / step
         i0 = min(int(fy), hc_last)
@@ -181,9 +224,15 @@ def _band_best_interpolated(post, a0, step, r0, ids, labels, prob):
             j0 = min(int(fx), wc - 1)
             j1 = min(j0 + 1, wc - 1)
             tx = fx - j0 if j1 > j0 else 0.0
-            best = 0
+            first = coarse_best[i0, j0]
+            if (coarse_best[i0, j1] == first and coarse_best[i1, j0] == first
+                    and coarse_best[i1, j1] == first):
+                lo, hi = first, first + 1
+            else:
+                lo, hi = 0, k
+            best = lo
             top = -1.0
-            for j in range(k):
+            for j in range(lo, hi):
                 top_row = post[j, i0, j0] * (1.0 - tx) + post[j, i0, j1] * tx
                 bottom = post[j, i1, j0] * (1.0 - tx) + post[j, i1, j1] * tx
                 v = top_row * (1.0 - ty) + bottom * ty

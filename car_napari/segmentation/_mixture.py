@@ -3,10 +3,12 @@ Kullback-Leibler merging ((14.36)), section 14.4, docs/segmentation.md."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from itertools import pairwise
 
 import numpy as np
+from numba import njit
 
 from .._progress import Progress, drain
 
@@ -82,34 +84,65 @@ class Mixture:
         return self.weights.size
 
 
-def _log_densities(X, mix, X2=None):
-    """log(w_j N(x | mu_j, diag var_j)) for every row x and component j
-    (``X2``: ``X**2`` when the caller has it). In place on one (N, K) array,
-    the same arithmetic as ``const - 0.5 * (X**2 @ inv.T - 2 X @ (mu inv).T
-    + sum mu**2 inv)``."""
-    inv = 1.0 / mix.variances  # (K, D)
-    const = -0.5 * (np.log(2 * np.pi * mix.variances).sum(axis=1)) + np.log(mix.weights)
-    quad = (X**2 if X2 is None else X2) @ inv.T
-    cross = X @ (mix.means * inv).T
-    cross *= 2.0  # (2 X) @ B == 2 (X @ B) exactly
-    quad -= cross
-    del cross
-    quad += ((mix.means**2) * inv).sum(axis=1)
-    quad *= -0.5
-    quad += const
-    return quad
+def _expectations(X, mix):
+    """The E step on the rows of X: each component's posterior mass ``nk``
+    (K,), posterior-weighted sums of x and x**2 (K, D) and the mean
+    log-likelihood; one pass (:func:`_e_step`), no (N, K) array."""
+    k, d = mix.means.shape
+    means_t = np.ascontiguousarray(np.asarray(mix.means, np.float64).T)
+    inv_t = np.ascontiguousarray(1.0 / np.asarray(mix.variances, np.float64).T)
+    const = (-0.5 * (np.log(2 * np.pi * mix.variances).sum(axis=1))
+             + np.log(mix.weights)).astype(np.float64)
+    nk, sx, sx2 = np.zeros(k), np.zeros((k, d)), np.zeros((k, d))
+    total = _e_step(np.ascontiguousarray(X, dtype=np.float64), means_t, inv_t, const,
+                    nk, sx, sx2)
+    return nk, sx, sx2, total / max(X.shape[0], 1)
 
 
-def _posteriors(X, mix, X2=None):
-    """Posterior of every component for every row of X, and the mean log-likelihood."""
-    dens = _log_densities(X, mix, X2)
-    top = dens.max(axis=1, keepdims=True)
-    dens -= top
-    np.exp(dens, out=dens)
-    total = dens.sum(axis=1, keepdims=True)
-    loglik = float(np.mean(np.log(total[:, 0]) + top[:, 0]))
-    dens /= total
-    return dens, loglik
+# a posterior below exp(-37) (< 2**-53 of the best's) is taken as 0: it
+# would not change the sum of the row's densities (>= 1, the best's) at all
+_NEGLIGIBLE = -37.0
+
+
+@njit(cache=True, nogil=True)
+def _e_step(X, means_t, inv_t, const, nk, sx, sx2):
+    """Posteriors ``w_j N(x | mu_j, diag var_j)`` (normalised) of every row x
+    of X, summed into ``nk`` (K,), ``sx`` and ``sx2`` (K, D) (times x and
+    x**2); returns the sum of the rows' log-likelihoods. ``means_t`` and
+    ``inv_t`` are (D, K): the component loop of the distances is the inner
+    one (vectorised). Posteriors below ``exp(_NEGLIGIBLE)`` of the row's
+    best are 0 (and skipped)."""
+    n, d = X.shape
+    k = means_t.shape[1]
+    acc = np.empty(k)
+    loglik = 0.0
+    for i in range(n):
+        acc[:] = 0.0
+        for c in range(d):
+            v = X[i, c]
+            for j in range(k):
+                t = v - means_t[c, j]
+                acc[j] += t * t * inv_t[c, j]
+        top = -np.inf
+        for j in range(k):
+            acc[j] = const[j] - 0.5 * acc[j]
+            top = max(top, acc[j])
+        total = 0.0
+        for j in range(k):
+            gap = acc[j] - top
+            e = math.exp(gap) if gap > _NEGLIGIBLE else 0.0
+            acc[j] = e
+            total += e
+        loglik += math.log(total) + top
+        for j in range(k):
+            if acc[j] > 0.0:
+                p = acc[j] / total
+                nk[j] += p
+                for c in range(d):
+                    v = X[i, c]
+                    sx[j, c] += p * v
+                    sx2[j, c] += p * (v * v)
+    return loglik
 
 
 def _em_steps(X, mix, steps, var_floor):
@@ -122,28 +155,25 @@ def _iter_em(X, mix, steps, var_floor, cache=None):
     ("mixture", "EM") after each iteration (a job stops between them);
     returns the mixture.
 
-    ``cache`` (a dict, optional) keeps ``X**2`` and the posteriors of the
-    mixture returned: a next call on the same data and the same, unchanged
-    mixture (its arrays are replaced at every step) starts from them instead
-    of computing them again (the same numbers)."""
-    if cache is not None and cache.get("X") is X:
-        X2 = cache["X2"]
-    else:
-        X2 = X**2  # once for all the steps
+    ``cache`` (a dict, optional) keeps the E step of the mixture returned: a
+    next call on the same data and the same, unchanged mixture (its arrays
+    are replaced at every step) starts from it instead of computing it
+    again (the same numbers)."""
     known = (cache is not None and cache.get("X") is X
              and all(a is b for a, b in zip(cache["arrays"], _arrays(mix), strict=True)))
     for step in range(steps):
-        post, loglik = cache["post"] if known and step == 0 else _posteriors(X, mix, X2)
-        nk = post.sum(axis=0) + 1e-12
+        nk, sx, sx2, loglik = cache["stats"] if known and step == 0 else \
+            _expectations(X, mix)
+        nk = nk + 1e-12
         mix.weights = nk / nk.sum()
-        mix.means = (post.T @ X) / nk[:, None]
-        mix.variances = np.maximum((post.T @ X2) / nk[:, None] - mix.means**2, var_floor)
+        mix.means = sx / nk[:, None]
+        mix.variances = np.maximum(sx2 / nk[:, None] - mix.means**2, var_floor)
         mix.loglik = loglik
-        del post
         yield Progress("mixture", (step + 1) / (steps + 1), "EM")
-    post, mix.loglik = _posteriors(X, mix, X2)
+    stats = _expectations(X, mix)
+    mix.loglik = stats[3]
     if cache is not None:
-        cache.update(X=X, X2=X2, arrays=_arrays(mix), post=(post, mix.loglik))
+        cache.update(X=X, arrays=_arrays(mix), stats=stats)
     return mix
 
 
@@ -162,8 +192,7 @@ def _iter_block_init(features, n_init, var_floor):
     """:func:`_block_init` as a job: a :class:`~car_napari.Progress` record
     after each block; returns the mixture."""
     h, w, D = features.shape
-    rows = max(1, int(round(np.sqrt(n_init * h / w))))
-    cols = max(1, int(round(n_init / rows)))
+    rows, cols = _block_grid(h, w, n_init)
     means, variances = [], []
     for bi in np.array_split(np.arange(h), rows):
         for bj in np.array_split(np.arange(w), cols):
@@ -174,6 +203,13 @@ def _iter_block_init(features, n_init, var_floor):
             yield Progress("mixture", len(means) / (rows * cols), "initial division")
     k = len(means)
     return Mixture(np.full(k, 1.0 / k), np.array(means), np.array(variances), np.arange(1, k + 1))
+
+
+def _block_grid(h, w, n_init):
+    """Rows and columns of the regular division of an (h, w) image into
+    about ``n_init`` blocks (more than h rows or w columns do not fit)."""
+    rows = max(1, int(round(np.sqrt(n_init * h / w))))
+    return rows, max(1, int(round(n_init / rows)))
 
 
 def _drop_weak(mix, min_weight):
