@@ -3,6 +3,10 @@ against OpenCV and scikit-image.
 
     PYTHONPATH=. nice -n 5 python benchmarks/bench_inpainting.py [--part REPORT]
         [--frames N] [--skip-speed] [--skip-clip] [--variants]
+    PYTHONPATH=. nice -n 10 python benchmarks/bench_inpainting.py --tune-halo=H:R:B,...
+        [--part REPORT] [--frames N]    # the conditional fill's edge test alone
+    PYTHONPATH=. nice -n 10 python benchmarks/bench_inpainting.py --speed-only
+    PYTHONPATH=. nice -n 10 python benchmarks/bench_inpainting.py --records
 
 Needs ``opencv-python-headless`` (``pip install car-napari[bench]``).
 
@@ -32,7 +36,11 @@ The benchmark prints both parts (``--part`` picks one).
     without the previous frame as context.
 (d) ``detect_scratches`` (lines only) on (b) soft: pixel precision and
     recall against the composited mask.
-Speed: a 640x480 RGB frame with 2 % of its pixels masked (vertical lines).
+Speed: a 640x480 RGB frame with 2 % of its pixels masked (vertical lines),
+wall and CPU seconds. ``--records``: the longest stretch between two
+Progress records of the conditional fill on the first real scan (800x1164).
+``--tune-halo``: the edge test's threshold, rings and least blend, on
+TUNING (or ``--part REPORT``) only, (a) and (b) for ours alone.
 
 Baselines, same masks, same run: ``cv2.inpaint`` Telea and Navier-Stokes
 (radius 3) and ``skimage.restoration.inpaint_biharmonic``.
@@ -81,8 +89,9 @@ def methods(variants=False):
     ours = {"ours (CAR)": lambda image, mask: inpaint(image, mask)}
     if variants:
         ours.update({
-            "ours, scans (old)": lambda image, mask: inpaint(image, mask, method="scans"),
-            "ours, halo off": lambda image, mask: inpaint(image, mask, halo=None),
+            "ours, conditional, halo off": lambda image, mask: inpaint(
+                image, mask, method="conditional", halo=None),
+            "ours, scans": lambda image, mask: inpaint(image, mask, method="scans"),
         })
     return {
         **ours,
@@ -259,21 +268,103 @@ def bench_c(table):
 
 
 def bench_speed():
+    """The issue's speed case: wall and CPU seconds (the process's, threads
+    included: on a shared machine the wall time stretches with the load),
+    best of 3, for the default and the other fills."""
     image = (resize(skdata.astronaut(), (480, 640), order=1) * 255).astype(np.uint8)
     rng = np.random.default_rng(0)
     mask = np.zeros((480, 640), bool)
     while mask.mean() < 0.02:
         c = int(rng.integers(5, 630))
         mask[:, c : c + 3] = True
-    inpaint(image[:64, :64], mask[:64, :64] | (np.arange(64) == 5))  # compile first
-    best = min(_timed(inpaint, image, mask) for _ in range(3))
-    print(f"\nspeed 640x480 RGB, {100 * mask.mean():.1f} % masked: {best:.2f} s (best of 3)")
+    print()
+    for name, options in (("default (conditional)", {}),
+                          ("conditional, halo off", dict(method="conditional", halo=None)),
+                          ("scans", dict(method="scans"))):
+        inpaint(image[:64, :64], mask[:64, :64] | (np.arange(64) == 5), **options)  # compile
+        runs = [_timed(inpaint, image, mask, **options) for _ in range(3)]
+        wall, cpu = min(r[0] for r in runs), min(r[1] for r in runs)
+        print(f"speed 640x480 RGB, {100 * mask.mean():.1f} % masked, {name}: {wall:.2f} s wall, "
+              f"{cpu:.2f} s CPU (best of 3; wall {min(r[0] for r in runs):.2f}-"
+              f"{max(r[0] for r in runs):.2f}, CPU {min(r[1] for r in runs):.2f}-"
+              f"{max(r[1] for r in runs):.2f})", flush=True)
 
 
-def _timed(fn, *args):
-    t0 = time.perf_counter()
-    fn(*args)
-    return time.perf_counter() - t0
+def bench_records(method="conditional"):
+    """The longest stretch between two Progress records of ``iter_inpaint``
+    on the first real scan (a Cancel waits for at most one): wall and CPU
+    seconds (the CPU time of the whole process, its threads included; on a
+    shared machine the wall time stretches with the load)."""
+    from car_napari.inpainting import iter_inpaint
+
+    scan = sorted(p for p in (DATA / "film-damage").iterdir() if (p / "mask.png").exists())[0]
+    damaged = io.imread(scan / "damaged.jpg")[..., :3]
+    m = io.imread(scan / "mask.png")
+    m = m[..., 0] if m.ndim == 3 else m
+    mask = resize(m > 127, damaged.shape[:2], order=0, anti_aliasing=False).astype(bool)
+    job = iter_inpaint(damaged, mask, method=method)
+    walls, cpus = [], []
+    t, c = time.perf_counter(), time.process_time()
+    t_start, c_start = t, c
+    for _ in job:
+        t1, c1 = time.perf_counter(), time.process_time()
+        walls.append(t1 - t)
+        cpus.append(c1 - c)
+        t, c = t1, c1
+    t1, c1 = time.perf_counter(), time.process_time()
+    walls.append(t1 - t)
+    cpus.append(c1 - c)
+    print(f"\nrecords, {scan.name} {damaged.shape} mask {100 * mask.mean():.1f} %, {method}: "
+          f"{len(walls) - 1} records in {t1 - t_start:.2f} s wall, {c1 - c_start:.2f} s CPU; "
+          f"longest stretch {max(walls):.2f} s wall, {max(cpus):.2f} s CPU (median "
+          f"{np.median(walls):.3f} s wall)", flush=True)
+
+
+def _timed(fn, *args, **options):
+    t0, c0 = time.perf_counter(), time.process_time()
+    fn(*args, **options)
+    return time.perf_counter() - t0, time.process_time() - c0
+
+
+def tune_halo(frames, configs, part="TUNING"):
+    """The conditional fill's edge test on one part (TUNING to choose):
+    mean PSNR on the damaged pixels of (a) (that part's halves) and (b) hard
+    and soft for every ``(halo, rings, blend)`` of ``configs``."""
+    from car_napari.inpainting import _filling
+
+    table = {}
+    cases = []
+    overlays = sorted((DATA / "film-damage" / "scratch-overlays").glob("*.png"))
+    tuning = [p for p in overlays if split(p.name) == part]
+    for name, image in test_images(frames):
+        if split(name) != part:
+            continue
+        image = _rgb_or_grey(image)
+        seed = int(hashlib.sha1(name.encode()).hexdigest()[:8], 16)
+        for kind in ("hard", "soft"):
+            damaged, mask, _ = composite(image, np.random.default_rng(seed), tuning,
+                                         soft=kind == "soft")
+            cases.append((kind, image, damaged, mask, mask))
+    for scan in sorted(p for p in (DATA / "film-damage").iterdir() if (p / "mask.png").exists()):
+        damaged = io.imread(scan / "damaged.jpg")[..., :3]
+        truth = io.imread(scan / "restored_by_hand.jpg")[..., :3]
+        m = io.imread(scan / "mask.png")
+        m = m[..., 0] if m.ndim == 3 else m
+        mask = resize(m > 127, damaged.shape[:2], order=0, anti_aliasing=False).astype(bool)
+        top = np.zeros(mask.shape, bool)
+        top[: mask.shape[0] // 2] = True
+        cases.append(("real", truth, damaged, mask, mask & (top if part == "TUNING" else ~top)))
+    for halo, rings, blend in configs:
+        _filling.CONDITIONAL_RINGS, _filling.CONDITIONAL_BLEND = rings, blend
+        t0 = time.perf_counter()
+        for kind, truth, damaged, mask, scored in cases:
+            out = inpaint(damaged, mask, method="conditional", halo=halo)
+            table.setdefault((halo, rings, blend, kind), []).append(
+                masked_psnr(truth, out, scored))
+        line = ", ".join(f"{kind} {np.mean(table[(halo, rings, blend, kind)]):.2f}"
+                         for kind in ("hard", "soft", "real"))
+        print(f"[{part}] halo {halo} rings {rings} blend {blend}: {line} "
+              f"({time.perf_counter() - t0:.0f} s)", flush=True)
 
 
 def main():
@@ -285,7 +376,24 @@ def main():
     ap.add_argument("--skip-scans", action="store_true")
     ap.add_argument("--variants", action="store_true",
                     help="also the other methods and options of ours")
+    ap.add_argument("--speed-only", action="store_true", help="only the speed case")
+    ap.add_argument("--records", action="store_true",
+                    help="only the longest stretch between Progress records on a real scan")
+    ap.add_argument("--tune-halo", default=None, metavar="H:R:B,...",
+                    help="only the conditional fill's edge test on TUNING, for each "
+                         "halo:rings:blend (halo 'None' for off)")
     args = ap.parse_args()
+    if args.records:
+        bench_records("conditional")
+        return
+    if args.speed_only:
+        bench_speed()
+        return
+    if args.tune_halo:
+        configs = [(None if h == "None" else float(h), int(r), float(b)) for h, r, b in
+                   (c.split(":") for c in args.tune_halo.split(","))]
+        tune_halo(args.frames, configs, "REPORT" if args.part == "REPORT" else "TUNING")
+        return
     parts = PARTS if args.part == "both" else (args.part,)
     run = methods(args.variants)
     table = {}

@@ -23,18 +23,21 @@ is known; each row uses the model of the tile it lies in.
 
 from __future__ import annotations
 
+import math
+from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 from scipy import ndimage, sparse
 from scipy.sparse.linalg import splu
 
-from .._progress import Progress, drain
+from .._progress import Progress, drain, stage
 from ..model.neighbourhood import causal_neighbourhood
-from ..model.statistics import estimate_parameters
 
 __all__ = ["DIRECTIONS", "LocalModels", "conditional_mean", "direction_offsets",
-           "fill_conditional", "fit_local_models", "iter_fill_conditional", "stencil_solve"]
+           "fill_conditional", "fit_local_models", "iter_fill_conditional",
+           "iter_fit_local_models", "iter_stencil_solve", "stencil_solve"]
 
 DEFAULT_TILE = 48  # pixels: each tile has its own model
 DEFAULT_MARGIN = 16  # pixels around a tile in its fitting window
@@ -43,6 +46,17 @@ _PRIOR = 1e-3  # V_0 = _PRIOR * variance * I per regressor: a light ridge
 _CROSS = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], bool)
 DIRECTIONS = ("down", "up", "right", "left")
 HALO_BLEND = 0.1  # the least blend towards the damage the edge test calls damage
+EDGE_PROBES = 8  # draws per pixel of the joint predictive fluctuation in the edge test
+EDGE_POOL = 4  # pixels: the draws' variance ratio is averaged over the ring within this
+# The work between records: the statistics of the fit by bands of blocks of
+# about _FIT_RECORD_PIXELS pixels; the solves by batches of coupled groups of
+# about SOLVE_UNKNOWNS unknowns, run in _SOLVERS threads, a record every
+# SOLVE_RECORD_SECONDS while they run (a Cancel returns at the next record;
+# a factorisation running finishes in its thread, its result dropped).
+_FIT_RECORD_PIXELS = 1 << 16
+SOLVE_UNKNOWNS = 1 << 14
+SOLVE_RECORD_SECONDS = 0.25
+_SOLVERS = 2
 PREVIOUS_OFFSETS = np.array([(0, 0), (0, 1), (1, 0), (0, -1), (-1, 0)], np.int64)
 
 
@@ -86,20 +100,10 @@ def _inside(shape, offsets):
             & (cols >= dj.max()) & (cols < W + dj.min()))
 
 
-def fit_local_models(frame, unknown, offset_sets, *, previous=None, tile=DEFAULT_TILE,
-                     margin=DEFAULT_MARGIN, need=None, prior=_PRIOR):
-    """Fit one 3DCAR model per tile and per offset set (one per scan
-    direction) from the known pixels: a list of :class:`LocalModels`.
-
-    The fitting pixels are the known pixels whose every neighbour (under all
-    the offset sets, and in the previous frame) is known and inside the
-    frame; the statistics of a tile are summed over those in its window (the
-    tile and ``margin`` more pixels each way; the window doubles its margin
-    until it holds ``_MIN_ROWS_PER_REGRESSOR`` pixels per regressor). The
-    estimate is the Bayesian one of SPEC 1.3 with a light ridge prior
-    (``estimate_parameters``), ``Sigma = lambda / (n - m)``. ``need`` (ty, tx)
-    bool: the tiles to fit (the others get an identity covariance and no
-    texture)."""
+def iter_fit_local_models(frame, unknown, offset_sets, *, previous=None, tile=DEFAULT_TILE,
+                          margin=DEFAULT_MARGIN, need=None, prior=_PRIOR):
+    """:func:`fit_local_models` as a job: a record after every band of
+    blocks of the statistics (stage ``"fit"``), then the models."""
     H, W, C = frame.shape
     offset_sets = [np.asarray(o, np.int64) for o in offset_sets]
     n_prev = 0 if previous is None else len(PREVIOUS_OFFSETS)
@@ -116,69 +120,138 @@ def fit_local_models(frame, unknown, offset_sets, *, previous=None, tile=DEFAULT
         ok &= _shifted(known, di, dj, False)
     if previous is not None:
         ok &= _inside((H, W), PREVIOUS_OFFSETS)
-    padded = np.pad(frame, ((reach, reach), (reach, reach), (0, 0)))
-    ppad = None if previous is None else np.pad(previous, ((reach, reach), (reach, reach),
-                                                           (0, 0)))
     n_cols = C * (len(taps) + n_prev)
-    results = []
-    for o in offset_sets:
-        m = C * (len(o) + n_prev)
-        eye = np.broadcast_to(np.eye(C), (ty, tx, C, C))
-        results.append(dict(gamma=np.zeros((ty, tx, C, m)), sigma=eye.copy(),
-                            marginal=eye.copy()))
-    mean = np.zeros((ty, tx, C))
-    pmean = None if previous is None else np.zeros((ty, tx, C))
+    m_max = max(C * (len(o) + n_prev) for o in offset_sets)
+    # each needed tile's window: its margin doubled until it holds enough rows
+    integral = np.zeros((H + 1, W + 1), np.int64)
+    integral[1:, 1:] = np.cumsum(np.cumsum(ok, axis=0, dtype=np.int64), axis=1)
+    yield Progress("fit", 0.05, "fitting")
+    ta, tb = np.nonzero(need)
+    grow = np.full(len(ta), int(margin), np.int64)
+    while True:
+        i0, i1 = np.maximum(ta * tile - grow, 0), np.minimum((ta + 1) * tile + grow, H)
+        j0, j1 = np.maximum(tb * tile - grow, 0), np.minimum((tb + 1) * tile + grow, W)
+        n = integral[i1, j1] - integral[i0, j1] - integral[i1, j0] + integral[i0, j0]
+        whole = (i0 == 0) & (j0 == 0) & (i1 == H) & (j1 == W)
+        short = (n < _MIN_ROWS_PER_REGRESSOR * (m_max + 1)) & ~whole
+        if not short.any():
+            break
+        grow[short] = np.maximum(2 * grow[short], 1)
+    g = math.gcd(math.gcd(int(tile), int(grow.min()) if len(grow) else int(tile)),
+                 *[int(v) for v in np.unique(grow)]) if len(grow) else int(tile)
+    g = max(g, 1)
+    by, bx = -(-H // g), -(-W // g)
+    wanted = np.zeros((by, bx), bool)  # blocks inside some window
+    for a0, a1, b0, b1 in zip(i0 // g, -(-i1 // g), j0 // g, -(-j1 // g), strict=True):
+        wanted[a0:a1, b0:b1] = True
+    # the raw statistics of every wanted block: pixel count, sums, sums of products
+    padded = np.pad(frame, ((reach, reach + g), (reach, reach + g), (0, 0)))
+    ppad = None if previous is None else np.pad(previous, ((reach, reach + g),
+                                                           (reach, reach + g), (0, 0)))
+    okp = np.zeros((by * g, bx * g), bool)
+    okp[:H, :W] = ok
+    count = np.zeros((by, bx))
+    s1 = np.zeros((by, bx, n_cols))
+    s2 = np.zeros((by, bx, n_cols, n_cols))
+    taps_all = [(t, padded) for t in taps] + [(t, ppad) for t in PREVIOUS_OFFSETS[:n_prev]]
+    rows_done = 0
+    for a in range(by):
+        cols = np.nonzero(wanted[a])[0]
+        if not len(cols):
+            continue
+        r0 = a * g
+        Z = np.empty((g, bx * g, n_cols))
+        for k, ((di, dj), src) in enumerate(taps_all):
+            Z[..., k * C : (k + 1) * C] = src[r0 + reach - di : r0 + reach - di + g,
+                                              reach - dj : reach - dj + bx * g]
+        Z *= okp[r0 : r0 + g, :, None]
+        blocks = Z.reshape(g, bx, g, n_cols).transpose(1, 0, 2, 3).reshape(bx, g * g, n_cols)
+        blocks = blocks[cols]
+        count[a, cols] = okp[r0 : r0 + g].reshape(g, bx, g).sum(axis=(0, 2))[cols]
+        s1[a, cols] = blocks.sum(axis=1)
+        s2[a, cols] = np.matmul(blocks.transpose(0, 2, 1), blocks)
+        rows_done += g * W
+        if rows_done >= _FIT_RECORD_PIXELS:
+            rows_done = 0
+            yield Progress("fit", 0.05 + 0.95 * a / by, "fitting")
+    # the window sums (integral images over the blocks) of every needed tile
+    a0, a1, b0, b1 = i0 // g, -(-i1 // g), j0 // g, -(-j1 // g)
+
+    def window_sums(blocks):
+        integral = np.zeros((by + 1, bx + 1) + blocks.shape[2:])
+        np.cumsum(np.cumsum(blocks, axis=0), axis=1, out=integral[1:, 1:])
+        return integral[a1, b1] - integral[a0, b1] - integral[a1, b0] + integral[a0, b0]
+
+    N = window_sums(count)
+    S1 = window_sums(s1)
+    V = window_sums(s2)
+    del s2
+    yield Progress("fit", 1.0, "fitting")
+    safe = np.maximum(N, 1)
+    mu = S1[:, :C] / safe[:, None]
+    centre = np.tile(mu, len(taps))
+    if n_prev:
+        pmu = S1[:, len(taps) * C : (len(taps) + 1) * C] / safe[:, None]
+        centre = np.concatenate([centre, np.tile(pmu, n_prev)], axis=1)
+    # V - s m^T - m s^T + n m m^T: the sums of products of the centred rows
+    V = (V - S1[:, :, None] * centre[:, None, :] - centre[:, :, None] * S1[:, None, :]
+         + N[:, None, None] * centre[:, :, None] * centre[:, None, :])
     overall_var = frame[known].var(axis=0) + 1e-12
     ridge = np.diag(1e-6 * overall_var)
-    m_max = max(C * (len(o) + n_prev) for o in offset_sets)
-    for a, b in zip(*np.nonzero(need), strict=True):
-        grow = margin
-        while True:
-            i0, i1 = max(a * tile - grow, 0), min((a + 1) * tile + grow, H)
-            j0, j1 = max(b * tile - grow, 0), min((b + 1) * tile + grow, W)
-            win = ok[i0:i1, j0:j1]
-            n = int(np.count_nonzero(win))
-            whole = i0 == 0 and j0 == 0 and i1 == H and j1 == W
-            if n >= _MIN_ROWS_PER_REGRESSOR * (m_max + 1) or whole:
-                break
-            grow *= 2
-        if n < 2:
-            continue
-        Z = np.empty((n, n_cols))
-        for k, (di, dj) in enumerate(taps):
-            Z[:, k * C : (k + 1) * C] = padded[i0 + reach - di : i1 + reach - di,
-                                               j0 + reach - dj : j1 + reach - dj][win]
-        for k, (di, dj) in enumerate(PREVIOUS_OFFSETS[:n_prev]):
-            c0 = (len(taps) + k) * C
-            Z[:, c0 : c0 + C] = ppad[i0 + reach - di : i1 + reach - di,
-                                     j0 + reach - dj : j1 + reach - dj][win]
-        mu = Z[:, :C].mean(axis=0)
-        mean[a, b] = mu
-        centre = np.tile(mu, len(taps))
-        Z[:, : C * len(taps)] -= centre
-        if n_prev:
-            pmu = Z[:, len(taps) * C : (len(taps) + 1) * C].mean(axis=0)
-            pmean[a, b] = pmu
-            Z[:, len(taps) * C :] -= np.tile(pmu, n_prev)
-        V = Z.T @ Z
-        marginal = V[:C, :C] / n + ridge
-        scale = float(np.trace(marginal)) / C
-        for o, res in zip(offset_sets, results, strict=True):
-            cols = [c for di, dj in o for c in range(where[(int(di), int(dj))] * C,
-                                                      where[(int(di), int(dj))] * C + C)]
-            cols += list(range(len(taps) * C, n_cols))  # the previous frame's taps
-            m = len(cols)
-            res["marginal"][a, b] = marginal
-            if n < m + 2:  # no texture to learn: independent pixels around the mean
-                res["sigma"][a, b] = marginal
-                continue
-            order = cols + list(range(C))
-            Vd = V[np.ix_(order, order)]
-            est = estimate_parameters(Vd, n, m, C, np.full(m + C, prior * scale * n / n))
-            res["gamma"][a, b] = est.gamma
-            res["sigma"][a, b] = est.lam / max(n - m, 1) + ridge
-    return [LocalModels(tile, o, r["gamma"], r["sigma"], mean, pmean, r["marginal"])
-            for o, r in zip(offset_sets, results, strict=True)]
+    marginal = V[:, :C, :C] / safe[:, None, None] + ridge
+    scale = np.trace(marginal, axis1=1, axis2=2) / C
+    fitted = N >= 2
+    mean = np.zeros((ty, tx, C))
+    mean[ta[fitted], tb[fitted]] = mu[fitted]
+    pmean = None
+    if n_prev:
+        pmean = np.zeros((ty, tx, C))
+        pmean[ta[fitted], tb[fitted]] = pmu[fitted]
+    results = []
+    for o in offset_sets:
+        cols = [c for di, dj in o for c in range(where[(int(di), int(dj))] * C,
+                                                  where[(int(di), int(dj))] * C + C)]
+        cols += list(range(len(taps) * C, n_cols))  # the previous frame's taps
+        m = len(cols)
+        eye = np.broadcast_to(np.eye(C), (ty, tx, C, C))
+        gamma, sigma, marg = np.zeros((ty, tx, C, m)), eye.copy(), eye.copy()
+        marg[ta[fitted], tb[fitted]] = marginal[fitted]
+        texture = N >= m + 2
+        flat = fitted & ~texture  # no texture to learn: independent pixels around the mean
+        sigma[ta[flat], tb[flat]] = marginal[flat]
+        if texture.any():
+            order = np.array(cols + list(range(C)))
+            Vd = V[texture][:, order[:, None], order[None, :]]
+            Vd[:, np.arange(m + C), np.arange(m + C)] += (prior * scale[texture])[:, None]
+            L = np.linalg.cholesky(Vd)
+            L11, L21, L22 = L[:, :m, :m], L[:, m:, :m], L[:, m:, m:]
+            g_t = np.linalg.solve(L11.transpose(0, 2, 1), L21.transpose(0, 2, 1))
+            gamma[ta[texture], tb[texture]] = g_t.transpose(0, 2, 1)
+            lam = L22 @ L22.transpose(0, 2, 1)
+            dof = np.maximum(N[texture] - m, 1)
+            sigma[ta[texture], tb[texture]] = lam / dof[:, None, None] + ridge
+        results.append((gamma, sigma, marg))
+        yield Progress("fit", 1.0, "estimating")
+    return [LocalModels(tile, o, gamma, sigma, mean, pmean, marg)
+            for o, (gamma, sigma, marg) in zip(offset_sets, results, strict=True)]
+
+
+def fit_local_models(frame, unknown, offset_sets, *, previous=None, tile=DEFAULT_TILE,
+                     margin=DEFAULT_MARGIN, need=None, prior=_PRIOR):
+    """Fit one 3DCAR model per tile and per offset set (one per scan
+    direction) from the known pixels: a list of :class:`LocalModels`.
+
+    The fitting pixels are the known pixels whose every neighbour (under all
+    the offset sets, and in the previous frame) is known and inside the
+    frame; the statistics of a tile are summed over those in its window (the
+    tile and ``margin`` more pixels each way; the window doubles its margin
+    until it holds ``_MIN_ROWS_PER_REGRESSOR`` pixels per regressor). The
+    estimate is the Bayesian one of SPEC 1.3 with a light ridge prior
+    (``estimate_parameters``), ``Sigma = lambda / (n - m)``. ``need`` (ty, tx)
+    bool: the tiles to fit (the others get an identity covariance and no
+    texture)."""
+    return drain(iter_fit_local_models(frame, unknown, offset_sets, previous=previous,
+                                       tile=tile, margin=margin, need=need, prior=prior))
 
 
 def _inv_chol(S):
@@ -188,70 +261,311 @@ def _inv_chol(S):
     return np.linalg.solve(L, eye)
 
 
-def _rows(frame, unknown, index, offsets, coeffs, constant, tile, extra, border, first):
-    """COO pieces and constants of one set of rows (see :func:`stencil_solve`)."""
+@njit(cache=True, nogil=True)
+def _assemble_kernel(frame, index, offsets, coeffs, pairs, constant, extra, tile, slot_of,
+                     reach2, box, border_G, border_c, probes, seed, Q, rhs, z):
+    """Add one set of whitened rows ``w_r = sum_k G_k Y_{r - s_k} + c (+
+    extra_r)`` (every ``r`` with all taps inside the frame and one of them
+    unknown) to the normal equations of the unknown pixels: ``Q[p, slot]
+    += G_k^T G_l`` (``pairs[t, k, l]``) for unknown ``p = r - s_k`` and ``q
+    = r - s_l`` (``slot`` the offset ``q - p`` in ``slot_of``), ``rhs[p] -=
+    G_k^T (known part of w_r)``, and ``z[p, s] += G_k^T n_{r, s}`` for
+    ``probes`` independent random signs ``n_{r, s}`` per channel (so that
+    ``z`` has covariance ``Q``). An unknown pixel without a full row gets
+    ``border_G Y_p + border_c`` (if ``border_G`` has rows). ``box``: the rows
+    (i0, i1, j0, j1) that can touch an unknown pixel."""
     H, W, C = frame.shape
-    offsets = np.asarray(offsets, np.int64)
-    inside = _inside((H, W), offsets)
-    touches = np.zeros((H, W), bool)
-    for di, dj in offsets:
-        touches |= _shifted(unknown, di, dj, False)  # r - s unknown <=> r in U + s
-    ri, rj = np.nonzero(touches & inside)
-    n_r = len(ri)
-    t_i, t_j = ri // tile, rj // tile
-    const = constant[t_i, t_j].copy()  # (n_r, d)
-    if extra is not None:
-        const += extra[ri, rj]
-    data, row_ids, col_ids = [], [], []
-    known_frame = np.where(unknown[..., None], 0.0, frame)
-    block_r = (first + np.arange(n_r))[:, None, None] * C + np.arange(C)[None, :, None]
-    for k, (di, dj) in enumerate(offsets):
-        G = coeffs[t_i, t_j, k]  # (n_r, d, d)
-        pi, pj = ri - di, rj - dj
-        const += np.einsum("nab,nb->na", G, known_frame[pi, pj])
-        col = index[pi, pj]
-        hit = col >= 0
-        if hit.any():
-            cols = col[hit][:, None, None] * C + np.arange(C)[None, None, :]
-            data.append(G[hit].ravel())
-            row_ids.append(np.broadcast_to(block_r[hit], (hit.sum(), C, C)).ravel())
-            col_ids.append(np.broadcast_to(cols, (hit.sum(), C, C)).ravel())
-    lone = unknown & ~inside
-    if border is not None and lone.any():
-        G_b, c_b = border
-        bi, bj = np.nonzero(lone)
-        n_b = len(bi)
-        G = G_b[bi // tile, bj // tile]
-        const = np.concatenate([const, c_b[bi // tile, bj // tile]])
-        rb = (first + n_r + np.arange(n_b))[:, None, None] * C + np.arange(C)[None, :, None]
-        cb = index[bi, bj][:, None, None] * C + np.arange(C)[None, None, :]
-        data.append(G.ravel())
-        row_ids.append(np.broadcast_to(rb, (n_b, C, C)).ravel())
-        col_ids.append(np.broadcast_to(cb, (n_b, C, C)).ravel())
-    return data, row_ids, col_ids, const
+    K = offsets.shape[0]
+    state = np.uint64(seed) * np.uint64(6364136223846793005) + np.uint64(1442695040888963407)
+    lo_i, hi_i, lo_j, hi_j = max(box[0], 0), min(box[1], H), max(box[2], 0), min(box[3], W)
+    in_i, in_j, out_i, out_j = 0, 0, H, W
+    for k in range(K):
+        in_i = max(in_i, offsets[k, 0])
+        out_i = min(out_i, H + offsets[k, 0])
+        in_j = max(in_j, offsets[k, 1])
+        out_j = min(out_j, W + offsets[k, 1])
+    lo_i, hi_i, lo_j, hi_j = max(lo_i, in_i), min(hi_i, out_i), max(lo_j, in_j), min(hi_j, out_j)
+    tap = np.empty(K, np.int64)
+    kc = np.empty(C)
+    noise = np.empty((probes, C))
+    use_extra = extra.shape[0] == H
+    for i in range(lo_i, hi_i):
+        for j in range(lo_j, hi_j):
+            hit = False
+            for k in range(K):
+                tap[k] = index[i - offsets[k, 0], j - offsets[k, 1]]
+                if tap[k] >= 0:
+                    hit = True
+            if not hit:
+                continue
+            ti = i // tile
+            tj = j // tile
+            for a in range(C):
+                kc[a] = constant[ti, tj, a] + (extra[i, j, a] if use_extra else 0.0)
+            for k in range(K):
+                if tap[k] < 0:
+                    pi = i - offsets[k, 0]
+                    pj = j - offsets[k, 1]
+                    for a in range(C):
+                        acc = 0.0
+                        for b in range(C):
+                            acc += coeffs[ti, tj, k, a, b] * frame[pi, pj, b]
+                        kc[a] += acc
+            for s in range(probes):
+                for a in range(C):  # xorshift64: a random sign
+                    state ^= state << np.uint64(13)
+                    state ^= state >> np.uint64(7)
+                    state ^= state << np.uint64(17)
+                    noise[s, a] = 1.0 if (state >> np.uint64(40)) & np.uint64(1) else -1.0
+            for k in range(K):
+                p = tap[k]
+                if p < 0:
+                    continue
+                for a in range(C):
+                    acc = 0.0
+                    for b in range(C):
+                        acc += coeffs[ti, tj, k, b, a] * kc[b]
+                    rhs[p, a] -= acc
+                    for s in range(probes):
+                        acc = 0.0
+                        for b in range(C):
+                            acc += coeffs[ti, tj, k, b, a] * noise[s, b]
+                        z[p, s, a] += acc
+                for k2 in range(K):
+                    if tap[k2] < 0:
+                        continue
+                    slot = slot_of[reach2 + offsets[k, 0] - offsets[k2, 0],
+                                   reach2 + offsets[k, 1] - offsets[k2, 1]]
+                    for a in range(C):
+                        for c in range(C):
+                            Q[p, slot, a, c] += pairs[ti, tj, k, k2, a, c]
+    if border_G.shape[0] == 0:
+        return
+    centre = slot_of[reach2, reach2]
+    for i in range(max(box[0], 0), min(box[1], H)):
+        for j in range(max(box[2], 0), min(box[3], W)):
+            p = index[i, j]
+            if p < 0 or (in_i <= i < out_i and in_j <= j < out_j):
+                continue
+            ti = i // tile
+            tj = j // tile
+            for s in range(probes):
+                for a in range(C):
+                    state ^= state << np.uint64(13)
+                    state ^= state >> np.uint64(7)
+                    state ^= state << np.uint64(17)
+                    noise[s, a] = 1.0 if (state >> np.uint64(40)) & np.uint64(1) else -1.0
+            for a in range(C):
+                acc = 0.0
+                for b in range(C):
+                    acc += border_G[ti, tj, b, a] * border_c[ti, tj, b]
+                rhs[p, a] -= acc
+                for s in range(probes):
+                    acc = 0.0
+                    for b in range(C):
+                        acc += border_G[ti, tj, b, a] * noise[s, b]
+                    z[p, s, a] += acc
+                for c in range(C):
+                    acc = 0.0
+                    for b in range(C):
+                        acc += border_G[ti, tj, b, a] * border_G[ti, tj, b, c]
+                    Q[p, centre, a, c] += acc
 
 
-def _system(frame, unknown, row_sets, tile):
-    """The stacked whitened rows ``w = M y_U + c`` touching ``unknown``."""
+@njit(cache=True, nogil=True)
+def _csr_kernel(Q, pixels, index, slots, indptr, indices, data, count_only):
+    """The CSR pattern (``count_only``: the entries per row into
+    ``indptr[1:]``) or the entries of ``Q`` (per unknown pixel, per slot of
+    ``slots`` (S, 2) offsets, a C x C block), the unknown pixels (their
+    ``pixels`` coordinates) in ``index`` order, blocks that are all zero left
+    out."""
+    n, S, C = Q.shape[0], Q.shape[1], Q.shape[2]
+    H, W = index.shape
+    for p in range(n):
+        i, j = pixels[p, 0], pixels[p, 1]
+        for a in range(C):
+            at = indptr[p * C + a]
+            for s in range(S):
+                qi, qj = i + slots[s, 0], j + slots[s, 1]
+                if qi < 0 or qi >= H or qj < 0 or qj >= W:
+                    continue
+                q = index[qi, qj]
+                if q < 0:
+                    continue
+                nonzero = False
+                for b in range(C):
+                    for c in range(C):
+                        if Q[p, s, b, c] != 0.0:
+                            nonzero = True
+                if not nonzero:
+                    continue
+                for c in range(C):
+                    if not count_only:
+                        indices[at] = q * C + c
+                        data[at] = Q[p, s, a, c]
+                    at += 1
+            if count_only:
+                indptr[p * C + a + 1] = at - indptr[p * C + a]
+
+
+class _System(NamedTuple):
+    """The normal equations ``Q x = rhs`` of the unknown pixels, pixels in
+    ``index`` order grouped by coupled component: ``groups`` the (start,
+    stop) pixel ranges (``Q`` is block diagonal over them); ``z`` (n, probes,
+    d): draws of ``N(0, Q)``."""
+
+    Q: sparse.csr_matrix
+    rhs: np.ndarray
+    z: np.ndarray
+    groups: list
+    pixels: np.ndarray  # (n, 2) the unknown pixels in index order
+    diagonal: np.ndarray  # (n, d, d) the diagonal blocks of Q
+
+
+def _iter_assemble(frame, unknown, row_sets, tile, probes=0, seed=0):
+    """The normal equations of the ``unknown`` pixels (a :class:`_System`),
+    as a job: a record (stage ``"assembly"``) after each set of rows."""
     H, W, C = frame.shape
-    n_u = int(unknown.sum())
+    offsets_all = [np.asarray(r[0], np.int64) for r in row_sets]
+    reach = max(int(np.abs(o).max()) if len(o) else 0 for o in offsets_all)
+    reach2 = 2 * reach
+    # pixels coupled through a row lie within 2 reach of each other: a group
+    # is a connected component of the damage grown by ``reach``
+    if reach:
+        grown = ndimage.binary_dilation(unknown, structure=np.ones((3, 3), bool),
+                                        iterations=reach)
+    else:
+        grown = unknown
+    labels, n_groups = ndimage.label(grown, structure=np.ones((3, 3), bool))
+    ui, uj = np.nonzero(unknown)
+    lab = labels[ui, uj]
+    order = np.argsort(lab, kind="stable")  # row-major within a group
+    ui, uj, lab = ui[order], uj[order], lab[order]
+    n_u = len(ui)
     index = np.full((H, W), -1, np.int64)
-    index[unknown] = np.arange(n_u)
-    data, row_ids, col_ids, consts = [], [], [], []
-    first = 0
-    for offsets, coeffs, constant, extra, border in row_sets:
-        d, r, c, const = _rows(frame, unknown, index, offsets, coeffs, constant, tile,
-                               extra, border, first)
-        data += d
-        row_ids += r
-        col_ids += c
-        consts.append(const)
-        first += len(const)
-    const = np.concatenate(consts)
-    M = sparse.csr_matrix((np.concatenate(data), (np.concatenate(row_ids),
-                                                  np.concatenate(col_ids))),
-                          shape=(first * C, n_u * C))
-    return M, const.ravel()
+    index[ui, uj] = np.arange(n_u)
+    starts = np.searchsorted(lab, np.arange(1, n_groups + 2))
+    groups = [(int(a), int(b)) for a, b in zip(starts[:-1], starts[1:], strict=True) if b > a]
+    diffs = sorted({(int(a[0] - b[0]), int(a[1] - b[1])) for o in offsets_all
+                    for a in o for b in o} | {(0, 0)})
+    slots = np.array(diffs, np.int64)
+    slot_of = np.full((2 * reach2 + 1, 2 * reach2 + 1), -1, np.int64)
+    slot_of[slots[:, 0] + reach2, slots[:, 1] + reach2] = np.arange(len(slots))
+    box = np.array([ui.min() - reach, ui.max() + reach + 1, uj.min() - reach,
+                    uj.max() + reach + 1] if n_u else [0, 0, 0, 0], np.int64)
+    Q = np.zeros((n_u, len(slots), C, C))
+    rhs = np.zeros((n_u, C))
+    z = np.zeros((n_u, probes, C))
+    frame = np.ascontiguousarray(frame, np.float64)
+    for number, (offsets, coeffs, constant, extra, border) in enumerate(row_sets):
+        coeffs = np.ascontiguousarray(coeffs, np.float64)
+        constant = np.ascontiguousarray(constant, np.float64)
+        extra = np.zeros((0, 0, C)) if extra is None else np.ascontiguousarray(extra, float)
+        if border is None:
+            bG, bc = np.zeros((0, 0, C, C)), np.zeros((0, 0, C))
+        else:
+            bG, bc = (np.ascontiguousarray(b, np.float64) for b in border)
+        pairs = np.ascontiguousarray(np.einsum("tukba,tulbc->tuklac", coeffs, coeffs))
+        _assemble_kernel(frame, index, np.ascontiguousarray(offsets, np.int64), coeffs, pairs,
+                         constant, extra, int(tile), slot_of, reach2, box, bG, bc,
+                         int(probes), 1 + 7919 * int(seed) + number, Q, rhs, z)
+        yield Progress("assembly", (number + 1) / (len(row_sets) + 1), "assembling")
+    pixels = np.stack([ui, uj], axis=1).astype(np.int64)
+    indptr = np.zeros(n_u * C + 1, np.int64)
+    _csr_kernel(Q, pixels, index, slots, indptr, np.zeros(0, np.int64), np.zeros(0), True)
+    np.cumsum(indptr, out=indptr)
+    indices = np.empty(indptr[-1], np.int64)
+    data = np.empty(indptr[-1])
+    _csr_kernel(Q, pixels, index, slots, indptr, indices, data, False)
+    Qm = sparse.csr_matrix((data, indices, indptr), shape=(n_u * C, n_u * C))
+    return _System(Qm, rhs, z, groups, pixels, Q[:, slot_of[reach2, reach2]].copy())
+
+
+def _group_batches(groups, C):
+    """Consecutive groups batched into solves of about :data:`SOLVE_UNKNOWNS`
+    unknowns (a group never split)."""
+    batches, start, size = [], None, 0
+    for a, b in groups:
+        if start is None:
+            start = a
+        size += (b - a) * C
+        if size >= SOLVE_UNKNOWNS:
+            batches.append((start, b))
+            start, size = None, 0
+    if start is not None:
+        batches.append((start, groups[-1][1]))
+    return batches
+
+
+def _solve_block(Q, rhs, z, a, b, C):
+    """Solve ``Q[a:b] x = rhs[a:b]`` (pixel range) and ``Q x_s = z_s``."""
+    ip = Q.indptr
+    lo, hi = a * C, b * C
+    sub = sparse.csc_matrix((Q.data[ip[lo] : ip[hi]], Q.indices[ip[lo] : ip[hi]] - lo,
+                             ip[lo : hi + 1] - ip[lo]), shape=(hi - lo, hi - lo))
+    # Q is symmetric: its CSR rows are the CSC columns of the same matrix
+    lu = splu(sub, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+              options=dict(SymmetricMode=True))
+    right = rhs[a:b].reshape(-1, 1)
+    if z.shape[1]:
+        right = np.concatenate([right, z[a:b].transpose(0, 2, 1).reshape(-1, z.shape[1])],
+                               axis=1)
+    x = lu.solve(right)
+    values = x[:, 0].reshape(-1, C)
+    draws = x[:, 1:].reshape(b - a, C, -1).transpose(0, 2, 1)
+    return values, draws
+
+
+def _iter_solve(system, C, message):
+    """Solve a :class:`_System` group batch by group batch, in threads (the
+    factorisation releases the GIL), with a record every
+    :data:`SOLVE_RECORD_SECONDS` while one runs: ``(values (n, d), draws (n,
+    probes, d))``, draws of ``N(0, Q^-1)``."""
+    n = system.rhs.shape[0]
+    values = np.empty((n, C))
+    draws = np.empty((n, system.z.shape[1], C))
+    batches = _group_batches(system.groups, C)
+    if len(batches) == 1 and (batches[0][1] - batches[0][0]) * C < SOLVE_UNKNOWNS:
+        a, b = batches[0]  # small: no thread
+        values[a:b], draws[a:b] = _solve_block(system.Q, system.rhs, system.z, a, b, C)
+        return values, draws
+    pool = ThreadPoolExecutor(_SOLVERS)
+    pending = {}
+    try:
+        pending = {pool.submit(_solve_block, system.Q, system.rhs, system.z, a, b, C): (a, b)
+                   for a, b in batches}
+        done_pixels = 0
+        while pending:
+            finished, _ = wait(pending, timeout=SOLVE_RECORD_SECONDS,
+                               return_when=FIRST_COMPLETED)
+            for future in finished:
+                a, b = pending.pop(future)
+                values[a:b], draws[a:b] = future.result()
+                done_pixels += b - a
+            yield Progress("solve", done_pixels / max(n, 1), f"{message}, solving")
+    finally:  # a Cancel: the batches not started are dropped, a running one finishes
+        pool.shutdown(wait=False, cancel_futures=True)
+    return values, draws
+
+
+def iter_stencil_solve(frame, unknown, row_sets, tile, *, probes=0, seed=0,
+                       message="frame"):
+    """:func:`stencil_solve` as a job (records while the solves run), with
+    ``probes`` draws of the conditional distribution's fluctuation: returns
+    ``(values, draws, diagonal)``, (n, d), (n, probes, d) and (n, d, d) in
+    ``np.nonzero(unknown)`` order: the draws have covariance ``Q_UU^-1``;
+    ``diagonal`` is the diagonal blocks of ``Q_UU``."""
+    C = frame.shape[2]
+    system = yield from stage(_iter_assemble(frame, unknown, row_sets, tile, probes=probes,
+                                             seed=seed), 0.0, 0.3, name="solve",
+                              prefix=f"{message}, ")
+    yield Progress("solve", 0.3, f"{message}, solving")
+    values, draws = yield from stage(_iter_solve(system, C, message), 0.3, 1.0)
+    ui, uj = np.nonzero(unknown)
+    order = np.full(unknown.shape, -1, np.int64)
+    order[system.pixels[:, 0], system.pixels[:, 1]] = np.arange(len(system.pixels))
+    at = order[ui, uj]
+    return values[at], draws[at], system.diagonal[at]
 
 
 def stencil_solve(frame, unknown, row_sets, tile):
@@ -264,14 +578,11 @@ def stencil_solve(frame, unknown, row_sets, tile):
     tap unknown. ``extra`` (H, W, d) or None. ``border``: ``(G, c)``, (ty,
     tx, d, d) and (ty, tx, d), the row ``G Y_r + c`` of an unknown pixel that
     has no full row, or None. Returns the (n_unknown, d) values in
-    ``np.nonzero(unknown)`` order: ``x = -(M^T M)^-1 M^T c``, by a sparse LU
-    factorisation (SuperLU) of ``Q_UU = M^T M``."""
-    C = frame.shape[2]
-    M, const = _system(frame, unknown, row_sets, tile)
-    Q = (M.T @ M).tocsc()
-    rhs = -(M.T @ const)
-    x = splu(Q, permc_spec="COLAMD").solve(rhs)
-    return x.reshape(-1, C)
+    ``np.nonzero(unknown)`` order: ``x = -(M^T M)^-1 M^T c``. The normal
+    equations ``Q_UU = M^T M`` are assembled row by row (a compiled kernel)
+    and solved by a sparse LU factorisation (SuperLU) per batch of coupled
+    groups of unknown pixels (``Q_UU`` is block diagonal over them)."""
+    return drain(iter_stencil_solve(frame, unknown, row_sets, tile))[0]
 
 
 def _row_sets(frame, models, previous):
@@ -283,33 +594,49 @@ def _row_sets(frame, models, previous):
     return row_sets
 
 
-def edge_statistics(frame, trial, damage, ring, Linv, tile):
+def edge_statistics(frame, trial, damage, ring, draws, diagonal):
     """The edge test's statistics of the ``ring`` pixels (known, bordering the
     ``damage``): ``(alpha, chi2)`` per ring pixel in ``np.nonzero(ring)`` order.
 
     ``trial`` is the frame with the damage and the ring both replaced by
     their conditional mean given the rest, so that neither sees the other.
     Soft-edged damage blends a ring pixel towards the damage: ``y_b = E_b +
-    alpha D_b + e`` with ``E_b`` its prediction and ``D_b`` the damage's
+    alpha D_b + e`` with ``E_b`` its prediction, ``D_b`` the damage's
     deviation from its prediction (mean over the pixel's 4-neighbours in the
-    damage). ``alpha`` is the least-squares blend under the tile's
-    innovation covariance ``L L^T`` and ``chi2 = (D^T S^-1 e)^2 / (D^T S^-1 D)``
-    its generalised-likelihood statistic (chi-square with 1 degree of
-    freedom for a clean pixel when ``S`` is its predictive covariance)."""
+    damage) and ``e ~ N(0, S_b)``, ``S_b`` the covariance of the joint
+    prediction (the ring and the damage predicted together from the rest:
+    ``[Q^-1]_bb`` over them, larger than the one-step innovation covariance
+    of a pixel whose neighbours are known). ``S_b = kappa_b R_b``: ``R_b =
+    Q_bb^-1`` (``diagonal``, (n_ring, d, d) the blocks ``Q_bb``) is the
+    pixel's covariance given every other pixel, and ``kappa_b`` the ratio
+    ``tr(Q_bb C_b) / d`` of the covariance ``C_b`` of the ``draws`` (n_ring,
+    probes, d) of ``N(0, Q^-1)``, averaged over the ring pixels within
+    :data:`EDGE_POOL` pixels (a few draws per pixel, pooled). ``alpha`` is
+    the generalised least-squares blend and ``chi2 = (D^T S^-1 e)^2 / (D^T
+    S^-1 D)`` its generalised-likelihood statistic (chi-square with 1 degree
+    of freedom for a clean pixel)."""
     H, W, C = frame.shape
     bi, bj = np.nonzero(ring)
-    deviation = np.where(damage[..., None], frame - trial, 0.0)
-    count = np.zeros((H, W))
-    total = np.zeros((H, W, C))
+    count = np.zeros(len(bi))
+    total = np.zeros((len(bi), C))
     for di, dj in ((0, 1), (1, 0), (0, -1), (-1, 0)):
-        count += _shifted(damage.astype(float), di, dj, 0.0)
-        total += np.stack([_shifted(deviation[..., c], di, dj, 0.0) for c in range(C)], -1)
-    D = total[bi, bj] / np.maximum(count[bi, bj], 1)[:, None]
-    G = Linv[bi // tile, bj // tile]
-    wD = np.einsum("nab,nb->na", G, D)
-    we = np.einsum("nab,nb->na", G, frame[bi, bj] - trial[bi, bj])
-    dqd = np.maximum((wD * wD).sum(axis=1), 1e-300)
-    proj = (wD * we).sum(axis=1)
+        ni, nj = np.clip(bi + di, 0, H - 1), np.clip(bj + dj, 0, W - 1)
+        hit = damage[ni, nj] & (ni == bi + di) & (nj == bj + dj)
+        count += hit
+        total += np.where(hit[:, None], frame[ni, nj] - trial[ni, nj], 0.0)
+    D = total / np.maximum(count, 1)[:, None]
+    e = frame[bi, bj] - trial[bi, bj]
+    sample = np.einsum("nsa,nsb->nab", draws, draws) / max(draws.shape[1], 1)
+    kappa = np.einsum("nab,nba->n", diagonal, sample) / C
+    spread = np.zeros((H, W))
+    spread[bi, bj] = kappa
+    size = 2 * EDGE_POOL + 1
+    pooled = (ndimage.uniform_filter(spread, size, mode="constant")
+              / np.maximum(ndimage.uniform_filter(ring.astype(float), size, mode="constant"),
+                           1e-12))[bi, bj]
+    QD = np.einsum("nab,nb->na", diagonal, D) / pooled[:, None]  # S^-1 D
+    dqd = np.maximum((QD * D).sum(axis=1), 1e-300)
+    proj = (QD * e).sum(axis=1)
     return proj / dqd, proj**2 / dqd
 
 
@@ -377,7 +704,8 @@ def direction_offsets(offsets, direction):
 
 def iter_fill_conditional(frame, mask, *, order=3, directions=DIRECTIONS, previous=None,
                           tile=DEFAULT_TILE, margin=DEFAULT_MARGIN, halo=None, halo_rings=1,
-                          halo_blend=HALO_BLEND, fill_range="known", message="frame"):
+                          halo_blend=HALO_BLEND, probes=EDGE_PROBES, fill_range="known",
+                          message="frame"):
     """Conditional-mean fill of ``mask`` in the (H, W, d) float ``frame``, as
     a job: Progress records (stage ``"frames"``), then the (n_missing, d)
     values in ``np.nonzero(mask)`` order.
@@ -387,9 +715,15 @@ def iter_fill_conditional(frame, mask, *, order=3, directions=DIRECTIONS, previo
     log density ratio <= 0 (None: no edge test). A known pixel bordering the
     damage is treated as damaged when, with it and the damage predicted from
     the rest, it is blended towards the damage by more than ``halo_blend``
-    and ``-chi2 / 2 < halo`` (see :func:`edge_statistics`); then the next
-    ring is tested, up to ``halo_rings`` rings. ``fill_range``: (lo, hi) per
-    channel, "known" (the known pixels' range) or None."""
+    and ``-chi2 / 2 < halo`` under its joint predictive covariance
+    (estimated from ``probes`` draws; see :func:`edge_statistics`); then the
+    next ring is tested, up to ``halo_rings`` rings. ``fill_range``: (lo,
+    hi) per channel, "known" (the known pixels' range) or None.
+
+    The work goes in short steps, a record after each: the statistics of
+    the local models by bands of blocks, the sparse solves by batches of
+    coupled groups of pixels (run in threads, a record every
+    :data:`SOLVE_RECORD_SECONDS` while one runs)."""
     base = causal_neighbourhood(order) if np.ndim(order) == 0 else np.asarray(order)
     if isinstance(fill_range, str):
         known_values = frame[~mask]
@@ -399,28 +733,37 @@ def iter_fill_conditional(frame, mask, *, order=3, directions=DIRECTIONS, previo
     rings = halo_rings if halo is not None else 0
     need = _tiles_needed(ndimage.binary_dilation(mask, structure=_CROSS, iterations=1 + rings),
                          np.vstack([base, -base, base[:, ::-1], -base[:, ::-1]]), tile)
-    models = fit_local_models(frame, fit_out, [direction_offsets(base, d) for d in directions],
-                              previous=previous, tile=tile, margin=margin, need=need)
     steps = 2 + rings
+    models = yield from stage(
+        iter_fit_local_models(frame, fit_out, [direction_offsets(base, d) for d in directions],
+                              previous=previous, tile=tile, margin=margin, need=need),
+        0.0, 1 / steps, name="frames", prefix=f"{message}, ")
     yield Progress("frames", 1 / steps, f"{message}, models fitted")
     row_sets = _row_sets(frame, models, previous)
-    Linv = _inv_chol(models[0].sigma)
     damage = mask.copy()
     for ring_number in range(rings):
         ring = ndimage.binary_dilation(damage, structure=_CROSS) & ~damage
         if not ring.any():
             break
         both = damage | ring
+        values, draws, diagonal = yield from stage(
+            iter_stencil_solve(frame, both, row_sets, tile, probes=probes, seed=ring_number,
+                               message=message),
+            (1 + ring_number) / steps, (2 + ring_number) / steps, name="frames")
         trial = frame.copy()
-        trial[both] = stencil_solve(frame, both, row_sets, tile)
-        alpha, chi2 = edge_statistics(frame, trial, damage, ring, Linv, tile)
+        trial[both] = values
+        on_ring = ring[both]
+        alpha, chi2 = edge_statistics(frame, trial, damage, ring, draws[on_ring],
+                                      diagonal[on_ring])
         bad = (alpha > halo_blend) & (-0.5 * chi2 < halo)
         yield Progress("frames", (2 + ring_number) / steps, f"{message}, edge test")
         if not bad.any():
             break
         bi, bj = np.nonzero(ring)
         damage[bi[bad], bj[bad]] = True
-    values = stencil_solve(frame, damage, row_sets, tile)
+    values, _, _ = yield from stage(
+        iter_stencil_solve(frame, damage, row_sets, tile, message=message),
+        (steps - 1) / steps, 1.0, name="frames")
     ui, uj = np.nonzero(damage)
     values = values[mask[ui, uj]]
     if fill_range is not None:

@@ -1,7 +1,9 @@
 """Filling scratches and blotches (section 14.7, docs/inpainting.md).
 
-:func:`inpaint` fills the masked pixels of a frame or a clip with the
-conditional mean of adaptive CAR models that move towards the damage: four
+:func:`inpaint` fills the masked pixels of a frame or a clip, by default
+with the exact conditional mean under local CAR models (``_conditional``);
+``method="scans"`` (this module) with the one-step conditional means of
+adaptive CAR models that move towards the damage: four
 scans, downwards (from the damage's top edge), upwards (from its bottom
 edge), rightwards (from its left edge) and leftwards (from its right edge),
 each predicting a pixel from the previous scan line only; predicted pixels
@@ -24,7 +26,7 @@ from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 import numpy as np
 from numba import njit
 
-from .._progress import Progress, drain, stage
+from .._progress import Progress, stage
 from ..model.neighbourhood import Context, causal_neighbourhood
 from ..model.recursive import RecursiveScan, default_prior
 from ._conditional import iter_fill_conditional
@@ -32,14 +34,16 @@ from ._layout import MAX_COLOURS, read_layout
 from ._motion import iter_estimate_motion, warp_frame
 
 __all__ = ["CONDITIONAL_HALO", "CONDITIONAL_ORDER", "DEFAULT_INTERLEAVE",
-           "EDGE_OUTLIER_LOGREL", "METHODS", "inpaint", "iter_inpaint", "line_offsets"]
+           "EDGE_OUTLIER_LOGREL", "METHODS", "iter_inpaint_in_memory", "line_offsets"]
 
 METHODS = ("conditional", "scans")
 # the conditional mean (method="conditional"): the hierarchical order of each
 # local model and the halo threshold (a log density ratio, as for the scans).
 # Both chosen on the benchmark's TUNING part only (benchmarks/bench_inpainting.py).
 CONDITIONAL_ORDER = 3
-CONDITIONAL_HALO = -50.0
+CONDITIONAL_HALO = -4.0  # TUNING: -4 (1 ring) soft +5.0 dB, hard -1.1 dB, real -1.5 dB vs off
+CONDITIONAL_RINGS = 1  # rings of known pixels round the damage the edge test reaches
+CONDITIONAL_BLEND = 0.1  # the least blend towards the damage it calls damage
 
 DEFAULT_INTERLEAVE = 2.0  # pixels: decay length of each side's weight
 # A known pixel bordering the damage is treated as damaged by a scan when its
@@ -463,92 +467,11 @@ def _as_frame_records(job, fraction, message):
         yield Progress("frames", fraction, message)
 
 
-def iter_inpaint(image, mask, *, temporal=True, neighbourhood=None, forgetting=0.9995,
-                 interleave=DEFAULT_INTERLEAVE, halo="auto", channel_axis=-1,
-                 method="scans", motion=True):
-    """Fill damaged pixels, as a job: Progress records, then the result.
-
-    The generator form of :func:`inpaint`, with the same parameters and
-    result. Each frame is four scans, run two at a time in chunks of rows
-    (about :data:`SCAN_CHUNK_PIXELS` pixels each, a fraction of a second) with
-    a record after each chunk, so that closing the job (a Cancel) stops it
-    quickly even on a large frame; the last record of frame ``t`` carries
-    that frame restored, for live display. The result does not depend on
-    the chunks.
-
-    Parameters
-    ----------
-    image : ndarray
-        A frame ``(H, W)`` or ``(H, W, C)``, or a clip ``(T, H, W)`` or
-        ``(T, H, W, C)``; see :func:`inpaint` for how ``channel_axis`` reads it.
-    mask : (H, W) or (T, H, W) array_like of bool
-        True (nonzero) where pixels are missing; (H, W) applies to every frame.
-    temporal : bool, optional
-        Use the previous restored frame as context (clips only).
-    motion : bool, optional
-        With ``temporal``, move the previous frame onto this one by the
-        estimated optical flow first (:func:`estimate_motion`), so that the
-        context follows moving content.
-    neighbourhood : int or None, optional
-        The models' neighbourhood (see :func:`inpaint`).
-    forgetting : float in (0, 1], optional
-        Forgetting factor of the adaptive models (``method="scans"``).
-    interleave : float, optional
-        Decay length (pixels) of each side's weight (``method="scans"``).
-    halo : float <= 0, 'auto' or None, optional
-        Threshold of the edge test (see :func:`inpaint`); None disables it.
-    channel_axis : int or None, optional
-        The colour axis; None forces grey.
-    method : {'conditional', 'scans'}, optional
-        How the damage is filled (see :func:`inpaint`).
-
-    Returns
-    -------
-    ndarray
-        What :func:`inpaint` returns: like ``image`` (same shape and dtype),
-        pixels outside the mask bit-identical to the input.
-
-    Yields
-    ------
-    Progress
-        Stage ``"frames"``, with a fraction proportional to the damaged
-        frames done. After frame ``t`` of ``T``: message ``"frame t+1/T"`` and
-        preview ``(t, restored_frame)``, the frame in the layout of the
-        input's frames (a read-only view of the result). Between chunks of
-        its scans: message ``"frame t+1/T, scan k/4"`` (``k`` scans done), no
-        preview; on a large frame also between the bands of the passes
-        before and after the scans: ``"frame t+1/T, preparing"`` and
-        ``"frame t+1/T, combining"``.
-
-    Raises
-    ------
-    TypeError
-        If the image or the mask is not numeric.
-    ValueError
-        If the image is neither a frame nor a clip, holds NaN or infinite
-        values, or is too small; if the mask has the wrong shape or covers a
-        whole frame; if an option is out of range.
-
-    Warns
-    -----
-    UserWarning
-        When the mask is empty (the input is returned unchanged).
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from car_napari._progress import drain
-    >>> frame = np.random.default_rng(0).random((16, 16))
-    >>> mask = np.zeros((16, 16), bool)
-    >>> mask[:, 7] = True
-    >>> job = iter_inpaint(frame, mask)
-    >>> records = []
-    >>> restored = drain(job, records.append)
-    >>> records[-1].message, records[-1].preview[0]
-    ('frame 1/1', 0)
-    >>> bool(np.array_equal(restored[~mask], frame[~mask]))
-    True
-    """
+def iter_inpaint_in_memory(image, mask, *, temporal=True, neighbourhood=None, forgetting=0.9995,
+                           interleave=DEFAULT_INTERLEAVE, halo="auto", channel_axis=-1,
+                           method="conditional", motion=True):
+    """:func:`~car_napari.inpainting.iter_inpaint` of a frame or clip in
+    memory (NumPy): the parameters, records and result documented there."""
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}; got {method!r}.")
     if not isinstance(motion, (bool, np.bool_)):
@@ -609,7 +532,8 @@ def iter_inpaint(image, mask, *, temporal=True, neighbourhood=None, forgetting=0
                 fill = iter_fill_conditional(
                     frame, frame_mask, order=int(neighbourhood),
                     previous=context,
-                    halo=None if halo is None else float(halo), message=message)
+                    halo=None if halo is None else float(halo), halo_rings=CONDITIONAL_RINGS,
+                    halo_blend=CONDITIONAL_BLEND, message=message)
             else:
                 fill = _iter_fill_frame(frame, frame_mask, context,
                                         offsets, float(forgetting), float(interleave), 1e-6,
@@ -627,110 +551,3 @@ def iter_inpaint(image, mask, *, temporal=True, neighbourhood=None, forgetting=0
         yield Progress("frames", float(work[t]), message, (t, restored_frame))
     return layout.to_input(out)
 
-
-def inpaint(image, mask, *, temporal=True, neighbourhood=None, forgetting=0.9995,
-            interleave=DEFAULT_INTERLEAVE, halo="auto", channel_axis=-1,
-            method="scans", motion=True):
-    """Fill damaged pixels with the conditional mean of CAR models.
-
-    ``method="conditional"`` is the exact Gaussian conditional mean of the
-    damaged pixels given the known ones under 3DCAR models fitted locally
-    around the damage (docs/inpainting.md; not yet the default: it runs as a
-    few long steps, so a Cancel waits for them, and it loses on soft-edged
-    damage). The default, ``method="scans"``, is section 14.7 of the
-    chapter: four models move towards the damage
-    (downwards, upwards, rightwards and leftwards), filled pixels serving as
-    neighbours of later ones (14.54); the four fills are combined by
-    exponential interleaving. Known pixels bordering the damage that a model
-    finds improbable (the halo of soft-edged damage) are not used as its
-    neighbours. In a clip the previous restored frame is part of each
-    pixel's context (3.5D model) when ``temporal`` is True.
-
-    Parameters
-    ----------
-    image : ndarray
-        A frame or a clip, any integer or float32/64 dtype. How
-        ``channel_axis`` reads it: ``(H, W)`` is a grey frame; a 3-D array is
-        a colour frame ``(H, W, C)`` when the channel axis has at most 4
-        entries and a grey clip ``(T, H, W)`` otherwise; a 4-D array is a
-        colour clip ``(T, H, W, C)``; ``channel_axis=None`` forces grey
-        (``(H, W)`` or ``(T, H, W)``, e.g. for a grey clip of 4 frames or
-        fewer).
-    mask : (H, W) or (T, H, W) array_like of bool
-        True (nonzero) where pixels are missing (in every channel); (H, W)
-        applies to every frame of a clip.
-    temporal : bool, optional
-        Use the previous restored frame as context (clips only).
-    motion : bool, optional
-        With ``temporal``, move the previous frame onto this one by the
-        estimated optical flow first (:func:`estimate_motion`), so that the
-        context follows moving content.
-    neighbourhood : int or None, optional
-        ``method="conditional"``: the hierarchical order (1 to 8) of the
-        local models (default :data:`CONDITIONAL_ORDER`, 3).
-        ``method="scans"``: how many previous scan lines the models see
-        (default 1; see :func:`line_offsets`): 5 pixels of each. One line
-        measured best on composited real scratches (+1.6 dB over two lines
-        of 3 pixels).
-    forgetting : float in (0, 1], optional
-        Forgetting factor of the adaptive models (``method="scans"``).
-    interleave : float, optional
-        Decay length (pixels) of each side's weight (``method="scans"``).
-    halo : float <= 0, 'auto' or None, optional
-        The edge test: known pixels next to the mask (4-neighbours) that the
-        model finds improbable are treated as damaged (still returned
-        unchanged). Soft-edged damage leaves such a halo just outside a mask
-        drawn at its core. A log density ratio: ``"scans"`` tests each
-        pixel's predictive density relative to its peak as a model reaches
-        it; ``"conditional"`` tests the blend of the pixel towards the
-        damage (half its chi-square statistic; docs/inpainting.md). 'auto'
-        (the default): :data:`CONDITIONAL_HALO` or ``EDGE_OUTLIER_LOGREL``
-        (-12); None disables the test.
-    channel_axis : int or None, optional
-        The colour axis (default -1, the last); None forces grey.
-    method : {'scans', 'conditional'}, optional
-        ``"scans"`` (the default): the chapter's four directional adaptive
-        models with exponential interleaving, in chunks of rows.
-        ``"conditional"``: the exact conditional mean of the missing pixels
-        given the known ones under local 3DCAR models fitted around the
-        damage (four scan directions, their densities multiplied), a sparse
-        linear solve.
-
-    Returns
-    -------
-    ndarray
-        Like ``image`` (same shape and dtype); pixels outside the mask are
-        bit-identical to the input.
-
-    Raises
-    ------
-    TypeError
-        If the image or the mask is not numeric.
-    ValueError
-        If the image is neither a frame nor a clip, holds NaN or infinite
-        values, or is too small for the neighbourhood; if the mask has the
-        wrong shape or covers a whole frame; if an option is out of range.
-
-    Warns
-    -----
-    UserWarning
-        When the mask is empty (the input is returned unchanged).
-
-    See Also
-    --------
-    iter_inpaint : The same as a job, with progress and each restored frame.
-    detect_scratches : Propose a mask.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> frame = np.random.default_rng(0).random((16, 16))
-    >>> mask = np.zeros((16, 16), bool)
-    >>> mask[4:8, 4:8] = True
-    >>> restored = inpaint(frame, mask)
-    >>> restored.shape, bool(np.array_equal(restored[~mask], frame[~mask]))
-    ((16, 16), True)
-    """
-    return drain(iter_inpaint(image, mask, temporal=temporal, neighbourhood=neighbourhood,
-                              forgetting=forgetting, interleave=interleave, halo=halo,
-                              channel_axis=channel_axis, method=method, motion=motion))

@@ -150,3 +150,86 @@ def test_edge_test_recovers_soft_edges_and_leaves_hard_ones():
     for halo in ("auto", -12.0):
         assert _psnr(image, inpaint(hard, mask, halo=halo, method="conditional"), mask) >= _psnr(
             image, inpaint(hard, mask, halo=None, method="conditional"), mask) - 0.05
+
+
+def test_draws_have_the_conditional_covariance():
+    """The edge test's draws (random signs pushed through the rows, then
+    solved) have covariance ``Q_UU^-1``: against the dense precision."""
+    from car_napari._progress import drain
+    from car_napari.inpainting._conditional import _row_sets, iter_stencil_solve
+
+    rng = np.random.default_rng(3)
+    H, W, C = 8, 9, 2
+    frame = rng.normal(size=(H, W, C))
+    unknown = np.zeros((H, W), bool)
+    unknown[3:5, 3:6] = True
+    base = causal_neighbourhood(2)
+    models = [_random_model(rng, direction_offsets(base, d), C, np.zeros(C))
+              for d in ("down", "up")]
+    _, draws, diagonal = drain(iter_stencil_solve(frame, unknown, _row_sets(frame, models, None),
+                                                  100, probes=20000))
+    P = _dense_precision(models, H, W)
+    u = np.repeat(unknown.reshape(-1), C)
+    Quu = P[np.ix_(u, u)]
+    flat = draws.transpose(1, 0, 2).reshape(draws.shape[1], -1)
+    exact = np.linalg.inv(Quu)
+    error = flat.T @ flat / len(flat) - exact
+    assert np.linalg.norm(error) < 0.03 * np.linalg.norm(exact)  # sampling: ~0.01
+    n = unknown.sum()
+    blocks = Quu.reshape(n, C, n, C)[np.arange(n), :, np.arange(n), :]
+    np.testing.assert_allclose(diagonal, blocks, rtol=1e-12)
+
+
+def test_tiled_fit_is_each_windows_least_squares_fit():
+    """Several tiles: each tile's model is the least-squares fit over its
+    window (the tile and ``margin`` pixels round it), plain NumPy."""
+    rng = np.random.default_rng(4)
+    frame = ndimage.uniform_filter(rng.random((40, 52, 1)), (3, 3, 1))
+    unknown = np.zeros((40, 52), bool)
+    unknown[15:19, 20:30] = True
+    offsets = causal_neighbourhood(1)
+    tile, margin = 16, 8
+    (model,) = fit_local_models(frame, unknown, [offsets], tile=tile, margin=margin,
+                                prior=1e-12)
+    for a, b in ((0, 0), (1, 2), (2, 3)):
+        i0, i1 = max(a * tile - margin, 0), min((a + 1) * tile + margin, 40)
+        j0, j1 = max(b * tile - margin, 0), min((b + 1) * tile + margin, 52)
+        rows, targets = [], []
+        for i in range(i0, i1):
+            for j in range(j0, j1):
+                nb = [(i - di, j - dj) for di, dj in offsets]
+                if unknown[i, j] or not all(0 <= p < 40 and 0 <= q < 52 and not unknown[p, q]
+                                            for p, q in nb):
+                    continue
+                rows.append(np.concatenate([frame[p, q] for p, q in nb]))
+                targets.append(frame[i, j])
+        X, Y = np.array(rows), np.array(targets)
+        mu = Y.mean(axis=0)
+        coef = np.linalg.lstsq(X - mu, Y - mu, rcond=None)[0]
+        np.testing.assert_allclose(model.mean[a, b], mu, rtol=1e-10)
+        np.testing.assert_allclose(model.gamma[a, b], coef.T, rtol=1e-5, atol=1e-8)
+
+
+def test_conditional_fill_yields_often_and_stops_when_closed():
+    """Records between the fit's bands, the assembly's row sets and the
+    solves, fractions rising; closing the job mid-way stops it."""
+    from car_napari.inpainting import iter_inpaint
+
+    image = skdata.astronaut()[:200, :200]
+    mask = np.zeros(image.shape[:2], bool)
+    mask[:, 50:53] = mask[120:140, 100:150] = True
+    records = []
+    job = iter_inpaint(image, mask, method="conditional")
+    for record in job:
+        records.append(record)
+    fractions = [r.fraction for r in records]
+    assert len(records) >= 10 and fractions == sorted(fractions)
+    assert {"solving", "assembling", "fitting"} <= {
+        word for r in records for word in ("solving", "assembling", "fitting")
+        if word in r.message}
+    job = iter_inpaint(image, mask, method="conditional")
+    for record in job:
+        if "solving" in record.message:
+            break
+    job.close()
+    assert job.gi_frame is None
