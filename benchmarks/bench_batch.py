@@ -11,10 +11,22 @@ cold start of its workers included, as a user meets it. Printed per
 configuration: wall-clock seconds, images per minute, the throughput ratio
 to 1 worker, and the peak resident memory of the command's process tree
 (the client and each worker, sampled every 0.2 s with psutil): the largest
-single worker and the sum. Rounds alternate the configurations, so that a
-drift of the machine's load falls on all. The outputs of every run are
-compared with the first run's (label PNGs byte for byte, the table row by
-row): they must be identical.
+single worker and the sum; and the CPU seconds of the tree (user + system
+of every process, its last sample) over the wall-clock seconds: the cores
+the configuration kept busy.
+
+"1 worker" is the command's default in-process path (``--workers 1``: no
+cluster). It is not one core: the applications run their kernels in two
+threads where they can (restoration strips, the scans, the moments; Numba
+``nogil``), so one process already keeps more than one core busy part of the
+time, and 2 workers (each also using two threads, four runnable threads on
+two cores) can only add what the one left idle. The "cores busy" column
+shows how much. On a loaded machine (other processes runnable) the
+scheduler shares the cores per thread, not per process, which favours the
+configuration with more threads: read the figures with the load printed.
+Rounds alternate the configurations, so that a drift of the machine's load
+falls on all. The outputs of every run are compared with the first run's
+(label PNGs byte for byte, the table row by row): they must be identical.
 """
 
 from __future__ import annotations
@@ -47,18 +59,23 @@ def inputs(count, folder):
 
 
 def run(folder, out, workers):
-    """(seconds, peak RSS of the largest process, peak of the sum) of one command."""
+    """(seconds, peak RSS of the largest process, peak of the sum, CPU
+    seconds of the tree) of one command."""
     cmd = [sys.executable, "-m", "car_napari.cli", "mammo", str(folder), "-o", str(out),
            "--workers", str(workers), "--quiet"]
     t0 = time.perf_counter()
     proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                             text=True)
     largest = total = 0
+    cpu = {}  # pid: user + system seconds, last sample
     parent = psutil.Process(proc.pid)
     while proc.poll() is None:
         try:
             tree = [parent, *parent.children(recursive=True)]
             sizes = [p.memory_info().rss for p in tree]
+            for p in tree:
+                times = p.cpu_times()
+                cpu[p.pid] = times.user + times.system
         except psutil.Error:
             sizes = []
         if sizes:
@@ -68,7 +85,7 @@ def run(folder, out, workers):
     err = proc.stderr.read()
     if proc.returncode not in (0, 1):
         sys.exit(f"the command failed ({proc.returncode}):\n{err}")
-    return seconds, largest, total
+    return seconds, largest, total, sum(cpu.values())
 
 
 def same_outputs(a, b):
@@ -90,30 +107,34 @@ def main():
         folder = inputs(args.count, work / "in")
         times = {w: [] for w in configs}
         peaks = {w: [] for w in configs}
+        cpus = {w: [] for w in configs}
         reference = None
         for r in range(args.rounds):
             for w in configs:
                 out = work / f"out_{w}_{r}"
-                seconds, largest, total = run(folder, out, w)
+                seconds, largest, total, cpu = run(folder, out, w)
                 times[w].append(seconds)
+                cpus[w].append(cpu / seconds)
                 peaks[w].append((largest, total))
                 if reference is None:
                     reference = out
                 elif not same_outputs(reference, out):
                     sys.exit(f"outputs of {w} workers (round {r}) differ from the first run")
-                print(f"round {r + 1}, {w} worker(s): {seconds:.1f} s", flush=True)
+                print(f"round {r + 1}, {w} worker(s): {seconds:.1f} s, CPU {cpu:.0f} s "
+                      f"({cpu / seconds:.2f} cores busy)", flush=True)
         base = min(times[configs[0]])
         print(f"\n{args.count} mammograms (mini-MIAS 1024^2 + DDSM 480x960), "
               f"{psutil.cpu_count()} CPUs, load {psutil.getloadavg()[0]:.1f}")
         print("| workers | seconds (min-max) | images/min | throughput vs "
-              f"{configs[0]} | largest process (GB) | all processes (GB) |")
-        print("|---|---|---|---|---|---|")
+              f"{configs[0]} | cores busy | largest process (GB) | all processes (GB) |")
+        print("|---|---|---|---|---|---|---|")
         for w in configs:
             best = min(times[w])
             largest = max(p[0] for p in peaks[w]) / 1e9
             total = max(p[1] for p in peaks[w]) / 1e9
             print(f"| {w} | {best:.1f} ({min(times[w]):.1f}-{max(times[w]):.1f}) | "
-                  f"{60 * args.count / best:.1f} | {base / best:.2f}x | {largest:.2f} | "
+                  f"{60 * args.count / best:.1f} | {base / best:.2f}x | "
+                  f"{min(cpus[w]):.2f}-{max(cpus[w]):.2f} | {largest:.2f} | "
                   f"{total:.2f} |")
         print("outputs identical across all runs: yes")
     finally:

@@ -67,7 +67,8 @@ def main(argv=None):
     status : int
         0 on success; for a batch, 1 when some inputs failed (each reported
         on one line, the others done); 2 when the inputs are wrong or none
-        succeeded (the reason is printed to stderr as ``car-napari: ...``).
+        succeeded, or an optional dependency is missing (the reason, or what
+        to install, is printed to stderr as ``car-napari: ...``).
 
     Raises
     ------
@@ -82,6 +83,6 @@ def main(argv=None):
     args = build_parser().parse_args(argv)
     try:
         return args.run(args) or 0
-    except (BatchFailed, *INPUT_ERRORS) as exc:
+    except (BatchFailed, ImportError, *INPUT_ERRORS) as exc:  # ImportError: an extra missing
         print(f"car-napari: {exc}", file=sys.stderr)
         return 2

@@ -81,7 +81,9 @@ def run_batch(paths, process, *, outputs=None, on_done=None, options=None, quiet
     ----------
     paths : list of pathlib.Path
         The input files (from :func:`expand_inputs`, called first so that a
-        command with no inputs fails before it writes anything).
+        command with no inputs fails before it writes anything). Any
+        picklable items with a ``name`` (the bar's and the lines' label)
+        will do: e.g. a clip's blocks of frames, one task each.
     process : callable
         ``process(path, on_progress)`` does one input (writing its outputs)
         and returns a short line on it, or ``(line, payload)``; a
@@ -184,19 +186,34 @@ def _ignore(record):
 
 
 def _cluster_results(paths, process, workers, scheduler, bar):
+    with _client(workers, scheduler) as client:  # first: says what to install
+        from dask.distributed import as_completed
+
+        futures = {client.submit(_run_one, process, path, pure=False): path for path in paths}
+        done = 0
+        for future in as_completed(futures):
+            done += 1
+            bar.begin(bar.position(done - 1), futures[future].name)
+            yield futures[future], future.result()
+
+
+def _client(workers, scheduler):
+    """A context giving a dask Client: of ``scheduler``, or of a LocalCluster of
+    ``workers`` single-threaded processes (closed on exit)."""
     try:
-        from dask.distributed import Client, LocalCluster, as_completed
+        from dask.distributed import Client, LocalCluster
     except ImportError:
         raise ValueError("--workers and --scheduler need dask.distributed: "
                          "pip install 'car-napari[cluster]'.") from None
     import contextlib
     import logging
 
-    with contextlib.ExitStack() as stack:
-        # a worker slow to stop under load is killed with a warning: not the user's concern
-        quiet_log = logging.getLogger("distributed")
-        stack.callback(quiet_log.setLevel, quiet_log.level)
-        quiet_log.setLevel(logging.ERROR)
+    stack = contextlib.ExitStack()
+    # a worker slow to stop under load is killed with a warning: not the user's concern
+    quiet_log = logging.getLogger("distributed")
+    stack.callback(quiet_log.setLevel, quiet_log.level)
+    quiet_log.setLevel(logging.ERROR)
+    try:
         if scheduler is not None:
             client = stack.enter_context(Client(scheduler))
         else:
@@ -206,23 +223,139 @@ def _cluster_results(paths, process, workers, scheduler, bar):
                 n_workers=workers, threads_per_worker=1, processes=True,
                 dashboard_address=None))
             client = stack.enter_context(Client(cluster))
-        futures = {client.submit(_run_one, process, path, pure=False): path for path in paths}
-        done = 0
-        for future in as_completed(futures):
-            done += 1
-            bar.begin(bar.position(done - 1), futures[future].name)
-            yield futures[future], future.result()
+    except BaseException:
+        stack.close()
+        raise
+
+    @contextlib.contextmanager
+    def session():
+        with stack:
+            yield client
+
+    return session()
 
 
-def add_cluster(parser):
-    """The --workers, --scheduler and --overwrite options of a batch command."""
+def run_blocks(blocks, prepare, finish, *, options=None, quiet=False, unit="block"):
+    """Blocks of a sequence whose results chain: each block's ``prepare``
+    (independent: e.g. detecting a clip's damage) runs on any worker, its
+    ``finish`` (e.g. filling it from the previous block's last restored
+    frame) after the previous block's, with what that one carried.
+
+    Parameters
+    ----------
+    blocks : list
+        Picklable items with a ``name`` (a block of frames), in order.
+    prepare : callable
+        ``prepare(block, on_progress)``: a picklable value for ``finish``.
+    finish : callable
+        ``finish(block, prepared, carried, on_progress)`` writes the block's
+        outputs and returns ``(line, carry)``: a short line on it and what the
+        next block's ``finish`` gets as ``carried`` (None for the first
+        block, and after a block that failed).
+    options : argparse.Namespace, optional
+        ``workers``, ``scheduler`` (:func:`add_cluster`); none: in this process.
+    quiet : bool, optional
+        The per-block lines to stderr.
+    unit : str, optional
+        What the progress bar counts.
+
+    Returns
+    -------
+    status : int
+        0 when every block succeeded, 1 when some failed (each reported on
+        one line; the chain goes on from nothing carried).
+
+    Raises
+    ------
+    BatchFailed
+        When every block failed.
+
+    Examples
+    --------
+    >>> from types import SimpleNamespace as Block
+    >>> blocks = [Block(name=f"frames {k}", start=k) for k in (0, 3, 6)]
+    >>> def prepare(block, on_progress):
+    ...     return block.start * 10
+    >>> def finish(block, prepared, carried, on_progress):
+    ...     total = prepared + (carried or 0)
+    ...     return f"total {total}", total
+    >>> run_blocks(blocks, prepare, finish)
+    frames 0: total 0
+    frames 3: total 30
+    frames 6: total 90
+    0
+    """
+    workers = getattr(options, "workers", 1) or 1
+    scheduler = getattr(options, "scheduler", None)
+    failed = 0
+    with ProgressBar(len(blocks), unit=unit) as bar:
+        if scheduler is None and workers <= 1:
+            results = _serial_blocks(blocks, prepare, finish, bar)
+        else:
+            results = _cluster_blocks(blocks, prepare, finish, workers, scheduler, bar)
+        for block, result in results:
+            if isinstance(result, BaseException):
+                failed += 1
+                bar.write(f"{block.name}: failed: {result}", err=True)
+            elif result[0]:
+                bar.write(f"{block.name}: {result[0]}", err=quiet)
+        bar.begin(len(blocks), "done")
+    if failed and failed == len(blocks):
+        raise BatchFailed(f"no block could be processed ({failed} failed; see above).")
+    if failed:
+        bar.write(f"{failed} of {len(blocks)} blocks failed (see above).", err=True)
+    return 1 if failed else 0
+
+
+def _finish_one(finish, block, prepared, previous):
+    """A block's ``finish`` on a worker: ``(line, carry)``, or the input error
+    of its ``prepare`` or its own (the next block then carries nothing)."""
+    if isinstance(prepared, BaseException):
+        return prepared
+    carried = None if previous is None or isinstance(previous, BaseException) else previous[1]
+    try:
+        return finish(block, prepared, carried, _ignore)
+    except INPUT_ERRORS as exc:
+        return exc
+
+
+def _serial_blocks(blocks, prepare, finish, bar):
+    previous = None
+    for i, block in enumerate(blocks):
+        bar.begin(i, block.name)
+        try:
+            prepared = prepare(block, bar.on_progress)
+        except INPUT_ERRORS as exc:
+            prepared = exc
+        previous = _finish_one(finish, block, prepared, previous)
+        yield block, previous
+
+
+def _cluster_blocks(blocks, prepare, finish, workers, scheduler, bar):
+    with _client(workers, scheduler) as client:
+        prepared = [client.submit(_run_one, prepare, block, pure=False) for block in blocks]
+        chain, previous = [], None
+        for block, ready in zip(blocks, prepared, strict=True):
+            # dask passes the previous block's result (not its future) once it is done
+            previous = client.submit(_finish_one, finish, block, ready, previous, pure=False)
+            chain.append(previous)
+        for i, (block, future) in enumerate(zip(blocks, chain, strict=True)):
+            result = future.result()
+            bar.begin(i + 1, block.name)
+            yield block, result
+
+
+def add_cluster(parser, *, overwrite=True):
+    """The --workers, --scheduler and (for commands that write a file per
+    input) --overwrite options of a batch command."""
     parser.add_argument("--workers", type=positive_int, default=1,
                         help="worker processes on this machine (a dask LocalCluster when "
                              "more than 1; default 1: in this process)")
     parser.add_argument("--scheduler", default=None, metavar="ADDRESS",
                         help="submit to a running dask scheduler (e.g. tcp://host:8786)")
-    parser.add_argument("--overwrite", action="store_true",
-                        help="redo inputs whose outputs exist (default: skip them)")
+    if overwrite:
+        parser.add_argument("--overwrite", action="store_true",
+                            help="redo inputs whose outputs exist (default: skip them)")
 
 
 def one_image(image, path):
@@ -321,6 +454,46 @@ class ProgressBar:
 
     def _move(self, position):
         self._bar.update(position - self._bar.n)  # tqdm redraws at most every 0.1 s
+
+
+def run_large_job(inputs, output, job, *, verb):
+    """One large image (zarr, TIFF) through ``job(image, out)`` (an
+    ``iter_<name>`` generator writing ``out`` tile by tile), written to
+    ``output`` (.zarr, .ome.zarr or .tif) in the input's dtype (8 and 16-bit
+    stay so, anything else float32), with a progress bar."""
+    import time
+
+    from ..io.arrays import create_array, is_large_path, open_array
+
+    if len(inputs) != 1 or not is_large_path(inputs[0]):
+        raise ValueError(f"an output {Path(output).name} is one large image: give one input "
+                         f".zarr, .ome.zarr or .tif (got {list(inputs)}); for a batch, -o "
+                         "names a folder.")
+    image = open_array(inputs[0])
+    dtype = image.dtype if np.dtype(image.dtype) in (np.uint8, np.uint16) else np.float32
+    out = create_array(output, image.shape, dtype)
+    t0 = time.perf_counter()
+    with ProgressBar(1, unit="image") as bar:
+        bar.begin(0, Path(inputs[0]).name)
+        from .._progress import drain
+
+        drain(job(image, _Converted(out, np.dtype(dtype))), bar.on_progress)
+    if hasattr(out, "flush"):
+        out.flush()  # a TIFF memory map
+    shape = "x".join(map(str, image.shape))
+    print(f"{Path(inputs[0]).name}: {verb} ({shape}), {time.perf_counter() - t0:.1f} s "
+          f"-> {output}", file=sys.stderr)
+    return 0
+
+
+class _Converted:
+    """An output array that takes values on the [0, 1] scale (:func:`from_unit`)."""
+
+    def __init__(self, out, dtype):
+        self.out, self.dtype, self.shape = out, dtype, out.shape
+
+    def __setitem__(self, key, values):
+        self.out[key] = from_unit(values, self.dtype)
 
 
 def channel_axis(image, *, stack=False):

@@ -1,5 +1,6 @@
 """``car-napari descratch``: detect and restore scratches and blotches in a
-folder of numbered frames."""
+folder of numbered frames, a block of frames at a time (memory independent of
+the number of frames; the result equals that of the whole clip in memory)."""
 
 from __future__ import annotations
 
@@ -9,9 +10,11 @@ from pathlib import Path
 
 import numpy as np
 
+from .._frames import DEFAULT_BLOCK
 from .._progress import drain
+from ..inpainting import iter_descratch_frames
 from ..io.images import IMAGE_SUFFIXES, read_image, write_image
-from ._common import ProgressBar, add_output, channel_axis, output_folder
+from ._common import ProgressBar, add_output, output_folder, positive_int
 
 
 def add_parser(sub):
@@ -20,6 +23,9 @@ def add_parser(sub):
     p.add_argument("input", help="folder of numbered frames (0001.png, 0002.png, ...)")
     add_output(p, "output folder (same file names)")
     p.add_argument("--masks", action="store_true", help="also write <frame>_mask.png")
+    p.add_argument("--block", type=positive_int, default=DEFAULT_BLOCK,
+                   help=f"frames read and restored at a time (default {DEFAULT_BLOCK}); the "
+                        "result does not depend on it")
     p.set_defaults(run=run)
 
 
@@ -36,21 +42,66 @@ def numbered_frames(folder):
     return sorted(paths, key=lambda p: (int(re.findall(r"\d+", p.stem)[-1]), p.name))
 
 
-def run(args):
-    from ..inpainting import detect_scratches, iter_inpaint
+class FrameFiles:
+    """Numbered frame files as a lazy clip: ``clip[a:b]`` reads those frames
+    (what :func:`~car_napari._frames.iter_frame_blocks` slices).
 
+    Parameters
+    ----------
+    paths : list of pathlib.Path
+        The frames, in order; the first one sets the shape and dtype.
+    """
+
+    def __init__(self, paths):
+        self.paths = list(paths)
+        first = read_image(self.paths[0])
+        self.shape = (len(self.paths), *first.shape)
+        self.dtype = first.dtype
+        self.ndim = len(self.shape)
+
+    def __len__(self):
+        return len(self.paths)
+
+    def __getitem__(self, index):
+        frames = [read_image(p) for p in self.paths[index]]
+        for path, frame in zip(self.paths[index], frames, strict=True):
+            if frame.shape != self.shape[1:]:
+                raise ValueError(f"{path.name} is {frame.shape}, the first frame "
+                                 f"{self.shape[1:]}: the frames must have one size.")
+        return np.stack(frames).astype(self.dtype, copy=False)
+
+
+class FrameWriter:
+    """``write(start, frames)``: frames written to files named after the
+    inputs' (the masks as ``<stem>_mask.png``); counts the damaged pixels."""
+
+    def __init__(self, paths, out, *, masks=False):
+        self.paths, self.out, self.masks = paths, out, masks
+        self.damaged = 0
+
+    def frames(self, start, frames):
+        for path, frame in zip(self.paths[start:start + len(frames)], frames, strict=True):
+            write_image(self.out / path.name, frame)
+
+    def mask(self, start, masks):
+        self.damaged += int(np.count_nonzero(masks))
+        if self.masks:
+            for path, mask in zip(self.paths[start:start + len(masks)], masks, strict=True):
+                write_image(self.out / f"{path.stem}_mask.png", mask.astype(np.uint8) * 255)
+
+
+def run(args):
     paths = numbered_frames(args.input)
-    frames = np.stack([read_image(p) for p in paths])
-    colour_axis = channel_axis(frames, stack=True)
-    kinds = ("line", "blotch") if len(frames) >= 3 else ("line",)
-    masks = detect_scratches(frames, kinds=kinds, channel_axis=colour_axis)
+    clip = FrameFiles(paths)
+    colour = clip.ndim == 4
     out = output_folder(args.output)
+    writer = FrameWriter(paths, out, masks=args.masks)
+    kinds = ("line", "blotch") if len(paths) >= 3 else ("line",)
     with ProgressBar(len(paths), unit="frame") as bar:
         bar.begin(0, "frames", span=len(paths))
-        restored = drain(iter_inpaint(frames, masks, channel_axis=colour_axis), bar.on_progress)
-    for path, frame, mask in zip(paths, restored, masks, strict=True):
-        write_image(out / path.name, frame)
-        if args.masks:
-            write_image(out / f"{path.stem}_mask.png", (mask * 255).astype(np.uint8))
-    print(f"{len(paths)} frames, {100 * masks.mean():.2f} % of pixels restored -> {out}",
-          file=sys.stderr)
+        drain(iter_descratch_frames(clip, writer.frames, writer.mask, block=args.block,
+                                    kinds=kinds, channel_axis=-1 if colour else None),
+              bar.on_progress)
+    pixels = len(paths) * clip.shape[1] * clip.shape[2]
+    print(f"{len(paths)} frames, {100 * writer.damaged / pixels:.2f} % of pixels restored "
+          f"-> {out}", file=sys.stderr)

@@ -4,18 +4,36 @@ it (a few kB)."""
 from __future__ import annotations
 
 import sys
+import time
+from pathlib import Path
 
 from ..io.images import read_image
-from ._common import add_order, add_output, channel_axis, one_image, positive_int, print_note
+from ._common import (
+    add_cluster,
+    add_order,
+    add_output,
+    add_quiet,
+    channel_axis,
+    expand_inputs,
+    one_image,
+    output_folder,
+    positive_int,
+    print_note,
+    run_batch,
+)
 
 
 def add_parser(sub):
     p = sub.add_parser("fit-texture", help="fit a multiresolution texture model; write it "
                                            "(.npz, a few kB)")
-    p.add_argument("source", help="example texture (grey or RGB)")
-    add_output(p, "model file (.npz)")
+    p.add_argument("sources", nargs="+",
+                   help="example texture (grey or RGB); or several, folders or globs "
+                        "with -o FOLDER (a model <name>.npz each)")
+    add_output(p, "model file (.npz), or a folder for several textures")
     p.add_argument("--levels", type=positive_int, default=3, help="pyramid levels (default 3)")
     add_order(p)
+    add_quiet(p)
+    add_cluster(p)
     p.set_defaults(run=run)
 
 
@@ -34,6 +52,9 @@ def texture_model(args):
 
 
 def run(args):
+    if len(args.sources) != 1 or not str(args.output).lower().endswith(".npz"):
+        return run_many(args)
+    args.source = args.sources[0]
     if str(args.source).lower().endswith(".npz"):
         raise ValueError(f"{args.source} is a model file; fit-texture fits a model to an "
                          "example image (PNG, TIFF, ...). To synthesise from a saved model, "
@@ -43,3 +64,30 @@ def run(args):
     print(f"wrote {args.output}: orders {list(model.orders)} per band, {model.nbytes} bytes "
           f"of parameters, compression {model.compression_ratio(image.shape):.0f}:1 at "
           f"{'x'.join(map(str, image.shape))}", file=sys.stderr)
+
+
+def run_many(args):
+    """Several textures, a model file each in the folder ``args.output``
+    (one task per texture, on a dask cluster with --workers)."""
+    from ..texture import TextureModel
+
+    paths = expand_inputs(args.sources)
+    out = output_folder(args.output)
+    levels, order = args.levels, args.order
+
+    def outputs(path):
+        return [out / f"{path.stem}.npz"]
+
+    def process(path, on_progress):
+        t0 = time.perf_counter()
+        if path.suffix.lower() == ".npz":
+            raise ValueError("a model file, not an example image")
+        image = one_image(read_image(path, on_note=print_note), path)
+        model = TextureModel.fit(image, levels=levels, neighbourhood=order,
+                                 channel_axis=channel_axis(image))
+        model.save(outputs(path)[0])
+        return (f"orders {list(model.orders)}, {model.nbytes} bytes, "
+                f"{time.perf_counter() - t0:.1f} s")
+
+    return run_batch([Path(p) for p in paths], process, outputs=outputs, options=args,
+                     quiet=args.quiet, unit="texture")

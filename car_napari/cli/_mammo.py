@@ -30,31 +30,41 @@ from ._common import (
 def add_parser(sub):
     p = sub.add_parser("mammo", help="mammogram regions of interest; label PNGs and rois.csv")
     add_inputs(p, "mammograms (PNG, TIFF, DICOM), folders or globs")
-    p.add_argument("--reference", type=non_negative_float, default=None,
-                   help="reference grey of a mass in [0, 1] (default: learned on mini-MIAS)")
-    p.add_argument("--tolerance", type=non_negative_float, default=None,
-                   help="accepted distance from the reference (default: learned)")
-    p.add_argument("--max-regions", type=non_negative_int, default=None,
-                   help="regions kept per image, best first (default: learned; 0: all)")
+    p.add_argument("--marks-per-image", type=non_negative_float, default=None,
+                   help="operating point: false marks per image on average on mini-MIAS "
+                        "(default 2; more marks find more masses); 0 keeps every scored region")
+    advanced = p.add_argument_group("advanced (the chapter's grey-level filter, a cap)")
+    advanced.add_argument("--reference", type=non_negative_float, default=None,
+                          help="reference grey of a mass in [0, 1] (default: learned on "
+                               "mini-MIAS); used with --tolerance")
+    advanced.add_argument("--tolerance", type=non_negative_float, default=None,
+                          help="drop regions whose mean grey is further than this from the "
+                               "reference (default: no grey filter)")
+    advanced.add_argument("--max-regions", type=non_negative_int, default=None,
+                          help="at most this many regions per image, best first (default "
+                               "and 0: no cap)")
     add_quiet(p)
     add_cluster(p)
     p.set_defaults(run=run)
 
 
 def run(args):
-    from ..mammography import DEFAULT_MAX_REGIONS, TABLE_COLUMNS, iter_detect_mammogram_rois
+    from ..mammography import DEFAULT_MARKS_PER_IMAGE, TABLE_COLUMNS, iter_detect_mammogram_rois
 
     paths = expand_inputs(args.inputs)
     out = output_folder(args.output)
     table_path = out / "rois.csv"
-    max_regions = DEFAULT_MAX_REGIONS if args.max_regions is None else args.max_regions or None
+    max_regions = args.max_regions or None
+    marks = (DEFAULT_MARKS_PER_IMAGE if args.marks_per_image is None
+             else args.marks_per_image or None)
 
     def process(path, on_progress):
         t0 = time.perf_counter()
         image = one_image(read_image(path, on_note=print_note), path)
         labels, table = drain(iter_detect_mammogram_rois(
-            image, reference=args.reference, tolerance=args.tolerance,
-            max_regions=max_regions, channel_axis=channel_axis(image)), on_progress)
+            image, marks_per_image=marks, reference=args.reference,
+            tolerance=args.tolerance or None, max_regions=max_regions,
+            channel_axis=channel_axis(image)), on_progress)
         write_labels(out / f"{path.stem}_rois.png", labels)
         rows = list(zip(*(np.asarray(table[k]).tolist() for k in TABLE_COLUMNS), strict=True))
         return f"{len(rows)} regions, {time.perf_counter() - t0:.1f} s", rows

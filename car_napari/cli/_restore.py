@@ -9,6 +9,7 @@ import time
 import numpy as np
 
 from .._progress import drain
+from ..io.arrays import is_large_path
 from ..io.images import read_image, write_image
 from ._common import (
     add_cluster,
@@ -20,14 +21,17 @@ from ._common import (
     image_suffix,
     one_image,
     output_folder,
+    positive_int,
     print_note,
     run_batch,
+    run_large_job,
 )
 
 
 def add_parser(sub):
     p = sub.add_parser("restore", help="CAR restoration of degraded images or stacks")
-    add_inputs(p, "images or stacks (e.g. multi-page TIFF), folders or globs")
+    add_inputs(p, "images or stacks (e.g. multi-page TIFF), folders or globs; or one "
+                  "large image (.zarr, .ome.zarr, .tif) with -o FILE.zarr or FILE.tif")
     p.add_argument("--stack-axis", type=int, default=None,
                    help="each input is a stack of degraded versions along this axis "
                         "(multichannel restoration of the sharpest)")
@@ -36,6 +40,8 @@ def add_parser(sub):
                         "stacks, off for single images)")
     p.add_argument("--probability", action="store_true",
                    help="also write <name>_probability.tif (prediction probability)")
+    p.add_argument("--tile", type=positive_int, default=None,
+                   help="large image: side of a tile in pixels (default 2048)")
     add_quiet(p)
     add_cluster(p)
     p.set_defaults(run=run)
@@ -55,6 +61,9 @@ def kappa_type(text):
 
 def run(args):
     from ..restoration import DEFAULT_KAPPA, iter_restore, iter_restore_multichannel
+
+    if is_large_path(args.output):
+        return run_large(args)
 
     paths = expand_inputs(args.inputs)
     out = output_folder(args.output)
@@ -90,3 +99,18 @@ def run(args):
         return f"restored{ref}, {time.perf_counter() - t0:.1f} s"
 
     return run_batch(paths, process, outputs=outputs, options=args, quiet=args.quiet)
+
+
+def run_large(args):
+    """``restore big.zarr -o out.zarr``: one image larger than memory, by tiles."""
+    from ..restoration import iter_restore_tiled
+
+    if args.stack_axis is not None or args.probability:
+        raise ValueError("--stack-axis and --probability are for images in memory; a large "
+                         "image (-o FILE.zarr or FILE.tif) is restored alone.")
+
+    def job(image, out):
+        tile = {} if args.tile is None else {"tile": args.tile}
+        return iter_restore_tiled(image, out=out, kappa=args.kappa or 0.0, **tile)
+
+    return run_large_job(args.inputs, args.output, job, verb="restored")

@@ -9,6 +9,11 @@ docs/restoration.md).
 * :func:`estimate_psf`, :func:`psf_width`: the point-spread function relating
   a restored image to the observed one.
 * :func:`estimate_noise`: the noise level the edge rule compares with.
+* :func:`restore_tiled` / :func:`iter_restore_tiled`: an image larger than
+  memory (dask, zarr, TIFF) by tiles with a halo (:func:`tile_halo`), the
+  same result as :func:`restore`.
+* :func:`restore_frames` / :func:`iter_restore_frames`: every frame of a clip
+  longer than memory, a block of frames at a time, into any array or writer.
 
 The ``iter_`` forms yield :class:`~car_napari.Progress` records with previews
 of the image filling in, and return what the plain forms return; a
@@ -16,6 +21,7 @@ of the image filling in, and return what the plain forms return; a
 recomputation.
 """
 
+from ._frames import iter_restore_frames, restore_frames
 from ._multichannel import (
     DEFAULT_KAPPA,
     MultichannelRestoration,
@@ -26,7 +32,9 @@ from ._multichannel import (
 )
 from ._noise import estimate_noise
 from ._psf import estimate_psf, psf_width
-from ._single import RestorationResult, iter_restore, restore
+from ._restore import iter_restore, restore
+from ._single import RestorationResult
+from ._tiled import iter_restore_tiled, restore_tiled, tile_halo
 
 __all__ = [
     "DEFAULT_KAPPA",
@@ -35,10 +43,15 @@ __all__ = [
     "estimate_noise",
     "estimate_psf",
     "iter_restore",
+    "iter_restore_frames",
     "iter_restore_multichannel",
+    "iter_restore_tiled",
     "multichannel_context",
     "psf_width",
     "restore",
+    "restore_frames",
     "restore_multichannel",
+    "restore_tiled",
     "sharpness",
+    "tile_halo",
 ]

@@ -18,13 +18,20 @@ from __future__ import annotations
 
 import queue
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import partial
 
 import numpy as np
 
-from .._progress import Progress, drain, stage
-from .._validation import channel_last_shape, check_not_constant, check_size
+from .._progress import Progress, stage
+from .._validation import (
+    channel_last_shape,
+    check_flag,
+    check_not_constant,
+    check_real,
+    check_size,
+    scale_exponent,
+)
 from ..model.blocks import iter_channel_last_float
 from ..model.directions import DIRECTIONS
 from ..model.neighbourhood import Context
@@ -395,12 +402,19 @@ def iter_restoration(image, *, neighbourhood, estimator, window, forgetting, dir
         raise ValueError(f"estimator must be 'windowed' or 'recursive'; got {estimator!r}.")
     forgetting, directions = check_options(
         forgetting, directions, CORNERS if estimator == "windowed" else DIRECTIONS)
-    if isinstance(window, (bool, np.bool_)) or int(window) != window or int(window) < 6:
-        raise ValueError(f"window must be an integer of at least 6 pixels; got {window!r}.")
+    window = check_real(window, "window", low=6, integer=True)  # pixels, at least 6
+    check_flag(keep_edges, "keep_edges")
     probability = bool(probability) or kappa > 0 or estimator == "recursive"
     H, W, C = channel_last_shape(image, channel_axis=channel_axis)
+    if window > max(H, W, DEFAULT_WINDOW):  # its buffers grow with it
+        raise ValueError(f"window {window} is larger than the image {(H, W)}: use at most "
+                         f"{max(H, W, DEFAULT_WINDOW)}.")
     if noise is not None:
-        noise = np.broadcast_to(np.asarray(noise, float), (C,)).copy()
+        try:
+            noise = np.broadcast_to(np.asarray(noise, float), (C,)).copy()
+        except (TypeError, ValueError):
+            raise ValueError(f"noise must be None, a number or {C} numbers (one a channel); "
+                             f"got {noise!r}.") from None
         if np.any(noise < 0) or not np.all(np.isfinite(noise)):
             raise ValueError(f"noise must be finite and >= 0; got {noise}.")
     if estimator == "windowed":
@@ -502,203 +516,31 @@ def _iter_edges(observed, prediction, spread, noise, pool, span, blend=False, ou
         yield Progress("edges", lo + (hi - lo) * done / H, f"edge rule: rows {done}/{H}")
 
 
-def _restore_job(image, *, neighbourhood, estimator, window, forgetting, directions,
-                 keep_edges, kappa, noise, channel_axis, return_result, live):
-    """:func:`iter_restore`'s job; ``live`` adds the previews (which
-    :func:`restore`, where nobody sees them, skips)."""
+def restore_job(image, *, neighbourhood, estimator, window, forgetting, directions,
+                keep_edges, kappa, noise, channel_axis, return_result, live):
+    """:func:`~car_napari.restoration.iter_restore`'s job for an image in
+    memory; ``live`` adds the previews (which ``restore``, where nobody sees
+    them, skips).
+
+    A float image of a spread beyond ``2**±32`` is restored scaled by a
+    power of two (exact) and its results scaled back: the estimators'
+    floors and caps (the directions' weights ``min(n / total, 1e30) ** 4``)
+    are absolute, so that its magnitude would otherwise decide the result.
+    Ordinary images take the unscaled path, bit for bit."""
+    exponent = scale_exponent(image)
+    if exponent:
+        image = np.ldexp(np.asarray(image, np.float64), -exponent)
+        if noise is not None:
+            noise = np.ldexp(np.asarray(noise, np.float64), -exponent)
     result = yield from iter_restoration(
         image, neighbourhood=neighbourhood, estimator=estimator, window=window,
         forgetting=forgetting, directions=directions, keep_edges=keep_edges, kappa=kappa,
         noise=noise, channel_axis=channel_axis, live=live, probability=return_result,
         blend=not return_result)
+    if exponent:  # back to the image's units; probabilities and weights have none
+        result = replace(result, observed=np.ldexp(result.observed, exponent),
+                         prediction=np.ldexp(result.prediction, exponent),
+                         noise=np.ldexp(result.noise, exponent))
     if return_result:
         return result
     return to_layout(result.restored(), np.ndim(image), channel_axis)
-
-
-def iter_restore(image, *, neighbourhood=1, estimator="windowed", window=DEFAULT_WINDOW,
-                 forgetting=0.995, directions="all", keep_edges=True, kappa=0.0, noise=None,
-                 channel_axis=-1, return_result=False):
-    """Restore a degraded image step by step, with progress and previews.
-
-    The generator form of :func:`restore` (same parameters, same result):
-    it yields :class:`~car_napari.Progress` records as strips of rows (or,
-    with ``estimator='recursive'``, scan directions) finish, whose previews
-    show the restored image filling in, and returns what :func:`restore`
-    returns. Closing the generator stops the work after the strips (or
-    scans) in progress.
-
-    Parameters
-    ----------
-    image : (H, W) or (H, W, C) array
-        The degraded image; integers are scaled to [0, 1].
-    neighbourhood : int, (eta, 2) array or 'auto', optional
-        See :func:`restore`.
-    estimator : {'windowed', 'recursive'}, optional
-        See :func:`restore`.
-    window : int, optional
-        See :func:`restore`.
-    forgetting : float in (0, 1], optional
-        See :func:`restore`.
-    directions : 'all' or sequence of str, optional
-        See :func:`restore`.
-    keep_edges : bool, optional
-        See :func:`restore`.
-    kappa : float in [0, 1), optional
-        See :func:`restore`.
-    noise : float or (C,) array, optional
-        See :func:`restore`.
-    channel_axis : int or None, optional
-        See :func:`restore`.
-    return_result : bool, optional
-        Return the :class:`RestorationResult` (the widget's choice: it
-        re-thresholds without recomputing) instead of the array.
-
-    Returns
-    -------
-    restored : ndarray or RestorationResult
-        Exactly what ``restore(image, ...)`` returns with these arguments.
-
-    Yields
-    ------
-    progress : Progress
-        Stage ``'start'``, then ``'reading'`` (large images), ``'centre'``,
-        and for 'windowed' ``'moments'``, ``'models'``, ``'rows'`` (message
-        like ``'rows 128/1024'``) and ``'noise'``, for 'recursive'
-        ``'directions'``, then ``'edges'`` (the edge rule); a record at least
-        every few tenths of a second of work (docs/restoration.md), the
-        fraction proportional to the work done. Some records (about eight
-        for 'windowed', one per direction but the last for 'recursive')
-        carry a preview: the image restored so far (the prediction, before
-        the edge rule; rows not yet restored show the observation), in the
-        layout of ``image``.
-
-    Raises
-    ------
-    ValueError
-        As :func:`restore`, when the generator is first advanced.
-    TypeError
-        As :func:`restore`.
-
-    See Also
-    --------
-    restore : The same without progress.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from car_napari._progress import drain
-    >>> from car_napari.restoration import iter_restore
-    >>> rng = np.random.default_rng(0)
-    >>> noisy = rng.normal(0.5, 0.1, (64, 48))
-    >>> records = []
-    >>> restored = drain(iter_restore(noisy), on_progress=records.append)
-    >>> restored.shape, records[-1].fraction <= 1.0
-    ((64, 48), True)
-    >>> [r.preview.shape for r in records if r.preview is not None][0]
-    (64, 48)
-    """
-    return (yield from _restore_job(
-        image, neighbourhood=neighbourhood, estimator=estimator, window=window,
-        forgetting=forgetting, directions=directions, keep_edges=keep_edges, kappa=kappa,
-        noise=noise, channel_axis=channel_axis, return_result=return_result, live=True))
-
-
-def restore(image, *, neighbourhood=1, estimator="windowed", window=DEFAULT_WINDOW,
-            forgetting=0.995, directions="all", keep_edges=True, kappa=0.0, noise=None,
-            channel_axis=-1, return_result=False):
-    """Restore a degraded image by the conditional mean of a local CAR model.
-
-    Section 14.5, docs/restoration.md: ``E{X_r | past} = gamma_hat Z_r``
-    (14.44)-(14.45) from a 3DCAR model of the observed image valid around
-    ``r``, averaged over four causal neighbourhoods (the four directions),
-    with the edge rule (14.40). ``restore(image, ...)`` returns exactly
-    ``drain(iter_restore(image, ...))`` (without computing the previews).
-
-    Parameters
-    ----------
-    image : (H, W) or (H, W, C) array
-        The degraded image; integers are scaled to [0, 1].
-    neighbourhood : int, (eta, 2) array or 'auto', optional
-        Causal neighbourhood order (default 1: the pixels above and before)
-        or offsets; 'auto' chooses the order by the decision rule (14.6) on
-        the image. Order 2 gains 0.13 dB on the benchmark at a third more time.
-    estimator : {'windowed', 'recursive'}, optional
-        How the local model is estimated. 'windowed' (default): least
-        squares over a ``window`` x ``window`` square around the pixel, as
-        the chapter estimates local PSFs (14.46)-(14.47); the four
-        neighbourhoods are the causal one mirrored up-left, up-right,
-        down-left and down-right. 'recursive': the adaptive estimator of
-        (14.26)-(14.32), section 14.2.1, docs/model.md (recursive,
-        square-root, with ``forgetting``) along the four scan directions
-        down, up, right and left. Same quality on the benchmark (26.26 vs
-        26.21 dB at orders 1 and 2); 'windowed' is about six times faster,
-        'recursive' is the chapter's adaptive model to the letter.
-    window : int, optional
-        Side in pixels of the windowed estimator's square (3 x 3 blocks of a
-        third of it; default 48). 24 gains 0.1 dB at a quarter more time.
-    forgetting : float in (0, 1], optional
-        Forgetting factor of the recursive estimator ((14.26)-(14.32),
-        docs/model.md).
-    directions : 'all' or sequence of str, optional
-        The neighbourhoods whose predictions are combined: for 'windowed' any
-        of {'up-left', 'up-right', 'down-left', 'down-right'}; for
-        'recursive' any of {'down', 'up', 'right', 'left'}.
-    keep_edges : bool, optional
-        Apply the edge rule: keep the observed value where the local
-        prediction error exceeds what the noise explains (see
-        :class:`RestorationResult`). (14.40) read literally (keep ``X_r`` when
-        its error exceeds the mean error of its neighbours) keeps about 40 %
-        of the pixels of a flat noisy region, so no denoising; we compare with
-        the noise level instead and blend smoothly.
-    kappa : float in [0, 1), optional
-        Also keep observed pixels whose prediction probability is at most
-        ``kappa`` (14.50); 0 (default) disables this.
-    noise : float or (C,) array, optional
-        Noise standard deviation (image units after scaling); default
-        :func:`estimate_noise`.
-    channel_axis : int or None, optional
-        The colour axis of a 3-D image (default -1); None for a grey image.
-        A 2-D image is always grey.
-    return_result : bool, optional
-        Return the :class:`RestorationResult` instead (prediction, prediction
-        probability, edge weights; ``.restored(kappa)`` re-thresholds).
-
-    Returns
-    -------
-    restored : float64 ndarray or RestorationResult
-        The restored image, in the shape and layout of ``image``; or, with
-        ``return_result``, the :class:`RestorationResult` (channel-last).
-
-    Raises
-    ------
-    ValueError
-        If the image is empty, constant, has NaN or infinite values, the
-        wrong number of dimensions or is too small for the neighbourhood, or
-        an option is out of range (``kappa``, ``window``, ``forgetting``,
-        ``directions``, ``estimator``, ``noise``).
-    TypeError
-        If the image or ``kappa`` is not numeric.
-
-    See Also
-    --------
-    iter_restore : The same, with progress and previews.
-    restore_multichannel : Several degraded versions of one scene.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from car_napari.restoration import restore
-    >>> rng = np.random.default_rng(0)
-    >>> clean = np.add.outer(np.linspace(0, 1, 48), np.linspace(0, 1, 48)) / 2
-    >>> noisy = clean + rng.normal(0, 0.05, clean.shape)
-    >>> restored = restore(noisy)
-    >>> restored.shape, restored.dtype
-    ((48, 48), dtype('float64'))
-    >>> bool(np.std(restored - clean) < 0.7 * np.std(noisy - clean))
-    True
-    """
-    return drain(_restore_job(
-        image, neighbourhood=neighbourhood, estimator=estimator, window=window,
-        forgetting=forgetting, directions=directions, keep_edges=keep_edges, kappa=kappa,
-        noise=noise, channel_axis=channel_axis, return_result=return_result, live=False))
