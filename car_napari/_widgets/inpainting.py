@@ -9,8 +9,9 @@ from magicgui.widgets import CheckBox, ComboBox
 from napari.layers import Image, Labels
 from napari.utils.notifications import show_info
 
+from .._frames import DEFAULT_BLOCK, lazy_output
 from .._progress import Progress
-from ..inpainting import fit_mask, iter_detect_scratches, iter_inpaint
+from ..inpainting import fit_mask, iter_detect_scratches, iter_inpaint, iter_inpaint_frames
 from ._base import JobWidget, guarded
 
 BRUSH_SIZE = 5
@@ -49,6 +50,23 @@ def _restore_job(frames, mask, *, shape, clip, channel_axis, mask_name, mask_rgb
             yield record
     finally:
         job.close()
+
+
+def _lazy(data):
+    """Data not in memory (a dask or zarr array): processed by blocks of frames."""
+    return not isinstance(data, np.ndarray)
+
+
+def _lazy_mask(mask, mask_rgb):
+    """A mask layer's data for :func:`~car_napari.inpainting.iter_inpaint_frames`:
+    one frame's mask (an RGB one reduced to "any channel non-zero"), or a
+    grey mask per frame as it is (read by blocks)."""
+    if not mask_rgb:
+        return mask
+    if mask.ndim != 3:
+        raise ValueError("a colour mask per frame cannot restore a lazy clip: use a Labels "
+                         "layer (or one mask image for every frame).")
+    return np.any(np.asarray(mask)[..., :3] != 0, axis=-1)
 
 
 def _with_indices(job):
@@ -172,8 +190,11 @@ class InpaintingWidget(JobWidget):
             mask = layers[name]
         else:
             def add(name):
+                # a lazy clip's mask on disk (zarr, a chunk a frame): not the clip's size in memory
+                empty = (lazy_output(shape, np.uint8, name="mask") if _lazy(layer.data)
+                         and len(shape) == 3 else np.zeros(shape, np.uint8))
                 return self._viewer.add_labels(
-                    np.zeros(shape, np.uint8), name=name, opacity=0.6,
+                    empty, name=name, opacity=0.6,
                     scale=layer.scale[-len(shape):], translate=layer.translate[-len(shape):])
 
             if record is not None:
@@ -254,11 +275,51 @@ class InpaintingWidget(JobWidget):
         self._clip = len(shape) == 3
         self._following = bool(self._follow.value)
         self.updates = 0
+        if self._clip and _lazy(data):
+            return self._start_lazy(data[..., :3] if rgb else data,
+                                    _lazy_mask(mask_layer.data, mask_rgb))
         job = _restore_job(data[..., :3] if rgb else data, mask_layer.data, shape=shape,
                            clip=self._clip, channel_axis=-1 if rgb else None,
                            mask_name=mask_layer.name, mask_rgb=mask_rgb,
                            temporal=bool(self._temporal.value))
         return self.run(job, preview=self._show_frame, done=self._finished)
+
+    def _start_lazy(self, data, mask):
+        """A lazy clip (dask, zarr): restored by blocks of frames in the
+        worker (:func:`~car_napari.inpainting.iter_inpaint_frames`) into a zarr
+        store in a temporary folder, shown as a dask layer filling in."""
+        self._store = lazy_output(data.shape, data.dtype, name="restored")
+        self._written = []  # blocks written since the layer was last refreshed
+        job = iter_inpaint_frames(data, mask, self._store, block=DEFAULT_BLOCK,
+                                  temporal=bool(self._temporal.value),
+                                  channel_axis=-1 if self._rgb else None)
+        return self.run(job, collect=self._written.append, preview=self._show_block,
+                        done=self._finished_lazy)
+
+    def _put_lazy(self):
+        """The output layer over the store: a fresh dask array (napari caches
+        the chunks of a dask array it has read, by name)."""
+        import dask.array as da
+
+        self.updates += 1
+        self._put(da.from_zarr(self._store, name=f"car-napari-restored-{id(self)}-"
+                                                 f"{self.updates}"))
+
+    def _show_block(self, _block):
+        written, self._written[:] = list(self._written), []
+        dims = self._viewer.dims
+        if self._following and written:
+            self.record.set_step(dims.ndim - 3, written[-1][1] - 1)
+        step = dims.current_step[dims.ndim - 3]
+        if self.updates == 0 or any(a <= step < b for a, b in written):
+            self._put_lazy()
+        self._status.value = f"frames 1-{written[-1][1]} restored" if written else ""
+
+    def _finished_lazy(self, n_frames):
+        self._put_lazy()
+        root = getattr(self._store.store, "root", None)
+        self._status.value = f"{n_frames} frames restored" + (
+            "" if root is None else f" (zarr in {root.parent})")
 
     def _add_output(self, data, name):
         layer = self._layer

@@ -9,14 +9,37 @@ from dataclasses import replace
 import numpy as np
 from magicgui.widgets import CheckBox, ComboBox, FloatSlider
 
-from ..restoration import DEFAULT_KAPPA, iter_restore, iter_restore_multichannel
+from .._frames import lazy_output
+from ..restoration import (
+    DEFAULT_KAPPA,
+    iter_restore,
+    iter_restore_frames,
+    iter_restore_multichannel,
+)
 from ._base import JobWidget
 from ._jobs import Job, call
 from ._layers import layer_array
 
 SINGLE = "single image"
+FRAMES = "each frame (lazy clip)"  # a dask/zarr clip restored frame by frame into zarr
 DEFAULT_ORDER = 1  # the core's default neighbourhood order (restore, restore_multichannel)
 ORDERS = [(f"{k} (default)" if k == DEFAULT_ORDER else str(k), k) for k in range(1, 6)]
+
+
+# A live preview larger than this (pixels) is shown decimated (every f-th row and
+# column, a layer at scale f over the same extent): the viewer's thread then writes
+# and draws about a megapixel per preview, not 16 (4000x4000); the result is
+# shown at full resolution.
+PREVIEW_PIXELS = 1 << 20
+
+
+def _decimated(image, budget=None):
+    """``(image[::f, ::f], f)``: the preview at most ``budget`` pixels (f = 1:
+    the image itself), contiguous, made in the worker."""
+    budget = PREVIEW_PIXELS if budget is None else budget
+    pixels = image.shape[0] * image.shape[1]
+    f = max(1, int(np.ceil(np.sqrt(pixels / budget))))
+    return (image, 1) if f == 1 else (np.ascontiguousarray(image[::f, ::f]), f)
 
 
 def _shown(image, rgb):
@@ -40,8 +63,8 @@ def _for_display(job, rgb, show_changed):
             except StopIteration as stop:
                 result = stop.value
                 break
-            if record.preview is not None:
-                record = replace(record, preview=_shown(record.preview, rgb))
+            if record.preview is not None:  # decimated here, in the worker
+                record = replace(record, preview=_decimated(_shown(record.preview, rgb)))
             yield record
     finally:
         job.close()
@@ -79,6 +102,8 @@ class RestorationWidget(JobWidget):
         super().__init__(napari_viewer)
         self.result = None  # the last RestorationResult
         self.updates = 0
+        self._preview_layer = None  # a large image's decimated preview, while it runs
+        self._preview_owned = False  # ... in the result's own layer (made by this run)
         self._recut_job = None  # the running re-threshold (a worker), if any
         self._wanted = None  # the latest (kappa, show changed) asked for while one runs
         self._axis = ComboBox(value=SINGLE, choices=self._axis_choices, label="versions",
@@ -120,19 +145,31 @@ class RestorationWidget(JobWidget):
         plane = {axis - shift for axis in dims.order[-2:]}
         return [k for k in range(spatial) if k not in plane]
 
+    @staticmethod
+    def _lazy_clip(layer):
+        """``layer`` is a clip (three non-colour axes) whose data is not in
+        memory (a dask or zarr array): it may be restored frame by frame."""
+        return (layer is not None and layer.ndim == 3
+                and not isinstance(layer.data, np.ndarray))
+
     def _axis_choices(self, *_):
-        """The "versions" choices: a single image, or a stack axis of the
-        picked layer (napari resets them when the layers change)."""
+        """The "versions" choices: a single image, each frame of a lazy
+        clip, or a stack axis of the picked layer (napari resets them when
+        the layers change)."""
         layer = self._image.value
         axes = [] if layer is None else self._stack_axes(layer)
-        return [SINGLE] + [f"axis {k}" for k in axes]
+        frames = [FRAMES] if self._lazy_clip(layer) else []
+        return [SINGLE] + frames + [f"axis {k}" for k in axes]
 
     def _update_axes(self, *_, guess=False):
-        """Offer the picked layer's stack axes; ``guess``: pick one if any."""
+        """Offer the picked layer's stack axes; ``guess``: pick one if any
+        (each frame, for a lazy clip)."""
         current = self._axis.value
         self._axis.reset_choices()
         choices = list(self._axis.choices)
-        if guess or current not in choices:
+        if guess and FRAMES in choices:
+            self._axis.value = FRAMES
+        elif guess or current not in choices:
             self._axis.value = choices[-1] if len(choices) == 2 else (
                 current if current in choices else SINGLE)
 
@@ -141,7 +178,7 @@ class RestorationWidget(JobWidget):
 
     def _stack_axis(self):
         value = self._axis.value
-        return None if value == SINGLE else int(value.split()[-1])
+        return None if value in (SINGLE, FRAMES) else int(value.split()[-1])
 
     def _check_axis(self, axis):
         """Raise a ValueError when ``axis`` of the picked layer (three
@@ -166,6 +203,8 @@ class RestorationWidget(JobWidget):
 
     def _start(self):
         """Restore the picked layer (or stack), shown live."""
+        if self._axis.value == FRAMES:
+            return self._start_frames()
         stack_axis = self._stack_axis()
         layer = self._image.value
         if stack_axis is None:
@@ -187,12 +226,83 @@ class RestorationWidget(JobWidget):
                                             **options)
         self._stop_recut()
         self._source = self._image.value
+        self._preview_layer = None
         self._out = self._names(self._source.name)
         self._rgb = channel_axis is not None
         self.updates = 0
         self._kappa.enabled = self._show_changed.enabled = False
         return self.run(_for_display(job, self._rgb, bool(self._show_changed.value)),
                         preview=self._show_running, done=self._finished)
+
+    def _start_frames(self):
+        """Restore each frame of a lazy clip into zarr stores (a temporary
+        folder), block by block in the worker: the restored clip and its
+        prediction probability are dask layers over them, filling in."""
+        layer = self._image.value
+        data, channel_axis = layer_array(layer, ndims=(3,), copy=False,
+                                         hint="each frame: choose a clip (frames, rows, "
+                                              "columns).")
+        shape = tuple(data.shape)
+        restored = lazy_output(shape, np.float32, name="restored")
+        probability = lazy_output(shape[:3], np.float32, name="probability")
+        job = iter_restore_frames(data, restored, probability, channel_axis=channel_axis,
+                                  keep_edges=bool(self._keep_edges.value),
+                                  neighbourhood=int(self._order.value))
+        self._stop_recut()
+        self.result = None  # nothing to re-threshold: the clip is on disk
+        self._source = layer
+        self._out = self._names(layer.name)
+        self._rgb = channel_axis is not None
+        self._stores = restored, probability
+        self._written = []  # the blocks written since the layers were last refreshed
+        self.updates = 0
+        self._kappa.enabled = self._show_changed.enabled = False
+        return self.run(job, collect=self._written.append, preview=self._show_block,
+                        done=self._finished_frames)
+
+    def _lazy_layers(self):
+        """The restored and probability layers over the zarr stores (made
+        the first time; fresh dask arrays afterwards: napari caches the
+        chunks it read of a dask array by name)."""
+        import dask.array as da
+
+        token = f"{id(self)}-{self.updates}"
+        arrays = [da.from_zarr(store, name=f"car-napari-{kind}-{token}")
+                  for kind, store in zip(("restored", "probability"), self._stores,
+                                         strict=True)]
+        restored_name, probability_name, _ = self._out
+        layers = self._viewer.layers
+        shown = self.record.put(restored_name, arrays[0], self._add_lazy_restored)
+        new = probability_name not in layers
+        probability = self.record.put(probability_name, arrays[1], self._add_probability)
+        if new and shown in layers:
+            layers.move(layers.index(probability), layers.index(shown))
+        self.updates += 1
+        return shown
+
+    def _add_lazy_restored(self, data, name):
+        kwargs = dict(name=name, rgb=self._rgb, contrast_limits=(0.0, 1.0),
+                      scale=self._source.scale, translate=self._source.translate)
+        if not self._rgb:
+            kwargs.update(colormap=self._source.colormap.name)
+        return self._viewer.add_image(data, **kwargs)
+
+    def _show_block(self, _block):
+        """Blocks were written: show them when the viewer shows one of their
+        frames (else nothing to redraw); the layers appear with the first."""
+        written, self._written[:] = list(self._written), []
+        step = self._viewer.dims.current_step[self._viewer.dims.ndim - 3]  # the frame shown
+        if self.updates == 0 or any(a <= step < b for a, b in written):
+            self._lazy_layers()
+
+    def _finished_frames(self, n_frames):
+        shown = self._lazy_layers()
+        if shown in self._viewer.layers:
+            self._viewer.layers.selection.active = shown
+        root = getattr(self._stores[0].store, "root", None)
+        where = "" if root is None else f" (zarr in {root.parent})"
+        self._status.value = (f"{n_frames} frames restored{where}; prediction probability: "
+                              "hidden layer below")
 
     def _running(self):
         """A run is under way (a cancelled one hands nothing over: it is not)."""
@@ -210,9 +320,13 @@ class RestorationWidget(JobWidget):
     def _names(base):
         return (f"{base} restored", f"{base} prediction probability", f"{base} changed pixels")
 
-    def _add_restored(self, data, name):
-        kwargs = dict(name=name, rgb=self._rgb)
-        if not self._rgb:  # values are on the core's [0, 1] scale, not the source's
+    def _add_restored(self, data, name, scale=None):
+        # values are on the core's [0, 1] scale, not the source's: limits given,
+        # no pass over the data in the viewer's thread
+        kwargs = dict(name=name, rgb=self._rgb, contrast_limits=(0.0, 1.0))
+        if scale is not None:
+            kwargs.update(scale=scale, translate=(0.0, 0.0))
+        if not self._rgb:
             kwargs.update(colormap=self._source.colormap.name)
         return self._viewer.add_image(data, **kwargs)
 
@@ -224,16 +338,50 @@ class RestorationWidget(JobWidget):
     def _add_changed(self, data, name):
         return self._viewer.add_labels(data, name=name, opacity=0.5)
 
-    def _show_running(self, restored):
-        # one layer's data replaced by the preview (float32 from the worker): no copy
-        self.record.put(self._out[0], restored, self._add_restored)
+    def _show_running(self, preview):
+        restored, f = preview  # float32 from the worker, decimated by f there
+        name = self._out[0]
+        layers = self._viewer.layers
+        if f == 1:  # one layer's data replaced by the preview: no copy
+            self.record.put(name, restored, self._add_restored)
+        elif self._preview_layer is not None and self._preview_layer in layers:
+            self._preview_layer.data = restored
+        elif name not in layers:
+            # a large image: the result's layer made now, at scale f over the same
+            # extent; the result gives it its full-resolution data and scale 1
+            self._preview_layer = self.record.put(
+                name, restored, lambda data, n: self._add_restored(data, n, scale=(f, f)))
+            self._preview_owned = True
+        else:  # an older result's layer stays as it is until the result: one of its own
+            self._preview_layer = self.record.add(lambda: self._add_restored(
+                restored, f"{name} (preview)", scale=(f, f)))
+            self._preview_owned = False
         self.updates += 1
 
+    def _end_preview(self):
+        """Before the result is written: the result's own layer back at scale
+        1 (its data comes next); a preview layer of its own removed after."""
+        layer = self._preview_layer
+        if layer is not None and self._preview_owned:
+            self._preview_layer = None
+            if layer in self._viewer.layers:
+                layer.scale = (1.0, 1.0)
+
+    def _drop_preview(self):
+        layer, self._preview_layer = self._preview_layer, None
+        if layer is not None and layer in self._viewer.layers:
+            self._viewer.layers.remove(layer)
+
     def _finished(self, outcome):
+        """Show the result in steps, one per event-loop turn (see
+        :meth:`~._base.JobWidget.run`): the restored image first."""
         result, restored, probability, changed = outcome
         restored_name, probability_name, changed_name = self._out
         layers = self._viewer.layers
+        self._end_preview()
         shown = self.record.put(restored_name, restored, self._add_restored)
+        self._drop_preview()  # the full-resolution result replaces it
+        yield  # the viewer draws the restored image before the other layers come
         new = probability_name not in layers
         probability = self.record.put(probability_name, probability, self._add_probability)
         if new and shown in layers:  # just below the restored layer, which stays on top

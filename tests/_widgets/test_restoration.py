@@ -252,3 +252,56 @@ def test_bad_input_is_a_notification(widget, qtbot, last_notification):
     qtbot.waitUntil(lambda: job.done, timeout=60000)
     assert "constant" in last_notification()
     assert names(viewer) == ["flat stack"]
+
+
+def test_large_image_previews_are_decimated_and_the_result_full(widget, qtbot, monkeypatch):
+    """Issue 12: a large image's live previews are written decimated (a layer
+    at scale f over the same extent), so the viewer's thread does little; the
+    result replaces them at full resolution, on top and selected."""
+    monkeypatch.setattr(restoration_widget, "PREVIEW_PIXELS", 32 * 32)  # 128x128: f = 4
+    viewer, w = widget
+    noisy = noisy_camera()
+    viewer.add_image(noisy, name="camera")
+    w._image.value = viewer.layers["camera"]
+    seen = []
+    show = w._show_running
+
+    def spy(preview):
+        show(preview)
+        seen.append({x.name: (x.data.shape, tuple(x.scale)) for x in viewer.layers})
+
+    w._show_running = spy  # (not monkeypatch: magicgui takes delattr for removing a widget)
+    job = w.start()
+    qtbot.waitUntil(lambda: job.done, timeout=120000)
+    small = {"camera": ((128, 128), (1.0, 1.0)), "camera restored": ((32, 32), (4.0, 4.0))}
+    assert seen and all(s == small for s in seen)
+    restored = viewer.layers["camera restored"]
+    assert names(viewer) == ["camera", "camera prediction probability", "camera restored"]
+    assert restored.data.shape == noisy.shape and tuple(restored.scale) == (1.0, 1.0)
+    np.testing.assert_array_equal(restored.data, w.result.restored()[..., 0]
+                                  .astype(np.float32))
+    assert viewer.layers.selection.active is restored
+    # a second run: the first result stays as it is, the previews in a layer of their
+    # own, which the new result replaces
+    seen.clear()
+    job = w.start()
+    qtbot.waitUntil(lambda: job.done, timeout=120000)
+    assert seen and all(s["camera restored (preview)"] == ((32, 32), (4.0, 4.0))
+                        and s["camera restored"] == ((128, 128), (1.0, 1.0)) for s in seen)
+    assert names(viewer) == ["camera", "camera prediction probability", "camera restored"]
+    # a cancelled run leaves no preview behind
+    job = w.start()
+    qtbot.waitUntil(lambda: w.updates >= 1 or job.done, timeout=120000)
+    w.cancel()
+    qtbot.waitUntil(lambda: job.done, timeout=120000)
+    assert names(viewer) == ["camera", "camera prediction probability", "camera restored"]
+    assert tuple(viewer.layers["camera restored"].scale) == (1.0, 1.0)
+
+
+def test_decimation_keeps_every_fth_pixel():
+    image = np.arange(10 * 7, dtype=np.float32).reshape(10, 7)
+    small, f = restoration_widget._decimated(image, budget=20)
+    assert f == 2 and small.flags.c_contiguous
+    np.testing.assert_array_equal(small, image[::2, ::2])
+    same, one = restoration_widget._decimated(image, budget=70)
+    assert one == 1 and same is image
