@@ -1,4 +1,9 @@
-"""Mammogram regions of interest (docs/mammography.md) on mini-MIAS, run by hand.
+"""Mammogram regions of interest (docs/mammography.md) on mini-MIAS, run by hand:
+the chapter's plain grey-level filter (``filter_regions``) on a half split.
+
+Superseded for the shipped pipeline by ``benchmarks/bench_froc.py`` (issue 17:
+cross-validated FROC of the scored candidates, strict and lenient rules, the
+no-CAR control and the DoG baseline); kept for the grey-level filter alone.
 
     PYTHONPATH=. python benchmarks/bench_mammography.py [--limit N] [--cache DIR]
 

@@ -1,21 +1,24 @@
-"""Dock widget "Mammogram ROI": candidate masses as labels, outlines and a table."""
+"""Dock widget "Mammogram ROI": candidate masses as labels, outlines (each
+with its score) and a table sorted by score, at an operating point in marks
+per image that moves without recomputing the segmentation."""
 
 from __future__ import annotations
 
 import numpy as np
-from magicgui.widgets import FloatSpinBox, SpinBox
+from magicgui.widgets import FloatSpinBox
 from napari.utils.notifications import show_info
 from qtpy.QtCore import Qt
 from qtpy.QtWidgets import QHeaderView, QTableWidget, QTableWidgetItem
 
 from .._progress import Progress, stage
 from ..mammography import (
-    DEFAULT_MAX_REGIONS,
-    REFERENCE_GREY,
-    REFERENCE_TOLERANCE,
+    DEFAULT_MARKS_PER_IMAGE,
+    OPERATING_POINTS,
     MammogramROIs,
     iter_detect_mammogram_rois,
     region_outlines,
+    score_threshold,
+    select_marks,
 )
 from ._base import JobWidget
 
@@ -25,12 +28,13 @@ from ._base import JobWidget
 # tooltip, and the outlines layer's features keep every column.
 SHOWN_COLUMNS = (
     ("#", "label", "{:d}", "region number: its label in the ROI labels layer, best first"),
+    ("score", "score", "{:.2f}",
+     "the scoring model's score in (0, 1) (CAR texture, grey level, contrast, size and "
+     "shape of the region); rows sorted by it"),
     ("area", "area", "{:d}", "area in pixels"),
     ("grey", "mean_grey", "{:.2f}", "mean grey level inside the region, on a [0, 1] scale"),
     ("contr.", "contrast", "{:.3f}",
      "contrast: mean grey minus the mean grey of a ring around the region ([0, 1] scale)"),
-    ("score", "score", "{:.3f}",
-     "ranking score: contrast x closeness to the reference grey x compactness x size prior"),
 )
 
 
@@ -52,9 +56,24 @@ def _with_outlines(job):
     return MammogramROIs(small, table), region_outlines(labels, tolerance=OUTLINE_TOLERANCE)
 
 
+def _marks_tooltip():
+    """The control's tooltip: what an operating point means, from the shipped
+    FROC table (cross-validated on mini-MIAS)."""
+    rows = [f"{p['marks_per_image']:g}: {p['cv_sensitivity_strict']:.2f}"
+            for p in OPERATING_POINTS if "cv_sensitivity_strict" in p]
+    return ("false marks per image on average (mini-MIAS); more marks find more masses. "
+            "Cross-validated sensitivity (masses found) at " + ", ".join(rows)
+            + ". Moving it re-cuts the last result: no new detection.")
+
+
 class MammogramWidget(JobWidget):
     """Regions of interest (candidate masses) in a grey mammogram (section
-    14.4, docs/mammography.md): labels, outlines and a table of features.
+    14.4, docs/mammography.md): labels, outlines labelled with their score
+    and a table sorted by score, at an operating point in marks per image.
+
+    Detect finds and scores every candidate once; the "marks per image"
+    control then shows those above its score threshold, without running the
+    detection again.
 
     Parameters
     ----------
@@ -62,22 +81,16 @@ class MammogramWidget(JobWidget):
         The viewer.
     """
 
-    control_labels = {"reference": "reference grey", "tolerance": "tolerance",
-                      "max_regions": "max regions"}
+    control_labels = {"marks_per_image": "marks per image"}
 
     def __init__(self, napari_viewer):
         super().__init__(napari_viewer, image_label="mammogram")
-        self.table = None  # the last result's table (dict of columns)
-        self._reference = FloatSpinBox(
-            value=REFERENCE_GREY, min=0.0, max=1.0, step=0.005, label="reference grey",
-            tooltip="mean grey of a mass on a [0, 1] scale; learned from mini-MIAS "
-                    "ground truth (benchmarks/bench_mammography.py)")
-        self._tolerance = FloatSpinBox(
-            value=REFERENCE_TOLERANCE, min=0.01, max=1.0, step=0.01, label="tolerance",
-            tooltip="regions whose mean grey is further than this from the reference "
-                    "are dropped")
-        self._max_regions = SpinBox(value=DEFAULT_MAX_REGIONS, min=0, max=50,
-                                    label="max regions", tooltip="0: keep every region")
+        self.table = None  # the marks' table (dict of columns)
+        self._found = None  # (every finding's MammogramROIs, their outlines)
+        self._marks = FloatSpinBox(
+            value=DEFAULT_MARKS_PER_IMAGE, min=0.25, max=12.0, step=0.25,
+            label="marks per image", tooltip=_marks_tooltip())
+        self._marks.changed.connect(self._on_marks)
         self._run = self.action("Detect", self.start)
         self._table = QTableWidget(0, len(SHOWN_COLUMNS))
         self._table.setMinimumHeight(140)
@@ -90,47 +103,64 @@ class MammogramWidget(JobWidget):
             item = QTableWidgetItem(title)
             item.setToolTip(tip)
             self._table.setHorizontalHeaderItem(j, item)
-        self.arrange([self._reference, self._tolerance, self._max_regions, self._run])
+        self.arrange([self._marks, self._run])
         self.native.layout().addWidget(self._table)
 
     def _start(self):
-        """Detect the regions of interest of the picked layer."""
-        data, channel_axis = self.input_array()
+        """Detect and score every region of interest of the picked layer."""
+        data, channel_axis = self.input_array(copy=False)
         layer = self._image.value
         self._name = layer.name
         self._geometry = dict(scale=tuple(layer.scale[-2:]),
                               translate=tuple(layer.translate[-2:]))
-        job = iter_detect_mammogram_rois(
-            data, channel_axis=channel_axis, reference=float(self._reference.value),
-            tolerance=float(self._tolerance.value),
-            max_regions=int(self._max_regions.value) or None)
+        job = iter_detect_mammogram_rois(data, channel_axis=channel_axis, marks_per_image=None)
         return self.run(_with_outlines(job), done=self._show)
 
     def _show(self, result):
-        (labels, table), outlines = result
-        geometry = self._geometry
-        self.record.replace(f"{self._name} ROI labels",
-                            lambda name: self._viewer.add_labels(labels, name=name, opacity=0.4,
-                                                                 **geometry))
-        yield  # the viewer draws the labels before the outlines are added
-        if outlines:
+        self._found = result
+        self._found_for = (self._name, self._geometry)
+        yield from self._show_marks()
+
+    def _on_marks(self, *_):
+        """The operating point moved: re-cut the last result (no new job)."""
+        if self._found is None or (self._job is not None and not self._job.done):
+            return  # a running job shows the current value when it is done
+        for _step in self._show_marks():
+            pass
+        self.record.commit()
+
+    def _show_marks(self):
+        """Show the marks of the current operating point (a generator: the
+        viewer draws the labels before the outlines are added)."""
+        (labels, table), outlines = self._found
+        name, geometry = self._found_for
+        threshold = score_threshold(float(self._marks.value))
+        cut_labels, cut = select_marks(MammogramROIs(labels, table), threshold=threshold)
+        m = len(cut["label"])
+        self.record.replace(f"{name} ROI labels",
+                            lambda layer_name: self._viewer.add_labels(
+                                cut_labels, name=layer_name, opacity=0.4, **geometry))
+        yield
+        if m:
             self.record.replace(
-                f"{self._name} ROI outlines",
-                lambda name: self._viewer.add_shapes(
-                    outlines, shape_type="polygon", name=name, edge_color="yellow",
-                    face_color="transparent", edge_width=2, features=table, **geometry),
+                f"{name} ROI outlines",
+                lambda layer_name: self._viewer.add_shapes(
+                    outlines[:m], shape_type="polygon", name=layer_name, edge_color="yellow",
+                    face_color="transparent", edge_width=2, features=cut,
+                    text={"string": "{score:.2f}", "color": "yellow", "size": 10,
+                          "anchor": "upper_left"},
+                    **geometry),
             )
         else:
-            self.record.remove(f"{self._name} ROI outlines")
+            self.record.remove(f"{name} ROI outlines")
         yield
-        self.table = table
-        self._fill_table(table)
+        self.table = cut
+        self._fill_table(cut)
         n = len(table["label"])
-        self._status.value = f"{n} region{'s' * (n != 1)} of interest"
+        self._status.value = (f"{m} mark{'s' * (m != 1)} (score >= {threshold:.2f}) of "
+                              f"{n} scored region{'s' * (n != 1)}")
         if n == 0:
-            show_info("no region of interest passed the grey-level filter; widen the "
-                      "tolerance or check the reference grey.")
-
+            show_info("no candidate region was found in the breast.")
     def _fill_table(self, table):
         rows = len(table["label"])
         self._table.clearContents()

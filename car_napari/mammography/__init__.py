@@ -2,14 +2,19 @@
 (section 14.4, docs/mammography.md).
 
 :func:`detect_breast` finds the breast; :func:`segment_breast` segments it;
-:func:`filter_regions` keeps the mass-like regions of a segmentation;
-:func:`detect_mammogram_rois` does all three and returns
-:class:`MammogramROIs` ``(labels, table)``. The ``iter_`` forms are the same
+:func:`detect_mammogram_rois` does both, then describes every candidate
+region by its CAR texture, grey level, contrast, size and shape, scores it
+with the shipped logistic model and returns the marks of an operating point
+(``marks_per_image``) as :class:`MammogramROIs` ``(labels, table)``;
+:func:`select_marks` re-cuts a result at another operating point
+(:data:`OPERATING_POINTS`: the shipped cross-validated FROC table).
+:func:`filter_regions` is the chapter's plain grey-level filter. The ``iter_`` forms are the same
 jobs as generators of :class:`~car_napari.Progress` records that return the
 result. A research tool, never a screening aid.
 """
 
 from ._breast import BreastDetection, detect_breast
+from ._candidates import shipped_model as _shipped_model
 from ._regions import (
     DEFAULT_MAX_REGIONS,
     MASS_RADIUS_RANGE,
@@ -21,18 +26,28 @@ from ._regions import (
     region_outlines,
 )
 from ._rois import (
+    DEFAULT_MARKS_PER_IMAGE,
     DEFAULT_POOL_SEGMENTS,
     BreastSegmentation,
     detect_mammogram_rois,
     iter_detect_mammogram_rois,
     iter_segment_breast,
+    score_threshold,
     segment_breast,
+    select_marks,
 )
 
+# The shipped model's operating points (benchmarks/bench_froc.py): per
+# ``marks_per_image`` (false marks per image on mini-MIAS), the score
+# threshold and the cross-validated sensitivity there.
+OPERATING_POINTS = tuple(dict(p) for p in _shipped_model().spec["operating_points"])
+
 __all__ = [
+    "DEFAULT_MARKS_PER_IMAGE",
     "DEFAULT_MAX_REGIONS",
     "DEFAULT_POOL_SEGMENTS",
     "MASS_RADIUS_RANGE",
+    "OPERATING_POINTS",
     "REFERENCE_GREY",
     "REFERENCE_TOLERANCE",
     "TABLE_COLUMNS",
@@ -45,5 +60,7 @@ __all__ = [
     "iter_detect_mammogram_rois",
     "iter_segment_breast",
     "region_outlines",
+    "score_threshold",
     "segment_breast",
+    "select_marks",
 ]

@@ -21,16 +21,38 @@ from .._progress import Progress, drain, stage
 from .._validation import check_real
 from ..segmentation import iter_segment, pseudo_colour
 from ._breast import _iter_detect
+from ._candidates import (
+    DESCRIPTORS,
+    FAMILIES,
+    _describe,
+    _generate,
+    _merge,
+    _texture_grid,
+    _visible,
+    shipped_model,
+)
 from ._images import _STRIP, _block_mean, _iter_grey
-from ._regions import DEFAULT_MAX_REGIONS, _check_filter_options, _iter_filter
+from ._regions import (
+    _ANALYSIS_SIDE,
+    REFERENCE_GREY,
+    SPLIT_DELTA,
+    SPLIT_SIGMAS,
+    TABLE_COLUMNS,
+    MammogramROIs,
+    _empty_table,
+    _upsample_box,
+)
 
 __all__ = [
+    "DEFAULT_MARKS_PER_IMAGE",
     "DEFAULT_POOL_SEGMENTS",
     "BreastSegmentation",
     "detect_mammogram_rois",
     "iter_detect_mammogram_rois",
     "iter_segment_breast",
+    "score_threshold",
     "segment_breast",
+    "select_marks",
 ]
 
 # Segmentations pooled by :func:`detect_mammogram_rois`: the merge history's
@@ -73,6 +95,13 @@ class BreastSegmentation(NamedTuple):
     pooled : list of (H, W) ndarray of int32, or None
         One full-resolution labelling per number of segments of ``pool``,
         re-cut from the same merge history; None without ``pool``.
+    features : (h, w, D) ndarray of float32, or None
+        The segmentation's per-pixel CAR features (local parameters,
+        prediction-error energy, local mean; (14.33)) on the working-resolution
+        crop of the breast, when asked for (``keep_features``); else None.
+    box : (int, int, int, int) or None
+        The crop ``(row0, row1, col0, col1)`` of ``features`` at the working
+        resolution (full-resolution pixel = ``factor`` x working pixel).
 
     Examples
     --------
@@ -89,6 +118,8 @@ class BreastSegmentation(NamedTuple):
     breast: np.ndarray
     factor: int
     pooled: list | None
+    features: np.ndarray | None = None
+    box: tuple | None = None
 
 
 def _crop_box(mask, need):
@@ -217,7 +248,7 @@ def _check_segment_options(levels, work_side, seed):
 
 
 def _iter_segment_grey(grey, *, breast, n_segments, levels, neighbourhood, n_init, work_side,
-                       seed, pool, segment_options):
+                       seed, pool, segment_options, keep_features=False):
     """:func:`iter_segment_breast` of a grey image on [0, 1] (:func:`_iter_grey`)."""
     H, W = grey.shape
     span = _spans(_work(H * W, len(pool or ()) + 1), ("breast", "segmentation", "pooling"))
@@ -271,7 +302,9 @@ def _iter_segment_grey(grey, *, breast, n_segments, levels, neighbourhood, n_ini
             yield Progress("pooling", p0 + (p1 - p0) * (j + (b - R0) / max(hh, 1)) / len(outputs),
                            f"{what} at full resolution")
         full.append(out)
-    return BreastSegmentation(full[-1], breast, factor, full[:-1] if pool else None)
+    features = result.features if keep_features else None
+    return BreastSegmentation(full[-1], breast, factor, full[:-1] if pool else None, features,
+                              (int(r0), int(r1), int(c0), int(c1)))
 
 
 @shared_parameters(_SEGMENT_BREAST_PARAMETERS)
@@ -318,13 +351,14 @@ def segment_breast(image, *, breast=None, n_segments=None, levels=3, neighbourho
 _ROI_PARAMETERS = """
 image : (H, W) array_like
     Grey mammogram (bright = dense), any numeric dtype; integer images are
-    scaled by their dtype range, so ``reference`` is on that [0, 1] scale.
-    An RGB(A) export of a grey mammogram, with ``channel_axis``, is reduced
-    to its luminance.
-reference : float, optional
-    Reference grey level; default :data:`REFERENCE_GREY`.
-tolerance : float, optional
-    Accepted distance from ``reference``; default :data:`REFERENCE_TOLERANCE`.
+    scaled by their dtype range. An RGB(A) export of a grey mammogram, with
+    ``channel_axis``, is reduced to its luminance.
+marks_per_image : float or None, optional
+    The operating point: the score threshold at which the shipped model
+    makes this many false marks per image on average on mini-MIAS (see
+    :data:`OPERATING_POINTS` for the cross-validated sensitivity there);
+    default :data:`DEFAULT_MARKS_PER_IMAGE`. None keeps every finding, each
+    with its score (:func:`select_marks` cuts such a result later).
 levels : int, optional
     Resolutions of the segmentation's features.
 n_segments : int or None, optional
@@ -335,8 +369,7 @@ neighbourhood : int or (eta, 2) array_like, optional
 n_init : int, optional
     Components of the segmentation's initial block division.
 max_regions : int or None, optional
-    Keep only the best-scoring regions (default :data:`DEFAULT_MAX_REGIONS`);
-    None keeps all.
+    Advanced: also keep at most this many regions, best first; None: no cap.
 min_area : int, optional
     Smallest region (full-resolution pixels; default 1/4000 of the image).
 breast : (H, W) array_like of bool, optional
@@ -349,19 +382,44 @@ pool : sequence of int, optional
     Numbers of segments read from the merge history and pooled (used when
     ``n_segments`` is None; None or () uses the automatic one).
 split : bool, optional
-    Also cut segments into their locally bright parts (:func:`filter_regions`).
+    Also cut segments into their locally bright parts.
+reference : float, optional
+    Advanced, the chapter's grey-level filter: with ``tolerance``, drop
+    candidates whose mean grey (on [0, 1]) is further than ``tolerance``
+    from ``reference`` (default :data:`REFERENCE_GREY`). Off by default:
+    the grey level is one of the scoring model's descriptors.
+tolerance : float or None, optional
+    Advanced: the width of that filter; None (default) turns it off.
 channel_axis : int or None, optional
     The colour axis of an RGB(A) export of a grey mammogram; a 2-D image is
     grey, None forces grey.
 """
 
+# The default operating point: false marks per image on mini-MIAS.
+DEFAULT_MARKS_PER_IMAGE = 2.0
+
+
+def _check_roi_options(marks_per_image, reference, tolerance, max_regions, min_area):
+    """The ROI job's own options, checked before any work."""
+    if marks_per_image is not None:
+        check_real(marks_per_image, "marks_per_image (false marks per image, or None)",
+                   low=0.0, low_open=True, high=100.0)
+    if reference is not None:
+        check_real(reference, "reference", low=0.0, high=1.0)
+    if tolerance is not None:
+        check_real(tolerance, "tolerance", low=0.0, low_open=True)
+    if max_regions is not None:
+        check_real(max_regions, "max_regions (a positive int or None)", low=1, integer=True)
+    if min_area is not None:
+        check_real(min_area, "min_area (pixels, or None)", low=0.0)
+
 
 @shared_parameters(_ROI_PARAMETERS)
-def iter_detect_mammogram_rois(image, *, reference=None, tolerance=None, levels=3,
-                               n_segments=None, neighbourhood=2, n_init=16,
-                               max_regions=DEFAULT_MAX_REGIONS, min_area=None, breast=None,
-                               work_side=512, seed=0, pool=DEFAULT_POOL_SEGMENTS, split=True,
-                               channel_axis=-1):
+def iter_detect_mammogram_rois(image, *, marks_per_image=DEFAULT_MARKS_PER_IMAGE, levels=3,
+                               n_segments=None, neighbourhood=2, n_init=16, max_regions=None,
+                               min_area=None, breast=None, work_side=512, seed=0,
+                               pool=DEFAULT_POOL_SEGMENTS, split=True, reference=None,
+                               tolerance=None, channel_axis=-1):
     """Find regions of interest (candidate masses) in a mammogram, as a job.
 
     See :func:`detect_mammogram_rois` for the method.
@@ -380,8 +438,8 @@ def iter_detect_mammogram_rois(image, *, reference=None, tolerance=None, levels=
     ------
     Progress
         The breast segmentation's records (:func:`iter_segment_breast`),
-        then stage "regions" while the candidates are scored and the kept
-        regions painted at full resolution.
+        then stage "regions" while the candidates are described, scored and
+        the findings painted at full resolution.
 
     Raises
     ------
@@ -399,8 +457,9 @@ def iter_detect_mammogram_rois(image, *, reference=None, tolerance=None, levels=
     >>> records[0].stage, records[-1].stage, records[-1].fraction
     ('breast', 'regions', 1.0)
     """
-    _check_filter_options(reference, tolerance, max_regions, min_area)
+    _check_roi_options(marks_per_image, reference, tolerance, max_regions, min_area)
     _check_segment_options(levels, work_side, seed)
+    model = shipped_model()
     pool = None if n_segments is not None else pool
     spans = _spans(_work(np.size(image), len(pool or ()) + 1),
                    ("reading", "breast", "segmentation", "pooling", "regions"))
@@ -408,15 +467,18 @@ def iter_detect_mammogram_rois(image, *, reference=None, tolerance=None, levels=
     segmentation = yield from stage(
         _iter_segment_grey(grey, breast=breast, n_segments=n_segments, levels=levels,
                            neighbourhood=neighbourhood, n_init=n_init, work_side=work_side,
-                           seed=seed, pool=pool, segment_options=None),
+                           seed=seed, pool=pool, segment_options=None, keep_features=True),
         spans["breast"][0], spans["pooling"][1],
     )
     r0, r1 = spans["regions"]
-    yield Progress("regions", r0, "filtering candidate regions")
+    yield Progress("regions", r0, "candidate regions")
+    threshold = None if marks_per_image is None else model.threshold(marks_per_image)
     rois = yield from stage(
-        _iter_filter(grey, segmentation.pooled or segmentation.segments, reference=reference,
-                     tolerance=tolerance, max_regions=max_regions, min_area=min_area,
-                     split=split),
+        _iter_rank(grey, segmentation, model, threshold=threshold, max_regions=max_regions,
+                   min_area=min_area, split=split,
+                   band=None if tolerance is None else (
+                       REFERENCE_GREY if reference is None else float(reference),
+                       float(tolerance))),
         r0, r1,
     )
     n = len(rois.table["label"])
@@ -424,11 +486,149 @@ def iter_detect_mammogram_rois(image, *, reference=None, tolerance=None, levels=
     return rois
 
 
+def _iter_rank(grey, segmentation, model, *, threshold, max_regions, min_area, split, band):
+    """Candidates of a breast segmentation, described, scored by ``model``,
+    merged into findings and painted (``_candidates``), as a job."""
+    H, W = grey.shape
+    if min_area is None:
+        min_area = max(16, H * W // 4000)
+    f = max(1, round(max(H, W) / _ANALYSIS_SIDE))
+    small = _block_mean(grey, f)
+    h, w = small.shape
+    labellings = segmentation.pooled or [segmentation.segments]
+    labs = [s[f // 2 :: f, f // 2 :: f][:h, :w] for s in labellings]
+    breast = labs[0] > 0
+    texture = None
+    uses_texture = bool(set(model.names) & set(FAMILIES["texture"]))
+    if segmentation.features is not None and uses_texture:
+        texture = _texture_grid(segmentation.features, segmentation.box, segmentation.factor, f,
+                                (h, w))
+    cands = _generate(small, labs, breast, split=split, sigmas=[s / f for s in SPLIT_SIGMAS],
+                      delta=SPLIT_DELTA, min_area=max(4, min_area // (f * f)))
+    yield Progress("regions", 0.2, f"describing {len(cands)} candidates")
+    kept, X = yield from _describe(small, labs, breast, texture, cands, f=f, side=max(H, W),
+                                   work=(0.2, 0.6))
+    scores = model.score(X) if kept else np.zeros(0)
+    if band is not None:
+        ok = np.abs(X[:, DESCRIPTORS.index("mean_grey")] - band[0]) <= band[1]
+        kept, X, scores = [c for c, k in zip(kept, ok, strict=True) if k], X[ok], scores[ok]
+    findings = _visible(_merge(kept, scores), (h, w))
+    if threshold is not None:
+        findings = [fnd for fnd in findings if fnd[0] >= threshold]
+    if max_regions is not None:
+        findings = findings[: int(max_regions)]
+    yield Progress("regions", 0.6, f"{len(findings)} regions at full resolution")
+    contrast = X[:, DESCRIPTORS.index("contrast")] if kept else np.zeros(0)
+    return (yield from _iter_paint(grey, labellings[0], findings, contrast, f, band, (h, w)))
+
+
+def _iter_paint(grey_full, first, findings, contrast, f, band, shape):
+    """Findings (``_merge``'s ``(score, mask, box, best)``, best first; the
+    analysis grid of ``shape`` and block ``f``) painted at full resolution
+    and measured there, as :class:`MammogramROIs`."""
+    H, W = grey_full.shape
+    labels = np.zeros((H, W), np.int32)
+    out_rows = []
+    for n, (score, mask, (r0, r1, c0, c1), best) in enumerate(findings):
+        grid = np.zeros(shape, bool)  # the analysis grid
+        grid[r0:r1, c0:c1] = mask
+        box, sub = _upsample_box(grid, (H, W), f)
+        m = sub & (first[box] > 0) & (labels[box] == 0)
+        if n % 16 == 15:
+            yield Progress("regions", 0.6 + 0.4 * (n + 1) / max(len(findings), 1),
+                           f"region {n + 1}/{len(findings)}")
+        if not m.any():
+            continue
+        mean = float(grey_full[box][m].mean())
+        if band is not None and abs(mean - band[0]) > band[1]:
+            continue
+        new = len(out_rows) + 1
+        labels[box][m] = new
+        rr, cl = np.nonzero(m)
+        rr, cl = rr + box[0].start, cl + box[1].start
+        out_rows.append((new, int(m.sum()), mean, float(contrast[best]), int(rr.min()),
+                         int(cl.min()), int(rr.max()) + 1, int(cl.max()) + 1, float(rr.mean()),
+                         float(cl.mean()), float(score)))
+    table = _empty_table()
+    if out_rows:
+        for k, col in zip(TABLE_COLUMNS, zip(*out_rows, strict=True), strict=True):
+            table[k] = np.asarray(col, table[k].dtype)
+    return MammogramROIs(labels, table)
+
+
+def select_marks(rois, marks_per_image=DEFAULT_MARKS_PER_IMAGE, *, threshold=None):
+    """The marks of an operating point, cut from a result with every finding.
+
+    Parameters
+    ----------
+    rois : MammogramROIs
+        A result of :func:`detect_mammogram_rois` (typically with
+        ``marks_per_image=None``: every finding); regions are numbered by
+        decreasing score.
+    marks_per_image : float, optional
+        The operating point, as in :func:`detect_mammogram_rois`.
+    threshold : float, optional
+        A score threshold instead of ``marks_per_image``.
+
+    Returns
+    -------
+    MammogramROIs
+        The regions whose score is at least the threshold: labels 1..m (the
+        same numbers), the table's first m rows. Nothing is recomputed:
+        regions were painted best first, so the first m are those the
+        detection at this operating point paints.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from car_napari.mammography import MammogramROIs, select_marks
+    >>> labels = np.array([[1, 1, 2, 3]], np.int32)
+    >>> table = {"label": np.array([1, 2, 3]), "score": np.array([0.9, 0.5, 0.1])}
+    >>> cut = select_marks(MammogramROIs(labels, table), threshold=0.4)
+    >>> cut.labels.tolist(), cut.table["score"].tolist()
+    ([[1, 1, 2, 0]], [0.9, 0.5])
+    """
+    if threshold is None:
+        check_real(marks_per_image, "marks_per_image (false marks per image)", low=0.0,
+                   low_open=True, high=100.0)
+        threshold = shipped_model().threshold(marks_per_image)
+    labels, table = rois
+    m = int(np.sum(np.asarray(table["score"]) >= threshold))
+    cut = {k: np.asarray(v)[:m] for k, v in table.items()}
+    return MammogramROIs(np.where(labels <= m, labels, 0).astype(labels.dtype), cut)
+
+
+def score_threshold(marks_per_image=DEFAULT_MARKS_PER_IMAGE):
+    """The score threshold of an operating point of the shipped model.
+
+    Parameters
+    ----------
+    marks_per_image : float, optional
+        False marks per image on average on mini-MIAS (the model's training
+        images).
+
+    Returns
+    -------
+    float
+        Regions scoring at least this are marked.
+
+    Examples
+    --------
+    >>> from car_napari.mammography import score_threshold
+    >>> score_threshold(1.0) >= score_threshold(3.0)
+    True
+    """
+    check_real(marks_per_image, "marks_per_image (false marks per image)", low=0.0,
+               low_open=True, high=100.0)
+    return shipped_model().threshold(marks_per_image)
+
+
 @shared_parameters(_ROI_PARAMETERS)
-def detect_mammogram_rois(image, *, reference=None, tolerance=None, levels=3, n_segments=None,
-                          neighbourhood=2, n_init=16, max_regions=DEFAULT_MAX_REGIONS,
+def detect_mammogram_rois(image, *, marks_per_image=DEFAULT_MARKS_PER_IMAGE, levels=3,
+                          n_segments=None, neighbourhood=2, n_init=16, max_regions=None,
                           min_area=None, breast=None, work_side=512, seed=0,
-                          pool=DEFAULT_POOL_SEGMENTS, split=True, channel_axis=-1):
+                          pool=DEFAULT_POOL_SEGMENTS, split=True, reference=None,
+                          tolerance=None, channel_axis=-1):
     """Find regions of interest (candidate masses) in a mammogram.
 
     The method of section 14.4, docs/mammography.md:
@@ -436,28 +636,31 @@ def detect_mammogram_rois(image, *, reference=None, tolerance=None, levels=3, n_
     0. The image is scaled to [0, 1]; one within a tenth of a grey level of
        an 8-bit image (a PNG read as float, a DICOM made from one) is read
        as that 8-bit image, so that such differences cannot change the
-       regions (the segmentation's EM and greedy merging amplify any
-       difference).
+       regions.
     1. Breast area: :func:`detect_breast` (or ``breast`` if given).
     2. The mammogram is block-averaged to about ``work_side`` pixels (512:
        factor 2 for mini-MIAS 1024x1024), cropped to the breast, and
        segmented (multiresolution 3DCAR features, EM and KL merging; section
        14.4, docs/segmentation.md) as pseudo-colour ``[Y, Y^0.5, Y^2]`` with
        the breast as mask. Unless ``n_segments`` is given, the merge-history
-       states with ``pool`` segments (default 8, 10 and 12) are all used;
-       segments are mapped back to full resolution.
-    3. :func:`filter_regions`: candidate regions (segment components, and
-       with ``split`` their locally bright parts) whose mean grey is within
-       ``tolerance`` of ``reference`` (learned: the median mean grey of
-       ground-truth mass regions), ranked by contrast with their ring,
-       closeness to ``reference``, compactness and a mass-size prior; the
-       best ``max_regions`` are kept (None: all). Candidates of one finding
-       whose scores are within 10 % of each other make one region, their
-       union, so a near tie in the ranking does not decide its shape.
+       states with ``pool`` segments (default 8, 10 and 12) are all used.
+    3. Candidates: the components of every segment and, with ``split``, of
+       their locally bright parts, on a grid of about 256 pixels.
+    4. Each candidate is described by the segmentation's CAR features
+       (local parameters and prediction-error energy inside against a ring
+       of breast around it, how much of the ring is other segments), its
+       grey level and contrast against the ring, its size and shape; a
+       logistic model of those descriptors, fitted on mini-MIAS and shipped
+       (``roi_model.json``), scores it in (0, 1).
+    5. Findings, best score first: a candidate whose centroid lies in a
+       kept finding or that holds its centroid is that finding (it joins it
+       within 10 % of its score). Those scoring at least the threshold of
+       ``marks_per_image`` are painted at full resolution.
 
-    See ``benchmarks/bench_mammography.py`` for the measured sensitivity on
-    mini-MIAS; with 13 mass findings in all it is a rough figure. A research
-    tool, never a screening aid.
+    The cross-validated sensitivity on mini-MIAS at each operating point is
+    in :data:`OPERATING_POINTS` (``benchmarks/bench_froc.py``); with 13
+    mass findings in all it is a rough figure. A research tool, never a
+    screening aid.
 
     Parameters
     ----------
@@ -468,8 +671,8 @@ def detect_mammogram_rois(image, *, reference=None, tolerance=None, levels=3, n_
     MammogramROIs
         ``labels`` (H, W) int32, regions 1..n by decreasing score, 0
         elsewhere, and ``table``, a dict of 1-D arrays (columns
-        :data:`TABLE_COLUMNS`, see :func:`filter_regions`); unpacks as
-        ``labels, table``.
+        :data:`TABLE_COLUMNS`; ``score`` is the model's, ``contrast`` the
+        best candidate's on the analysis grid); unpacks as ``labels, table``.
 
     Raises
     ------
@@ -483,13 +686,14 @@ def detect_mammogram_rois(image, *, reference=None, tolerance=None, levels=3, n_
     >>> from car_napari.mammography import TABLE_COLUMNS, detect_mammogram_rois
     >>> image = np.zeros((64, 64))
     >>> image[4:60, 20:] = np.random.default_rng(0).uniform(0.5, 0.9, (56, 44))
-    >>> labels, table = detect_mammogram_rois(image, levels=1, n_init=4, pool=(2, 3))
+    >>> labels, table = detect_mammogram_rois(image, levels=1, n_init=4, pool=(2, 3),
+    ...                                       marks_per_image=None)
     >>> labels.shape, tuple(table) == TABLE_COLUMNS
     ((64, 64), True)
     """
     return drain(iter_detect_mammogram_rois(
-        image, reference=reference, tolerance=tolerance, levels=levels, n_segments=n_segments,
+        image, marks_per_image=marks_per_image, levels=levels, n_segments=n_segments,
         neighbourhood=neighbourhood, n_init=n_init, max_regions=max_regions, min_area=min_area,
         breast=breast, work_side=work_side, seed=seed, pool=pool, split=split,
-        channel_axis=channel_axis,
+        reference=reference, tolerance=tolerance, channel_axis=channel_axis,
     ))

@@ -23,8 +23,7 @@ def test_detect_gives_labels_outlines_and_table(widget, qtbot, small_mammogram):
     viewer, w = widget
     layer = viewer.add_image(small_mammogram, name="mdb001")
     w._image.value = layer
-    w._max_regions.value = 0  # every region in the band: something to show
-    w._tolerance.value = 0.3
+    w._marks.value = 6.0  # a generous operating point: something to show
     job = w.start()
     qtbot.waitUntil(lambda: job.done, timeout=180000)
     labels = viewer.layers["mdb001 ROI labels"].data
@@ -35,6 +34,11 @@ def test_detect_gives_labels_outlines_and_table(widget, qtbot, small_mammogram):
     assert len(outlines.data) == n
     assert list(outlines.features["label"]) == list(range(1, n + 1))
     assert w._table.rowCount() == n
+    # each outline is labelled with its score; the table is sorted by score
+    assert list(outlines.text.values) == [f"{v:.2f}" for v in w.table["score"]]
+    assert np.all(np.diff(w.table["score"]) <= 0)
+    assert [w._table.item(i, 1).text() for i in range(n)] == [
+        f"{v:.2f}" for v in w.table["score"]]
     _assert_table_fits(w, qtbot)
     # every outline encloses its region's centroid's row span
     rows = zip(outlines.data, w.table["bbox_min_row"], w.table["bbox_max_row"], strict=True)
@@ -78,7 +82,7 @@ def test_table_fits_the_dock_with_many_large_regions(widget, qtbot):
                  centroid_col=np.full(n, 3999.6))
     w._fill_table(table)
     assert w._table.rowCount() == n
-    assert w._table.item(0, 1).text() == "1234567"
+    assert w._table.item(0, 2).text() == "1234567"  # "#", "score", "area"
     assert "4000" in w._table.item(0, 0).toolTip()  # centroid and box in the row tooltip
     _assert_table_fits(w, qtbot)
 
@@ -167,3 +171,51 @@ def test_cancel_on_a_large_mammogram_ends_the_worker_quickly(widget, qtbot):
         assert time.perf_counter() - clicked < CANCEL_BOUND
         assert [lay.name for lay in viewer.layers] == before
         np.testing.assert_array_equal(layer.data, big)
+
+
+def test_moving_the_operating_point_changes_the_marks_without_recomputing(
+        widget, qtbot, small_mammogram, monkeypatch):
+    """Issue 17: the "marks per image" control re-cuts the last result: the
+    marks change with it, and neither the detection job nor the segmentation
+    runs again."""
+    from car_napari._widgets import mammography as widget_module
+    from car_napari.mammography import _rois, score_threshold
+
+    calls = {"detect": 0, "segment": 0}
+    detect, segment = widget_module.iter_detect_mammogram_rois, _rois._iter_segment_grey
+
+    def counted_detect(*args, **kwargs):
+        calls["detect"] += 1
+        return detect(*args, **kwargs)
+
+    def counted_segment(*args, **kwargs):
+        calls["segment"] += 1
+        return segment(*args, **kwargs)
+
+    monkeypatch.setattr(widget_module, "iter_detect_mammogram_rois", counted_detect)
+    monkeypatch.setattr(_rois, "_iter_segment_grey", counted_segment)
+    viewer, w = widget
+    w._image.value = viewer.add_image(small_mammogram, name="mdb001")
+    w._marks.value = 0.25
+    job = w.start()
+    qtbot.waitUntil(lambda: job.done, timeout=180000)
+    assert calls == {"detect": 1, "segment": 1}
+    seen = []
+    for rate in (0.25, 1.0, 3.0, 12.0):
+        w._marks.value = rate
+        labels = viewer.layers["mdb001 ROI labels"].data
+        n = len(w.table["label"])
+        assert labels.max(initial=0) == n
+        assert np.all(w.table["score"] >= score_threshold(rate))
+        assert w._table.rowCount() == n
+        if n:
+            assert len(viewer.layers["mdb001 ROI outlines"].data) == n
+        else:
+            assert "mdb001 ROI outlines" not in viewer.layers
+        seen.append(n)
+    assert seen == sorted(seen) and seen[-1] > seen[0]
+    assert calls == {"detect": 1, "segment": 1}  # no job ran again
+    assert w._job is job
+    # back down: fewer marks again, the same regions as before
+    w._marks.value = 1.0
+    assert len(w.table["label"]) == seen[1]

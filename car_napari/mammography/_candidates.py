@@ -1,0 +1,356 @@
+"""Candidate regions of a breast segmentation described by what the CAR model
+knows about them, scored by a small logistic model, merged into findings and
+painted (section 14.4, docs/mammography.md).
+
+The candidates are those of :func:`~car_napari.mammography.filter_regions`
+(the components of every segment of every pooled labelling, and of their
+locally bright parts). Each is described, on the analysis grid (about 256
+pixels on the long side), by
+
+* texture: the segmentation's CAR features (local parameters and log
+  prediction-error energy of the directional adaptive models, (14.33))
+  inside the candidate against a ring of breast around it, and how much of
+  that ring belongs to other segments;
+* grey level: mean, contrast against the ring, spread;
+* size and shape: equivalent radius (on a 1024-pixel scale), compactness.
+
+The score is a logistic model of those descriptors whose coefficients ship
+in ``roi_model.json`` (fitted by ``benchmarks/bench_froc.py``); plain NumPy.
+"""
+
+from __future__ import annotations
+
+import json
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from .._progress import Progress
+
+# Names of the candidate descriptors, in the order of the matrix
+# :func:`_describe` returns, and their families (a model may use a subset).
+DESCRIPTORS = (
+    # grey level
+    "mean_grey", "grey_above_breast", "contrast", "contrast_z", "grey_std",
+    "contrast_rank", "contrast_z_rank",
+    # size and shape
+    "log_radius", "log_radius_sq", "compactness",
+    # CAR texture
+    "param_contrast", "param_spread", "energy", "energy_contrast", "segment_edge",
+)
+FAMILIES = {
+    "grey": ("mean_grey", "grey_above_breast", "contrast", "contrast_z", "grey_std",
+             "contrast_rank", "contrast_z_rank"),
+    "shape": ("log_radius", "log_radius_sq", "compactness"),
+    "texture": ("param_contrast", "param_spread", "energy", "energy_contrast",
+                "segment_edge"),
+}
+# The CAR feature vector's layout per resolution level
+# (car_napari.segmentation.local_features with its defaults on a
+# pseudo-colour image): 4 PCA components of the local parameters, the log
+# prediction-error energy, the 3-channel local mean.
+_PER_LEVEL = 8
+_PARAMS = (0, 1, 2, 3)
+_ENERGY = 4
+# A mass of this equivalent radius (pixels of a 1024-pixel mini-MIAS image)
+# is the centre of the log-radius descriptor (sqrt(20 * 130), see
+# MASS_RADIUS_RANGE).
+_RADIUS_CENTRE = np.log(51.0)
+_MODEL_FILE = Path(__file__).with_name("roi_model.json")
+
+
+def _texture_grid(features, box, factor, f, shape):
+    """The segmentation's features (working-resolution crop ``box``) on the
+    analysis grid of block size ``f`` (full-resolution pixels) and ``shape``:
+    each analysis pixel takes the working pixel under its centre (the
+    features are smooth); 0 outside the crop."""
+    h, w = shape
+    r0, r1, c0, c1 = box
+    rows = (np.arange(h) * f + f // 2) // factor - r0
+    cols = (np.arange(w) * f + f // 2) // factor - c0
+    okr = (rows >= 0) & (rows < features.shape[0])
+    okc = (cols >= 0) & (cols < features.shape[1])
+    out = np.zeros((h, w, features.shape[2]), np.float32)
+    out[np.ix_(okr, okc)] = features[np.ix_(rows[okr], cols[okc])]
+    return out
+
+
+def _texture_indices(n_features):
+    """Parameter and energy columns of a CAR feature vector of ``n_features``."""
+    if n_features % _PER_LEVEL:
+        raise ValueError(f"CAR features of {n_features} values: expected a multiple of "
+                         f"{_PER_LEVEL} (4 parameter components, the energy and the "
+                         "3-channel local mean per level).")
+    levels = range(n_features // _PER_LEVEL)
+    params = [m * _PER_LEVEL + k for m in levels for k in _PARAMS]
+    energy = [m * _PER_LEVEL + _ENERGY for m in levels]
+    return params, energy
+
+
+class Candidate:
+    """One candidate region on the analysis grid: its box ``(r0, r1, c0,
+    c1)``, the mask inside the box, and its centroid (analysis pixels)."""
+
+    __slots__ = ("box", "centroid", "mask")
+
+    def __init__(self, box, mask, centroid):
+        self.box, self.mask, self.centroid = box, mask, centroid
+
+
+def _generate(grey, labellings, breast, *, split, sigmas, delta, min_area):
+    """Candidate regions on the analysis grid: ``(cc, i, slices, area,
+    labelling)`` tuples (component ``i`` of the label image ``cc``, from
+    labelling number ``labelling``).
+
+    For every labelling and every segment value: the 4-connected components
+    of the segment after a one-pixel opening; with ``split``, also the
+    components of (segment AND locally bright), locally bright meaning
+    brighter than a breast-normalised Gaussian background of width ``sigma``
+    by ``delta``, for each ``sigma``.
+    """
+    from scipy import ndimage
+
+    cross = ndimage.generate_binary_structure(2, 1)
+    brights = []
+    if split:
+        b = breast.astype(float)
+        fine = ndimage.gaussian_filter(grey, 1.0)
+        for sigma in sigmas:
+            bg = ndimage.gaussian_filter(grey * b, sigma) / np.maximum(
+                ndimage.gaussian_filter(b, sigma), 1e-6)
+            brights.append(fine - bg > delta)
+    out = []
+    for li, lab in enumerate(labellings):
+        for v in np.unique(lab):
+            if v == 0:
+                continue
+            seg = lab == v
+            for extra in [None] + brights:
+                m = seg if extra is None else seg & extra
+                m = ndimage.binary_opening(m, structure=cross, iterations=1)
+                cc, k = ndimage.label(m)
+                if k == 0:
+                    continue
+                sizes = np.bincount(cc.ravel())
+                for i, sl in enumerate(ndimage.find_objects(cc), start=1):
+                    if sizes[i] >= min_area:
+                        out.append((cc, i, sl, int(sizes[i]), li))
+    return out
+
+
+def _describe(grey, labellings, breast, texture, cands, *, f, side, work=None):
+    """Descriptors (:data:`DESCRIPTORS`) of ``cands`` (``(cc, i, slices,
+    area, labelling)`` from :func:`_generate`) on the analysis grid.
+
+    Returns the kept :class:`Candidate` list and the (n, len(DESCRIPTORS))
+    float64 matrix; candidates not brighter than their ring, or with too
+    small a ring, are dropped. ``texture`` (h, w, D) or None (its columns
+    are then 0). ``side``: the full-resolution long side (the radius is
+    measured on a 1024-pixel scale). With ``work``, a generator: yields
+    Progress records now and then and returns the same.
+    """
+    from scipy import ndimage
+
+    h, w = grey.shape
+    scale = f * 1024.0 / side
+    med = float(np.median(grey[breast])) if breast.any() else 0.0
+    if texture is not None:
+        params, energy = _texture_indices(texture.shape[2])
+    kept, rows = [], []
+    for n, (cc, i, sl, a, li) in enumerate(cands):
+        if work is not None and n % 64 == 63:
+            yield Progress("regions", work[0] + (work[1] - work[0]) * n / len(cands),
+                           f"describing candidates {n + 1}/{len(cands)}")
+        req = np.sqrt(a / np.pi)
+        width = max(2, round(0.5 * req))
+        r0, r1 = max(0, sl[0].start - width), min(h, sl[0].stop + width)
+        c0, c1 = max(0, sl[1].start - width), min(w, sl[1].stop + width)
+        inside = cc[r0:r1, c0:c1] == i
+        ring = (ndimage.binary_dilation(inside, iterations=width) & ~inside
+                & breast[r0:r1, c0:c1])
+        if ring.sum() < 4:
+            continue
+        g = grey[r0:r1, c0:c1]
+        gi, gr = g[inside], g[ring]
+        mean = float(gi.mean())
+        contrast = mean - float(gr.mean())
+        if contrast <= 0:
+            continue
+        rr, cl = np.nonzero(inside)
+        cr, ccol = rr.mean(), cl.mean()
+        compact = float(np.mean((rr - cr) ** 2 + (cl - ccol) ** 2 <= req**2))
+        log_r = np.log(max(req * scale, 1e-3)) - _RADIUS_CENTRE
+        desc = [mean, mean - med, contrast, contrast / (float(gr.std()) + 0.01),
+                float(gi.std()), 0.0, 0.0, log_r, log_r**2, compact]
+        if texture is not None:
+            t = texture[r0:r1, c0:c1]
+            ti, tr = t[inside], t[ring]
+            mi, mr = ti.mean(axis=0), tr.mean(axis=0)
+            # the segments of the labelling the candidate comes from, in its ring
+            seg = labellings[li][r0:r1, c0:c1]
+            own = np.bincount(seg[inside]).argmax()
+            desc += [float(np.sqrt(np.mean((mi[params] - mr[params]) ** 2))),
+                     float(ti[:, params].std(axis=0).mean()),
+                     float(mi[energy].mean()), float((mi[energy] - mr[energy]).mean()),
+                     float(np.mean(seg[ring] != own))]
+        else:
+            desc += [0.0] * len(FAMILIES["texture"])
+        rows.append(desc)
+        kept.append(Candidate((r0, r1, c0, c1), inside, (cr + r0, ccol + c0)))
+    X = np.asarray(rows, float).reshape(len(rows), len(DESCRIPTORS))
+    # the image's own scale: the rank of the contrast among its candidates
+    # (a mass stands out in its own breast more than on an absolute scale)
+    for src, dst in (("contrast", "contrast_rank"), ("contrast_z", "contrast_z_rank")):
+        col = X[:, DESCRIPTORS.index(src)]
+        X[:, DESCRIPTORS.index(dst)] = _ranks(col)
+    return kept, X
+
+
+def _ranks(values):
+    """Ranks of ``values`` scaled to [0, 1] (1: the largest; ties share)."""
+    n = values.size
+    if n < 2:
+        return np.ones(n)
+    order = np.argsort(values, kind="stable")
+    ranks = np.empty(n)
+    ranks[order] = np.arange(n)
+    # ties take their mean rank
+    uniq, inv = np.unique(values, return_inverse=True)
+    if uniq.size < n:
+        ranks = (np.bincount(inv, ranks) / np.bincount(inv))[inv]
+    return ranks / (n - 1)
+
+
+# Two candidates overlapping by at least this intersection over union are
+# one finding (the usual non-maximum suppression of detectors; set a priori,
+# not tuned), and so are two that each hold the other's centroid. A small
+# candidate inside a large one is a finding of its own (a mass in a density
+# band).
+_SAME_IOU = 0.5
+
+
+def _overlap(box_a, mask_a, box_b, mask_b):
+    """Pixels common to two box masks."""
+    r0, r1 = max(box_a[0], box_b[0]), min(box_a[1], box_b[1])
+    c0, c1 = max(box_a[2], box_b[2]), min(box_a[3], box_b[3])
+    if r0 >= r1 or c0 >= c1:
+        return 0
+    a = mask_a[r0 - box_a[0] : r1 - box_a[0], c0 - box_a[2] : c1 - box_a[2]]
+    b = mask_b[r0 - box_b[0] : r1 - box_b[0], c0 - box_b[2] : c1 - box_b[2]]
+    return int(np.count_nonzero(a & b))
+
+
+def _holds(box, mask, point):
+    r, c = point
+    return box[0] <= r < box[1] and box[2] <= c < box[3] and bool(mask[r - box[0], c - box[2]])
+
+
+def _merge(cands, scores, tie=0.1):
+    """Findings of scored candidates, best first: ``(score, mask, box, j)``
+    with the mask on the analysis grid inside ``box`` and ``j`` the index of
+    the finding's best candidate.
+
+    Greedy, best score first: a candidate that overlaps a kept finding by an
+    intersection over union of at least :data:`_SAME_IOU`, or that holds the
+    finding's centroid while the finding holds its own, is that finding; it
+    joins it (the mask grows to the union) when its score is within ``tie``
+    of the finding's, and is dropped otherwise. Since the order is by score,
+    the findings above any threshold are those this gives from the
+    candidates above it (up to the joins).
+    """
+    order = np.argsort(-np.asarray(scores), kind="stable")
+    found = []  # [score, mask, centroid of the best candidate, box, j, area]
+    for j in order:
+        c, s = cands[j], float(scores[j])
+        r0, r1, c0, c1 = c.box
+        cen = (int(round(c.centroid[0])), int(round(c.centroid[1])))
+        area = int(np.count_nonzero(c.mask))
+        same = None
+        for fnd in found:
+            if not (fnd[3][0] < r1 and r0 < fnd[3][1] and fnd[3][2] < c1 and c0 < fnd[3][3]):
+                continue
+            common = _overlap(c.box, c.mask, fnd[3], fnd[1])
+            if common >= _SAME_IOU * (area + fnd[5] - common) or (
+                    _holds(fnd[3], fnd[1], cen) and _holds(c.box, c.mask, fnd[2])):
+                same = fnd
+                break
+        if same is None:
+            found.append([s, c.mask.copy(), cen, c.box, int(j), area])
+        elif s >= (1.0 - tie) * same[0]:
+            # grow the finding's box to hold the union
+            fr0, fr1, fc0, fc1 = same[3]
+            nr0, nr1, nc0, nc1 = min(fr0, r0), max(fr1, r1), min(fc0, c0), max(fc1, c1)
+            m = np.zeros((nr1 - nr0, nc1 - nc0), bool)
+            m[fr0 - nr0 : fr1 - nr0, fc0 - nc0 : fc1 - nc0] = same[1]
+            m[r0 - nr0 : r1 - nr0, c0 - nc0 : c1 - nc0] |= c.mask
+            same[1], same[3], same[5] = m, (nr0, nr1, nc0, nc1), int(np.count_nonzero(m))
+    return [(fnd[0], fnd[1], fnd[3], fnd[4]) for fnd in found]
+
+
+def _visible(findings, shape):
+    """The part of each finding not claimed by a better one (``_merge``'s
+    output, best first, on the analysis grid of ``shape``): what a label
+    image painted best first shows. Findings with nothing left are dropped;
+    the rest keep their order, score and best candidate."""
+    claimed = np.zeros(shape, bool)
+    out = []
+    for score, mask, (r0, r1, c0, c1), best in findings:
+        mine = mask & ~claimed[r0:r1, c0:c1]
+        if not mine.any():
+            continue
+        claimed[r0:r1, c0:c1] |= mine
+        out.append((score, mine, (r0, r1, c0, c1), best))
+    return out
+
+
+# --- the scoring model --------------------------------------------------------
+
+
+class RoiModel:
+    """The logistic scoring model of candidates and its operating points.
+
+    Parameters
+    ----------
+    spec : dict
+        The parsed ``roi_model.json``: ``descriptors`` (the names used),
+        ``mean``, ``scale`` (standardisation), ``coef``, ``intercept``, and
+        ``operating_points`` (rows of ``marks_per_image``, ``threshold``...).
+    """
+
+    def __init__(self, spec):
+        self.spec = spec
+        self.names = tuple(spec["descriptors"])
+        unknown = set(self.names) - set(DESCRIPTORS)
+        if unknown:
+            raise ValueError(f"ROI model uses unknown descriptors {sorted(unknown)}.")
+        self.columns = [DESCRIPTORS.index(n) for n in self.names]
+        self.mean = np.asarray(spec["mean"], float)
+        self.scale = np.asarray(spec["scale"], float)
+        self.coef = np.asarray(spec["coef"], float)
+        self.intercept = float(spec["intercept"])
+        points = sorted(spec.get("operating_points", []), key=lambda p: p["marks_per_image"])
+        self.rates = np.array([p["marks_per_image"] for p in points], float)
+        self.thresholds = np.array([p["threshold"] for p in points], float)
+
+    def score(self, X):
+        """Scores in (0, 1) of descriptor rows ``X`` (n, len(DESCRIPTORS))."""
+        X = np.asarray(X, float).reshape(-1, len(DESCRIPTORS))
+        z = (X[:, self.columns] - self.mean) / self.scale
+        return 1.0 / (1.0 + np.exp(-(z @ self.coef + self.intercept)))
+
+    def threshold(self, marks_per_image):
+        """The score threshold of an operating point: on the model's training
+        images, ``marks_per_image`` false marks per image on average
+        (interpolated in the stored table, log scale; clipped to its ends)."""
+        if self.rates.size == 0:
+            return 0.0
+        x = np.log(max(float(marks_per_image), 1e-6))
+        return float(np.interp(x, np.log(self.rates), self.thresholds))
+
+
+@lru_cache(maxsize=1)
+def shipped_model():
+    """The :class:`RoiModel` shipped with the package (``roi_model.json``)."""
+    with open(_MODEL_FILE) as fh:
+        return RoiModel(json.load(fh))
