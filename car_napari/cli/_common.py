@@ -150,11 +150,7 @@ def run_batch(paths, process, *, outputs=None, on_done=None, options=None, quiet
             if line:
                 bar.write(f"{path.name}: {line}", err=quiet)
         bar.begin(len(paths), "done")
-    if failed and failed == len(paths):
-        raise BatchFailed(f"no input could be processed ({failed} failed; see above).")
-    if failed:
-        bar.write(f"{failed} of {len(todo)} inputs failed (see above).", err=True)
-    return 1 if failed else 0
+    return _exit_status(failed, len(paths), len(todo), "input", bar)
 
 
 def _results(paths, process, options, bar):
@@ -300,10 +296,16 @@ def run_blocks(blocks, prepare, finish, *, options=None, quiet=False, unit="bloc
             elif result[0]:
                 bar.write(f"{block.name}: {result[0]}", err=quiet)
         bar.begin(len(blocks), "done")
-    if failed and failed == len(blocks):
-        raise BatchFailed(f"no block could be processed ({failed} failed; see above).")
+    return _exit_status(failed, len(blocks), len(blocks), "block", bar)
+
+
+def _exit_status(failed, total, tried, what, bar):
+    """0 when nothing failed, 1 (and a line on stderr) when some of the
+    ``tried`` failed; :class:`BatchFailed` when every one of ``total`` did."""
+    if failed and failed == total:
+        raise BatchFailed(f"no {what} could be processed ({failed} failed; see above).")
     if failed:
-        bar.write(f"{failed} of {len(blocks)} blocks failed (see above).", err=True)
+        bar.write(f"{failed} of {tried} {what}s failed (see above).", err=True)
     return 1 if failed else 0
 
 

@@ -82,7 +82,7 @@ def iter_inpaint_frames(clip, mask, restored, *, block=DEFAULT_BLOCK, temporal=T
     Yields
     ------
     Progress
-        As :func:`iter_frame_blocks`.
+        As :func:`~car_napari._frames.iter_frame_blocks`.
 
     Returns
     -------
@@ -164,7 +164,7 @@ def iter_descratch_frames(clip, restored, masks=None, *, block=DEFAULT_BLOCK,
     Yields
     ------
     Progress
-        As :func:`iter_frame_blocks`.
+        As :func:`~car_napari._frames.iter_frame_blocks`.
 
     Returns
     -------

@@ -10,6 +10,7 @@ import numpy as np
 
 from .._progress import Progress, drain
 from .._validation import check_real
+from ._candidates import _generate
 from ._images import _as_grey, _block_mean, _grey01, _upsample_mask
 
 __all__ = [
@@ -94,42 +95,10 @@ class MammogramROIs(NamedTuple):
 
 
 def _candidates(grey, labellings, breast, *, split, sigmas, delta, min_area):
-    """Candidate regions on the analysis grid: (mask, area) pairs.
-
-    For every labelling and every segment value: the 4-connected components
-    of the segment after a one-pixel opening; with ``split``, also the
-    components of (segment AND locally bright), locally bright meaning
-    brighter than a breast-normalised Gaussian background of width ``sigma``
-    by ``delta``, for each ``sigma``.
-    """
-    from scipy import ndimage
-
-    cross = ndimage.generate_binary_structure(2, 1)
-    brights = []
-    if split:
-        b = breast.astype(float)
-        fine = ndimage.gaussian_filter(grey, 1.0)
-        for sigma in sigmas:
-            bg = ndimage.gaussian_filter(grey * b, sigma) / np.maximum(
-                ndimage.gaussian_filter(b, sigma), 1e-6)
-            brights.append(fine - bg > delta)
-    out = []
-    for lab in labellings:
-        for v in np.unique(lab):
-            if v == 0:
-                continue
-            seg = lab == v
-            for extra in [None] + brights:
-                m = seg if extra is None else seg & extra
-                m = ndimage.binary_opening(m, structure=cross, iterations=1)
-                cc, k = ndimage.label(m)
-                if k == 0:
-                    continue
-                sizes = np.bincount(cc.ravel())
-                for i, sl in enumerate(ndimage.find_objects(cc), start=1):
-                    if sizes[i] >= min_area:
-                        out.append((cc, i, sl, int(sizes[i])))
-    return out
+    """Candidate regions on the analysis grid: ``(cc, i, slices, area)``
+    tuples, those of :func:`._candidates._generate` without the labelling."""
+    return [(cc, i, sl, area) for cc, i, sl, area, _ in _generate(
+        grey, labellings, breast, split=split, sigmas=sigmas, delta=delta, min_area=min_area)]
 
 
 def _select(rows, max_regions):

@@ -58,7 +58,7 @@ def iter_restore_frames(clip, restored, probability=None, *, block=None, channel
     Yields
     ------
     Progress
-        As :func:`iter_frame_blocks`.
+        As :func:`~car_napari._frames.iter_frame_blocks`.
 
     Returns
     -------
