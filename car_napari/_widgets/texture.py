@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 from magicgui.widgets import CheckBox, ComboBox, Label, SpinBox
 from napari.utils.notifications import show_info
 
@@ -57,6 +58,15 @@ def ask_save_path(parent, start):
 def ask_open_path(parent, start):
     """The open dialog of :func:`ask_model_path` (tests replace it)."""
     return ask_model_path(parent, start, save=False)
+
+
+def _with_limits(job):
+    """``job``'s synthesis and its (min, max), taken in the worker: without
+    contrast limits napari scans a large image on the main thread (0.43 s
+    for a 4000x4000 RGB synthesis)."""
+    synthesis = yield from job
+    lo, hi = float(np.nanmin(synthesis)), float(np.nanmax(synthesis))
+    return synthesis, (lo, hi if hi > lo else lo + 1.0)
 
 
 def _fallback_notes(model):
@@ -179,10 +189,11 @@ class TextureSynthesisWidget(ModelWidget):
         else:
             job = model.iter_synthesize(shape, seed=seed, tileable=bool(self._tileable.value))
         self._target = f"{self._source_name} synthesis", not isinstance(model, TextureModel)
-        return self.run(job, done=self._show)
+        return self.run(_with_limits(job), done=self._show)
 
-    def _show(self, synthesis):
+    def _show(self, result):
         """Show the synthesis (a generator: the job runs it a step per event-loop turn)."""
+        synthesis, limits = result
         name, stacked = self._target
         # a single texture is (H, W[, C]); a BTF or dynamic synthesis has a leading axis
         rgb = synthesis.ndim == (4 if stacked else 3)
@@ -190,8 +201,8 @@ class TextureSynthesisWidget(ModelWidget):
         if name in layers and layers[name].data.shape == synthesis.shape:
             self.record.put(name, synthesis, None)
         else:
-            self.record.replace(name, lambda name: self._viewer.add_image(synthesis, name=name,
-                                                                          rgb=rgb))
+            self.record.replace(name, lambda name: self._viewer.add_image(
+                synthesis, name=name, rgb=rgb, contrast_limits=limits))
         # the layer made or updated in this turn, its first paint (the texture
         # upload, growing with the size) on the next one
         yield

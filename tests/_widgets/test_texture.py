@@ -29,6 +29,9 @@ def test_fit_synthesize_save_and_load(widget, qtbot, tmp_path, last_notification
     qtbot.waitUntil(lambda: job.done, timeout=120000)
     out = viewer.layers["grass synthesis"].data
     assert out.shape == (150, 333, 3) and np.isfinite(out).all()
+    # the display range was taken in the worker: the data's own
+    np.testing.assert_allclose(viewer.layers["grass synthesis"].contrast_limits,
+                               [out.min(), out.max()], rtol=1e-6)
     np.testing.assert_array_equal(layer.data, texture)
     # "Save model..." asks for the file (a save dialog, here answered by the test)
     asked = []
