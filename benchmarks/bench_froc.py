@@ -38,7 +38,6 @@ images).
 from __future__ import annotations
 
 import argparse
-import csv
 import datetime
 import hashlib
 import json
@@ -47,6 +46,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from bench_mammography import load_truth
 from skimage import io
 
 from car_napari._progress import drain
@@ -65,17 +65,6 @@ FOLDS = 5
 RATES = (1.0, 2.0, 3.0)
 SHIPPED = "CAR: grey + shape"
 MIN_RADIUS = 10.0
-
-
-def load_truth():
-    with open(DATA / "ground_truth.csv") as fh:
-        rows = list(csv.DictReader(fh))
-    names = sorted({r["refnum"] for r in rows})
-    masses = {n: [] for n in names}
-    for r in rows:
-        if r["class"] in MASSES and r["col"]:
-            masses[r["refnum"]].append((int(r["row"]), int(r["col"]), int(r["radius"])))
-    return names, masses
 
 
 _FOLDS = {}

@@ -170,11 +170,9 @@ def _rgb_or_grey(image):
     return image
 
 
-def bench_a(table, parts, run):
-    """The real scans. There are two, and the name hash puts both in TUNING,
-    so each scan is split instead: the damaged pixels of its top half are
-    TUNING, those of its bottom half REPORT (one restoration of the whole
-    scan, PSNR on each half's masked pixels)."""
+def _real_scans():
+    """Each real damaged scan: ``(name, damaged, restored by hand, mask, top)``,
+    ``top`` True on the scan's top half (TUNING; the bottom half is REPORT)."""
     for scan in sorted(p for p in (DATA / "film-damage").iterdir() if (p / "mask.png").exists()):
         damaged = io.imread(scan / "damaged.jpg")[..., :3]
         truth = io.imread(scan / "restored_by_hand.jpg")[..., :3]
@@ -183,6 +181,15 @@ def bench_a(table, parts, run):
         mask = resize(m > 127, damaged.shape[:2], order=0, anti_aliasing=False).astype(bool)
         top = np.zeros(mask.shape, bool)
         top[: mask.shape[0] // 2] = True
+        yield scan.name, damaged, truth, mask, top
+
+
+def bench_a(table, parts, run):
+    """The real scans. There are two, and the name hash puts both in TUNING,
+    so each scan is split instead: the damaged pixels of its top half are
+    TUNING, those of its bottom half REPORT (one restoration of the whole
+    scan, PSNR on each half's masked pixels)."""
+    for scan_name, damaged, truth, mask, top in _real_scans():
         halves = {"TUNING": mask & top, "REPORT": mask & ~top}
         line = {part: [] for part in parts}
         for name, fn in run.items():
@@ -194,7 +201,7 @@ def bench_a(table, parts, run):
                 table.setdefault((part, "a real scans", name), []).append((p, seconds))
                 line[part].append(f"{name.split(' (')[0]} {p:.2f}")
         for part in parts:
-            print(f"[{part}] (a) {scan.name} {damaged.shape} mask {100 * mask.mean():.1f} % "
+            print(f"[{part}] (a) {scan_name} {damaged.shape} mask {100 * mask.mean():.1f} % "
                   f"({'top' if part == 'TUNING' else 'bottom'} half): " + ", ".join(line[part]),
                   flush=True)
 
@@ -345,14 +352,7 @@ def tune_halo(frames, configs, part="TUNING"):
             damaged, mask, _ = composite(image, np.random.default_rng(seed), tuning,
                                          soft=kind == "soft")
             cases.append((kind, image, damaged, mask, mask))
-    for scan in sorted(p for p in (DATA / "film-damage").iterdir() if (p / "mask.png").exists()):
-        damaged = io.imread(scan / "damaged.jpg")[..., :3]
-        truth = io.imread(scan / "restored_by_hand.jpg")[..., :3]
-        m = io.imread(scan / "mask.png")
-        m = m[..., 0] if m.ndim == 3 else m
-        mask = resize(m > 127, damaged.shape[:2], order=0, anti_aliasing=False).astype(bool)
-        top = np.zeros(mask.shape, bool)
-        top[: mask.shape[0] // 2] = True
+    for _, damaged, truth, mask, top in _real_scans():
         cases.append(("real", truth, damaged, mask, mask & (top if part == "TUNING" else ~top)))
     for halo, rings, blend in configs:
         _filling.CONDITIONAL_RINGS, _filling.CONDITIONAL_BLEND = rings, blend
