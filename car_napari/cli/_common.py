@@ -193,6 +193,25 @@ def _cluster_results(paths, process, workers, scheduler, bar):
             yield futures[future], future.result()
 
 
+def _worker_config():
+    """The dask config a LocalCluster's workers start under: what distributed
+    does by default and our tasks pay for, off.
+
+    * ``MALLOC_TRIM_THRESHOLD_=65536``, which dask sets in every worker, also
+      fixes glibc's mmap threshold, so every array of more than 128 kB is a
+      fresh mapping whose pages are faulted in and zeroed: on 8 mammograms
+      38.7 s of CPU instead of 29.6 (9 s of it system time) in one process.
+    * The worker's statistical profiler samples every thread's stack every
+      10 ms: 4.5 s of CPU more on 16 mammograms with 2 workers (66.7 s
+      against 62.2)."""
+    import dask
+
+    return dask.config.set({
+        "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,  # None: unset
+        "distributed.worker.profile.enabled": False,
+    })
+
+
 def _client(workers, scheduler):
     """A context giving a dask Client: of ``scheduler``, or of a LocalCluster of
     ``workers`` single-threaded processes (closed on exit)."""
@@ -215,9 +234,10 @@ def _client(workers, scheduler):
         else:
             # one single-threaded process per core: the core's kernels are
             # serial and BLAS is limited to a thread, so N workers use N cores
-            cluster = stack.enter_context(LocalCluster(
-                n_workers=workers, threads_per_worker=1, processes=True,
-                dashboard_address=None))
+            with _worker_config():
+                cluster = stack.enter_context(LocalCluster(
+                    n_workers=workers, threads_per_worker=1, processes=True,
+                    dashboard_address=None))
             client = stack.enter_context(Client(cluster))
     except BaseException:
         stack.close()
