@@ -54,6 +54,9 @@ EDGE_POOL = 4  # pixels: the draws' variance ratio is averaged over the ring wit
 # SOLVE_RECORD_SECONDS while they run (a Cancel returns at the next record;
 # a factorisation running finishes in its thread, its result dropped).
 _FIT_RECORD_PIXELS = 1 << 16
+_ESTIMATE_TILES = 512  # tiles' models estimated between records
+_ASSEMBLE_ROWS = 1 << 15  # rows of the normal equations added between records
+_CSR_PIXELS = 1 << 14  # unknown pixels' entries of the sparse matrix between records
 SOLVE_UNKNOWNS = 1 << 14
 SOLVE_RECORD_SECONDS = 0.25
 _SOLVERS = 2
@@ -90,6 +93,20 @@ def _shifted(arr, di, dj, fill):
     return out
 
 
+def _iter_zero_padded(frame, before, extra):
+    """``frame`` (H, W, d) with ``before`` zero rows and columns before it and
+    ``before + extra`` after (``np.pad``'s result, in a fraction of its time),
+    copied by bands of rows with a record (stage ``"fit"``) between them."""
+    H, W, C = frame.shape
+    out = np.zeros((H + 2 * before + extra, W + 2 * before + extra, C), frame.dtype)
+    rows = max(1, _FIT_RECORD_PIXELS * 16 // max(W, 1))
+    for r0 in range(0, H, rows):
+        r1 = min(r0 + rows, H)
+        out[before + r0 : before + r1, before : before + W] = frame[r0:r1]
+        yield Progress("fit", 0.05, "fitting")
+    return out
+
+
 def _inside(shape, offsets):
     """Pixels ``r`` whose every ``r - s`` lies in the frame."""
     H, W = shape
@@ -98,6 +115,50 @@ def _inside(shape, offsets):
     cols = np.arange(W)[None, :]
     return ((rows >= di.max()) & (rows < H + di.min())
             & (cols >= dj.max()) & (cols < W + dj.min()))
+
+
+def _iter_known_bands(frame, known, message, lo, hi):
+    """The known pixels of ``frame`` (H, W, d) by bands of rows: yields
+    ``(None, band values (n, d))`` per band and a record ``(Progress,
+    None)`` between them (no copy of all the known pixels at once)."""
+    H, W = known.shape
+    rows = max(1, _FIT_RECORD_PIXELS * 16 // max(W, 1))
+    for r0 in range(0, H, rows):
+        yield None, frame[r0 : r0 + rows][known[r0 : r0 + rows]]
+        yield Progress("fit", lo + (hi - lo) * min(r0 + rows, H) / H, message), None
+
+
+def _iter_known_range(frame, known, message):
+    """(lo, hi) per channel of the known pixels, as a job."""
+    C = frame.shape[2]
+    lo, hi = np.full(C, np.inf), np.full(C, -np.inf)
+    for record, values in _iter_known_bands(frame, known, message, 0.0, 1.0):
+        if record is not None:
+            yield record
+        elif len(values):
+            lo, hi = np.minimum(lo, values.min(axis=0)), np.maximum(hi, values.max(axis=0))
+    return lo, hi
+
+
+def _iter_known_variance(frame, known, message, fraction):
+    """The variance per channel of the known pixels (two passes: the mean,
+    then the centred squares), as a job."""
+    C = frame.shape[2]
+    n, total = 0, np.zeros(C)
+    for record, values in _iter_known_bands(frame, known, message, fraction, fraction):
+        if record is not None:
+            yield record
+        else:
+            n += len(values)
+            total += values.sum(axis=0)
+    mean = total / max(n, 1)
+    squares = np.zeros(C)
+    for record, values in _iter_known_bands(frame, known, message, fraction, fraction):
+        if record is not None:
+            yield record
+        else:
+            squares += ((values - mean) ** 2).sum(axis=0)
+    return squares / max(n, 1)
 
 
 def iter_fit_local_models(frame, unknown, offset_sets, *, previous=None, tile=DEFAULT_TILE,
@@ -116,27 +177,38 @@ def iter_fit_local_models(frame, unknown, offset_sets, *, previous=None, tile=DE
         need = np.ones((ty, tx), bool)
     known = ~unknown
     ok = known & _inside((H, W), taps)
-    for di, dj in taps[1:]:
+    for k, (di, dj) in enumerate(taps[1:]):
         ok &= _shifted(known, di, dj, False)
+        if k % 8 == 7:
+            yield Progress("fit", 0.0, "fitting")
     if previous is not None:
         ok &= _inside((H, W), PREVIOUS_OFFSETS)
     n_cols = C * (len(taps) + n_prev)
     m_max = max(C * (len(o) + n_prev) for o in offset_sets)
-    # each needed tile's window: its margin doubled until it holds enough rows
-    integral = np.zeros((H + 1, W + 1), np.int64)
-    integral[1:, 1:] = np.cumsum(np.cumsum(ok, axis=0, dtype=np.int64), axis=1)
+    # each needed tile's window: its margin doubled until it holds enough rows.
+    # Its edges lie on a grid of unit pixels (tile and margin are multiples of
+    # it): the fitting pixels are counted by cells of that grid
+    unit = math.gcd(int(tile), int(margin)) if margin > 0 else 1
+    cy, cx = -(-H // unit), -(-W // unit)
+    cells = np.zeros((cy * unit, cx * unit), bool)
+    cells[:H, :W] = ok
+    cells = cells.reshape(cy, unit, cx, unit).sum(axis=(1, 3), dtype=np.int64)
+    integral = np.zeros((cy + 1, cx + 1), np.int64)
+    integral[1:, 1:] = np.cumsum(np.cumsum(cells, axis=0), axis=1)
+    del cells
     yield Progress("fit", 0.05, "fitting")
     ta, tb = np.nonzero(need)
     grow = np.full(len(ta), int(margin), np.int64)
     while True:
         i0, i1 = np.maximum(ta * tile - grow, 0), np.minimum((ta + 1) * tile + grow, H)
         j0, j1 = np.maximum(tb * tile - grow, 0), np.minimum((tb + 1) * tile + grow, W)
-        n = integral[i1, j1] - integral[i0, j1] - integral[i1, j0] + integral[i0, j0]
+        c0, c1, d0, d1 = i0 // unit, -(-i1 // unit), j0 // unit, -(-j1 // unit)
+        n = integral[c1, d1] - integral[c0, d1] - integral[c1, d0] + integral[c0, d0]
         whole = (i0 == 0) & (j0 == 0) & (i1 == H) & (j1 == W)
         short = (n < _MIN_ROWS_PER_REGRESSOR * (m_max + 1)) & ~whole
         if not short.any():
             break
-        grow[short] = np.maximum(2 * grow[short], 1)
+        grow[short] = np.maximum(2 * grow[short], 1) if unit == 1 else 2 * grow[short]
     g = math.gcd(math.gcd(int(tile), int(grow.min()) if len(grow) else int(tile)),
                  *[int(v) for v in np.unique(grow)]) if len(grow) else int(tile)
     g = max(g, 1)
@@ -144,49 +216,67 @@ def iter_fit_local_models(frame, unknown, offset_sets, *, previous=None, tile=DE
     wanted = np.zeros((by, bx), bool)  # blocks inside some window
     for a0, a1, b0, b1 in zip(i0 // g, -(-i1 // g), j0 // g, -(-j1 // g), strict=True):
         wanted[a0:a1, b0:b1] = True
+    # the statistics are kept for the rows and columns of blocks that hold a
+    # wanted block only (a scratch: a few columns of blocks down the frame);
+    # the others are zero, so the windows' sums over this compressed grid are
+    # their sums over the frame
+    block_rows = np.nonzero(wanted.any(axis=1))[0]
+    block_cols = np.nonzero(wanted.any(axis=0))[0]
     # the raw statistics of every wanted block: pixel count, sums, sums of products
-    padded = np.pad(frame, ((reach, reach + g), (reach, reach + g), (0, 0)))
-    ppad = None if previous is None else np.pad(previous, ((reach, reach + g),
-                                                           (reach, reach + g), (0, 0)))
+    yield Progress("fit", 0.05, "fitting")
+    padded = yield from _iter_zero_padded(frame, reach, g)
+    ppad = None if previous is None else (yield from _iter_zero_padded(previous, reach, g))
     okp = np.zeros((by * g, bx * g), bool)
     okp[:H, :W] = ok
-    count = np.zeros((by, bx))
-    s1 = np.zeros((by, bx, n_cols))
-    s2 = np.zeros((by, bx, n_cols, n_cols))
+    shape = (len(block_rows), len(block_cols))
+    count = np.zeros(shape)
+    s1 = np.zeros((*shape, n_cols))
+    s2 = np.zeros((*shape, n_cols, n_cols))
     taps_all = [(t, padded) for t in taps] + [(t, ppad) for t in PREVIOUS_OFFSETS[:n_prev]]
-    rows_done = 0
-    for a in range(by):
+    pixels_done = 0
+    for row, a in enumerate(block_rows):
         cols = np.nonzero(wanted[a])[0]
-        if not len(cols):
-            continue
+        at = np.searchsorted(block_cols, cols)
         r0 = a * g
-        Z = np.empty((g, bx * g, n_cols))
+        columns = (cols[:, None] * g + np.arange(g)).ravel()  # the wanted blocks' columns
+        nc = len(cols)
+        Z = np.empty((g, nc * g, n_cols))
         for k, ((di, dj), src) in enumerate(taps_all):
             Z[..., k * C : (k + 1) * C] = src[r0 + reach - di : r0 + reach - di + g,
-                                              reach - dj : reach - dj + bx * g]
-        Z *= okp[r0 : r0 + g, :, None]
-        blocks = Z.reshape(g, bx, g, n_cols).transpose(1, 0, 2, 3).reshape(bx, g * g, n_cols)
-        blocks = blocks[cols]
-        count[a, cols] = okp[r0 : r0 + g].reshape(g, bx, g).sum(axis=(0, 2))[cols]
-        s1[a, cols] = blocks.sum(axis=1)
-        s2[a, cols] = np.matmul(blocks.transpose(0, 2, 1), blocks)
-        rows_done += g * W
-        if rows_done >= _FIT_RECORD_PIXELS:
-            rows_done = 0
-            yield Progress("fit", 0.05 + 0.95 * a / by, "fitting")
-    # the window sums (integral images over the blocks) of every needed tile
-    a0, a1, b0, b1 = i0 // g, -(-i1 // g), j0 // g, -(-j1 // g)
+                                              reach - dj + columns]
+        fits = okp[r0 : r0 + g, columns]
+        Z *= fits[..., None]
+        blocks = Z.reshape(g, nc, g, n_cols).transpose(1, 0, 2, 3).reshape(nc, g * g, n_cols)
+        count[row, at] = fits.reshape(g, nc, g).sum(axis=(0, 2))
+        s1[row, at] = blocks.sum(axis=1)
+        s2[row, at] = np.matmul(blocks.transpose(0, 2, 1), blocks)
+        pixels_done += g * g * nc
+        if pixels_done >= _FIT_RECORD_PIXELS:
+            pixels_done = 0
+            yield Progress("fit", 0.05 + 0.75 * (row + 1) / len(block_rows), "fitting")
+    del padded, ppad, okp
+    # the window sums (integral images over the blocks) of every needed tile,
+    # by slices of the statistics' columns, a record between them
+    a0, a1 = (np.searchsorted(block_rows, i0 // g), np.searchsorted(block_rows, -(-i1 // g)))
+    b0, b1 = (np.searchsorted(block_cols, j0 // g), np.searchsorted(block_cols, -(-j1 // g)))
+    step = max(1, _FIT_RECORD_PIXELS * 64 // max(shape[0] * shape[1], 1))
 
-    def window_sums(blocks):
-        integral = np.zeros((by + 1, bx + 1) + blocks.shape[2:])
-        np.cumsum(np.cumsum(blocks, axis=0), axis=1, out=integral[1:, 1:])
-        return integral[a1, b1] - integral[a0, b1] - integral[a1, b0] + integral[a0, b0]
+    def window_sums(blocks, start, stop):
+        flat = blocks.reshape(*shape, math.prod(blocks.shape[2:]))
+        out = np.empty((len(a0), flat.shape[2]))
+        for k in range(0, flat.shape[2], step):
+            part = slice(k, min(k + step, flat.shape[2]))
+            integral = np.zeros((shape[0] + 1, shape[1] + 1, part.stop - part.start))
+            np.cumsum(np.cumsum(flat[..., part], axis=0), axis=1, out=integral[1:, 1:])
+            out[:, part] = (integral[a1, b1] - integral[a0, b1] - integral[a1, b0]
+                            + integral[a0, b0])
+            yield Progress("fit", start + (stop - start) * part.stop / flat.shape[2], "fitting")
+        return out.reshape(len(a0), *blocks.shape[2:])
 
-    N = window_sums(count)
-    S1 = window_sums(s1)
-    V = window_sums(s2)
+    N = (yield from window_sums(count, 0.8, 0.8))
+    S1 = yield from window_sums(s1, 0.8, 0.82)
+    V = yield from window_sums(s2, 0.82, 1.0)
     del s2
-    yield Progress("fit", 1.0, "fitting")
     safe = np.maximum(N, 1)
     mu = S1[:, :C] / safe[:, None]
     centre = np.tile(mu, len(taps))
@@ -196,7 +286,7 @@ def iter_fit_local_models(frame, unknown, offset_sets, *, previous=None, tile=DE
     # V - s m^T - m s^T + n m m^T: the sums of products of the centred rows
     V = (V - S1[:, :, None] * centre[:, None, :] - centre[:, :, None] * S1[:, None, :]
          + N[:, None, None] * centre[:, :, None] * centre[:, None, :])
-    overall_var = frame[known].var(axis=0) + 1e-12
+    overall_var = (yield from _iter_known_variance(frame, known, "estimating", 1.0)) + 1e-12
     ridge = np.diag(1e-6 * overall_var)
     marginal = V[:, :C, :C] / safe[:, None, None] + ridge
     scale = np.trace(marginal, axis1=1, axis2=2) / C
@@ -219,17 +309,21 @@ def iter_fit_local_models(frame, unknown, offset_sets, *, previous=None, tile=DE
         texture = N >= m + 2
         flat = fitted & ~texture  # no texture to learn: independent pixels around the mean
         sigma[ta[flat], tb[flat]] = marginal[flat]
-        if texture.any():
-            order = np.array(cols + list(range(C)))
-            Vd = V[texture][:, order[:, None], order[None, :]]
-            Vd[:, np.arange(m + C), np.arange(m + C)] += (prior * scale[texture])[:, None]
+        order = np.array(cols + list(range(C)))
+        textured = np.nonzero(texture)[0]
+        for start in range(0, len(textured), _ESTIMATE_TILES):  # a record between batches
+            batch = textured[start : start + _ESTIMATE_TILES]
+            Vd = V[batch][:, order[:, None], order[None, :]]
+            Vd[:, np.arange(m + C), np.arange(m + C)] += (prior * scale[batch])[:, None]
             L = np.linalg.cholesky(Vd)
             L11, L21, L22 = L[:, :m, :m], L[:, m:, :m], L[:, m:, m:]
             g_t = np.linalg.solve(L11.transpose(0, 2, 1), L21.transpose(0, 2, 1))
-            gamma[ta[texture], tb[texture]] = g_t.transpose(0, 2, 1)
+            gamma[ta[batch], tb[batch]] = g_t.transpose(0, 2, 1)
             lam = L22 @ L22.transpose(0, 2, 1)
-            dof = np.maximum(N[texture] - m, 1)
-            sigma[ta[texture], tb[texture]] = lam / dof[:, None, None] + ridge
+            dof = np.maximum(N[batch] - m, 1)
+            sigma[ta[batch], tb[batch]] = lam / dof[:, None, None] + ridge
+            if start + _ESTIMATE_TILES < len(textured):
+                yield Progress("fit", 1.0, "estimating")
         results.append((gamma, sigma, marg))
         yield Progress("fit", 1.0, "estimating")
     return [LocalModels(tile, o, gamma, sigma, mean, pmean, marg)
@@ -263,7 +357,7 @@ def _inv_chol(S):
 
 @njit(cache=True, nogil=True)
 def _assemble_kernel(frame, index, offsets, coeffs, pairs, constant, extra, tile, slot_of,
-                     reach2, box, border_G, border_c, probes, seed, Q, rhs, z):
+                     reach2, rows, border, border_G, border_c, probes, state, Q, rhs, z):
     """Add one set of whitened rows ``w_r = sum_k G_k Y_{r - s_k} + c (+
     extra_r)`` (every ``r`` with all taps inside the frame and one of them
     unknown) to the normal equations of the unknown pixels: ``Q[p, slot]
@@ -271,79 +365,29 @@ def _assemble_kernel(frame, index, offsets, coeffs, pairs, constant, extra, tile
     = r - s_l`` (``slot`` the offset ``q - p`` in ``slot_of``), ``rhs[p] -=
     G_k^T (known part of w_r)``, and ``z[p, s] += G_k^T n_{r, s}`` for
     ``probes`` independent random signs ``n_{r, s}`` per channel (so that
-    ``z`` has covariance ``Q``). An unknown pixel without a full row gets
-    ``border_G Y_p + border_c`` (if ``border_G`` has rows). ``box``: the rows
-    (i0, i1, j0, j1) that can touch an unknown pixel."""
+    ``z`` has covariance ``Q``). ``rows`` (n, 2): the pixels ``r`` to visit,
+    in raster order (those within ``reach`` of an unknown pixel: the others
+    touch none); a call may take a part of them, ``state`` (1,) carries the
+    random signs' generator from call to call. With ``border``: instead,
+    an unknown pixel of ``rows`` without a full row gets ``border_G Y_p +
+    border_c``."""
     H, W, C = frame.shape
     K = offsets.shape[0]
-    state = np.uint64(seed) * np.uint64(6364136223846793005) + np.uint64(1442695040888963407)
-    lo_i, hi_i, lo_j, hi_j = max(box[0], 0), min(box[1], H), max(box[2], 0), min(box[3], W)
     in_i, in_j, out_i, out_j = 0, 0, H, W
     for k in range(K):
         in_i = max(in_i, offsets[k, 0])
         out_i = min(out_i, H + offsets[k, 0])
         in_j = max(in_j, offsets[k, 1])
         out_j = min(out_j, W + offsets[k, 1])
-    lo_i, hi_i, lo_j, hi_j = max(lo_i, in_i), min(hi_i, out_i), max(lo_j, in_j), min(hi_j, out_j)
     tap = np.empty(K, np.int64)
     kc = np.empty(C)
     noise = np.empty((probes, C))
     use_extra = extra.shape[0] == H
-    for i in range(lo_i, hi_i):
-        for j in range(lo_j, hi_j):
-            hit = False
-            for k in range(K):
-                tap[k] = index[i - offsets[k, 0], j - offsets[k, 1]]
-                if tap[k] >= 0:
-                    hit = True
-            if not hit:
-                continue
-            ti = i // tile
-            tj = j // tile
-            for a in range(C):
-                kc[a] = constant[ti, tj, a] + (extra[i, j, a] if use_extra else 0.0)
-            for k in range(K):
-                if tap[k] < 0:
-                    pi = i - offsets[k, 0]
-                    pj = j - offsets[k, 1]
-                    for a in range(C):
-                        acc = 0.0
-                        for b in range(C):
-                            acc += coeffs[ti, tj, k, a, b] * frame[pi, pj, b]
-                        kc[a] += acc
-            for s in range(probes):
-                for a in range(C):  # xorshift64: a random sign
-                    state ^= state << np.uint64(13)
-                    state ^= state >> np.uint64(7)
-                    state ^= state << np.uint64(17)
-                    noise[s, a] = 1.0 if (state >> np.uint64(40)) & np.uint64(1) else -1.0
-            for k in range(K):
-                p = tap[k]
-                if p < 0:
-                    continue
-                for a in range(C):
-                    acc = 0.0
-                    for b in range(C):
-                        acc += coeffs[ti, tj, k, b, a] * kc[b]
-                    rhs[p, a] -= acc
-                    for s in range(probes):
-                        acc = 0.0
-                        for b in range(C):
-                            acc += coeffs[ti, tj, k, b, a] * noise[s, b]
-                        z[p, s, a] += acc
-                for k2 in range(K):
-                    if tap[k2] < 0:
-                        continue
-                    slot = slot_of[reach2 + offsets[k, 0] - offsets[k2, 0],
-                                   reach2 + offsets[k, 1] - offsets[k2, 1]]
-                    for a in range(C):
-                        for c in range(C):
-                            Q[p, slot, a, c] += pairs[ti, tj, k, k2, a, c]
-    if border_G.shape[0] == 0:
-        return
-    centre = slot_of[reach2, reach2]
-    for i in range(max(box[0], 0), min(box[1], H)):
-        for j in range(max(box[2], 0), min(box[3], W)):
+    rng = state[0]
+    if border:
+        centre = slot_of[reach2, reach2]
+        for n in range(rows.shape[0]):
+            i, j = rows[n, 0], rows[n, 1]
             p = index[i, j]
             if p < 0 or (in_i <= i < out_i and in_j <= j < out_j):
                 continue
@@ -351,10 +395,10 @@ def _assemble_kernel(frame, index, offsets, coeffs, pairs, constant, extra, tile
             tj = j // tile
             for s in range(probes):
                 for a in range(C):
-                    state ^= state << np.uint64(13)
-                    state ^= state >> np.uint64(7)
-                    state ^= state << np.uint64(17)
-                    noise[s, a] = 1.0 if (state >> np.uint64(40)) & np.uint64(1) else -1.0
+                    rng ^= rng << np.uint64(13)
+                    rng ^= rng >> np.uint64(7)
+                    rng ^= rng << np.uint64(17)
+                    noise[s, a] = 1.0 if (rng >> np.uint64(40)) & np.uint64(1) else -1.0
             for a in range(C):
                 acc = 0.0
                 for b in range(C):
@@ -370,42 +414,106 @@ def _assemble_kernel(frame, index, offsets, coeffs, pairs, constant, extra, tile
                     for b in range(C):
                         acc += border_G[ti, tj, b, a] * border_G[ti, tj, b, c]
                     Q[p, centre, a, c] += acc
+        state[0] = rng
+        return
+    for n in range(rows.shape[0]):
+        i, j = rows[n, 0], rows[n, 1]
+        if not (in_i <= i < out_i and in_j <= j < out_j):
+            continue
+        hit = False
+        for k in range(K):
+            tap[k] = index[i - offsets[k, 0], j - offsets[k, 1]]
+            if tap[k] >= 0:
+                hit = True
+        if not hit:
+            continue
+        ti = i // tile
+        tj = j // tile
+        for a in range(C):
+            kc[a] = constant[ti, tj, a] + (extra[i, j, a] if use_extra else 0.0)
+        for k in range(K):
+            if tap[k] < 0:
+                pi = i - offsets[k, 0]
+                pj = j - offsets[k, 1]
+                for a in range(C):
+                    acc = 0.0
+                    for b in range(C):
+                        acc += coeffs[ti, tj, k, a, b] * frame[pi, pj, b]
+                    kc[a] += acc
+        for s in range(probes):
+            for a in range(C):  # xorshift64: a random sign
+                rng ^= rng << np.uint64(13)
+                rng ^= rng >> np.uint64(7)
+                rng ^= rng << np.uint64(17)
+                noise[s, a] = 1.0 if (rng >> np.uint64(40)) & np.uint64(1) else -1.0
+        for k in range(K):
+            p = tap[k]
+            if p < 0:
+                continue
+            for a in range(C):
+                acc = 0.0
+                for b in range(C):
+                    acc += coeffs[ti, tj, k, b, a] * kc[b]
+                rhs[p, a] -= acc
+                for s in range(probes):
+                    acc = 0.0
+                    for b in range(C):
+                        acc += coeffs[ti, tj, k, b, a] * noise[s, b]
+                    z[p, s, a] += acc
+            for k2 in range(K):
+                if tap[k2] < 0:
+                    continue
+                slot = slot_of[reach2 + offsets[k, 0] - offsets[k2, 0],
+                               reach2 + offsets[k, 1] - offsets[k2, 1]]
+                for a in range(C):
+                    for c in range(C):
+                        Q[p, slot, a, c] += pairs[ti, tj, k, k2, a, c]
+    state[0] = rng
 
 
 @njit(cache=True, nogil=True)
-def _csr_kernel(Q, pixels, index, slots, indptr, indices, data, count_only):
+def _csr_kernel(Q, pixels, index, slots, indptr, indices, data, count_only, start, stop):
     """The CSR pattern (``count_only``: the entries per row into
     ``indptr[1:]``) or the entries of ``Q`` (per unknown pixel, per slot of
     ``slots`` (S, 2) offsets, a C x C block), the unknown pixels (their
     ``pixels`` coordinates) in ``index`` order, blocks that are all zero left
-    out."""
-    n, S, C = Q.shape[0], Q.shape[1], Q.shape[2]
+    out; of the pixels ``start`` to ``stop``."""
+    S, C = Q.shape[1], Q.shape[2]
     H, W = index.shape
-    for p in range(n):
+    columns = np.empty(S, np.int64)  # the pixel's nonzero blocks: their column pixel
+    blocks = np.empty(S, np.int64)  # and slot
+    for p in range(start, stop):
         i, j = pixels[p, 0], pixels[p, 1]
-        for a in range(C):
-            at = indptr[p * C + a]
-            for s in range(S):
-                qi, qj = i + slots[s, 0], j + slots[s, 1]
-                if qi < 0 or qi >= H or qj < 0 or qj >= W:
-                    continue
-                q = index[qi, qj]
-                if q < 0:
-                    continue
-                nonzero = False
-                for b in range(C):
-                    for c in range(C):
-                        if Q[p, s, b, c] != 0.0:
-                            nonzero = True
-                if not nonzero:
-                    continue
+        n = 0
+        for s in range(S):
+            qi, qj = i + slots[s, 0], j + slots[s, 1]
+            if qi < 0 or qi >= H or qj < 0 or qj >= W:
+                continue
+            q = index[qi, qj]
+            if q < 0:
+                continue
+            nonzero = False
+            for b in range(C):
                 for c in range(C):
-                    if not count_only:
-                        indices[at] = q * C + c
-                        data[at] = Q[p, s, a, c]
-                    at += 1
+                    if Q[p, s, b, c] != 0.0:
+                        nonzero = True
+                        break
+                if nonzero:
+                    break
+            if nonzero:
+                columns[n] = q
+                blocks[n] = s
+                n += 1
+        for a in range(C):
             if count_only:
-                indptr[p * C + a + 1] = at - indptr[p * C + a]
+                indptr[p * C + a + 1] = n * C
+                continue
+            at = indptr[p * C + a]
+            for t in range(n):
+                for c in range(C):
+                    indices[at] = columns[t] * C + c
+                    data[at] = Q[p, blocks[t], a, c]
+                    at += 1
 
 
 class _System(NamedTuple):
@@ -422,9 +530,15 @@ class _System(NamedTuple):
     diagonal: np.ndarray  # (n, d, d) the diagonal blocks of Q
 
 
+def _seed_state(seed):
+    """The xorshift64 state of :func:`_assemble_kernel`'s random signs for ``seed``."""
+    return (int(seed) * 6364136223846793005 + 1442695040888963407) % (1 << 64)
+
+
 def _iter_assemble(frame, unknown, row_sets, tile, probes=0, seed=0):
     """The normal equations of the ``unknown`` pixels (a :class:`_System`),
-    as a job: a record (stage ``"assembly"``) after each set of rows."""
+    as a job: a record (stage ``"assembly"``) after each part of a set of
+    rows and of the sparse matrix."""
     H, W, C = frame.shape
     offsets_all = [np.asarray(r[0], np.int64) for r in row_sets]
     reach = max(int(np.abs(o).max()) if len(o) else 0 for o in offsets_all)
@@ -436,7 +550,9 @@ def _iter_assemble(frame, unknown, row_sets, tile, probes=0, seed=0):
                                         iterations=reach)
     else:
         grown = unknown
+    yield Progress("assembly", 0.0, "assembling")
     labels, n_groups = ndimage.label(grown, structure=np.ones((3, 3), bool))
+    yield Progress("assembly", 0.0, "assembling")
     ui, uj = np.nonzero(unknown)
     lab = labels[ui, uj]
     order = np.argsort(lab, kind="stable")  # row-major within a group
@@ -451,12 +567,19 @@ def _iter_assemble(frame, unknown, row_sets, tile, probes=0, seed=0):
     slots = np.array(diffs, np.int64)
     slot_of = np.full((2 * reach2 + 1, 2 * reach2 + 1), -1, np.int64)
     slot_of[slots[:, 0] + reach2, slots[:, 1] + reach2] = np.arange(len(slots))
-    box = np.array([ui.min() - reach, ui.max() + reach + 1, uj.min() - reach,
-                    uj.max() + reach + 1] if n_u else [0, 0, 0, 0], np.int64)
+    del labels
+    yield Progress("assembly", 0.0, "assembling")
+    rows = np.stack(np.nonzero(grown), axis=1).astype(np.int64)  # raster order
+    del grown
     Q = np.zeros((n_u, len(slots), C, C))
     rhs = np.zeros((n_u, C))
     z = np.zeros((n_u, probes, C))
     frame = np.ascontiguousarray(frame, np.float64)
+    parts = [(a, min(a + _ASSEMBLE_ROWS, len(rows))) for a in range(0, len(rows), _ASSEMBLE_ROWS)]
+    csr_parts = range(0, n_u, _CSR_PIXELS)
+    steps = (sum(2 if r[4] is not None else 1 for r in row_sets) * len(parts)
+             + 2 * len(csr_parts) + 1)
+    done = 0
     for number, (offsets, coeffs, constant, extra, border) in enumerate(row_sets):
         coeffs = np.ascontiguousarray(coeffs, np.float64)
         constant = np.ascontiguousarray(constant, np.float64)
@@ -466,17 +589,30 @@ def _iter_assemble(frame, unknown, row_sets, tile, probes=0, seed=0):
         else:
             bG, bc = (np.ascontiguousarray(b, np.float64) for b in border)
         pairs = np.ascontiguousarray(np.einsum("tukba,tulbc->tuklac", coeffs, coeffs))
-        _assemble_kernel(frame, index, np.ascontiguousarray(offsets, np.int64), coeffs, pairs,
-                         constant, extra, int(tile), slot_of, reach2, box, bG, bc,
-                         int(probes), 1 + 7919 * int(seed) + number, Q, rhs, z)
-        yield Progress("assembly", (number + 1) / (len(row_sets) + 1), "assembling")
+        offsets = np.ascontiguousarray(offsets, np.int64)
+        # xorshift64's state, seeded per set of rows, carried from part to part
+        state = np.array([_seed_state(1 + 7919 * int(seed) + number)], np.uint64)
+        for phase in (False, True) if border is not None else (False,):
+            for a, b in parts:
+                _assemble_kernel(frame, index, offsets, coeffs, pairs, constant, extra,
+                                 int(tile), slot_of, reach2, rows[a:b], phase, bG, bc,
+                                 int(probes), state, Q, rhs, z)
+                done += 1
+                yield Progress("assembly", done / steps, "assembling")
     pixels = np.stack([ui, uj], axis=1).astype(np.int64)
     indptr = np.zeros(n_u * C + 1, np.int64)
-    _csr_kernel(Q, pixels, index, slots, indptr, np.zeros(0, np.int64), np.zeros(0), True)
-    np.cumsum(indptr, out=indptr)
-    indices = np.empty(indptr[-1], np.int64)
-    data = np.empty(indptr[-1])
-    _csr_kernel(Q, pixels, index, slots, indptr, indices, data, False)
+    for count_only in (True, False):
+        if not count_only:
+            np.cumsum(indptr, out=indptr)
+            indices = np.empty(indptr[-1], np.int64)
+            data = np.empty(indptr[-1])
+        else:
+            indices, data = np.zeros(0, np.int64), np.zeros(0)
+        for a in csr_parts:
+            _csr_kernel(Q, pixels, index, slots, indptr, indices, data, count_only, a,
+                        min(a + _CSR_PIXELS, n_u))
+            done += 1
+            yield Progress("assembly", done / steps, "assembling")
     Qm = sparse.csr_matrix((data, indices, indptr), shape=(n_u * C, n_u * C))
     return _System(Qm, rhs, z, groups, pixels, Q[:, slot_of[reach2, reach2]].copy())
 
@@ -585,18 +721,26 @@ def stencil_solve(frame, unknown, row_sets, tile):
     return drain(iter_stencil_solve(frame, unknown, row_sets, tile))[0]
 
 
+def _row_set(model, previous):
+    """The rows of :func:`stencil_solve` of one :class:`LocalModels`."""
+    offsets, coeffs, constant, border, Linv = model_rows(model)
+    extra = None if previous is None else _previous_term(model, previous, Linv)
+    return offsets, coeffs, constant, extra, border
+
+
 def _row_sets(frame, models, previous):
-    row_sets = []
-    for model in models:
-        offsets, coeffs, constant, border, Linv = model_rows(model)
-        extra = None if previous is None else _previous_term(model, previous, Linv)
-        row_sets.append((offsets, coeffs, constant, extra, border))
-    return row_sets
+    return [_row_set(model, previous) for model in models]
 
 
 def edge_statistics(frame, trial, damage, ring, draws, diagonal):
-    """The edge test's statistics of the ``ring`` pixels (known, bordering the
-    ``damage``): ``(alpha, chi2)`` per ring pixel in ``np.nonzero(ring)`` order.
+    """:func:`iter_edge_statistics` run to its end."""
+    return drain(iter_edge_statistics(frame, trial, damage, ring, draws, diagonal))
+
+
+def iter_edge_statistics(frame, trial, damage, ring, draws, diagonal):
+    """The edge test's statistics of the ``ring`` pixels (known, bordering
+    the ``damage``): ``(alpha, chi2)`` per ring pixel in ``np.nonzero(ring)``
+    order, as a job (a record between its passes over the frame).
 
     ``trial`` is the frame with the damage and the ring both replaced by
     their conditional mean given the rest, so that neither sees the other.
@@ -631,9 +775,12 @@ def edge_statistics(frame, trial, damage, ring, draws, diagonal):
     spread = np.zeros((H, W))
     spread[bi, bj] = kappa
     size = 2 * EDGE_POOL + 1
-    pooled = (ndimage.uniform_filter(spread, size, mode="constant")
-              / np.maximum(ndimage.uniform_filter(ring.astype(float), size, mode="constant"),
-                           1e-12))[bi, bj]
+    yield Progress("frames", 0.0, "edge test")
+    pooled = ndimage.uniform_filter(spread, size, mode="constant")[bi, bj]
+    del spread
+    yield Progress("frames", 0.0, "edge test")
+    pooled /= np.maximum(ndimage.uniform_filter(ring.astype(float), size, mode="constant")[bi, bj],
+                         1e-12)
     QD = np.einsum("nab,nb->na", diagonal, D) / pooled[:, None]  # S^-1 D
     dqd = np.maximum((QD * D).sum(axis=1), 1e-300)
     proj = (QD * e).sum(axis=1)
@@ -725,21 +872,30 @@ def iter_fill_conditional(frame, mask, *, order=3, directions=DIRECTIONS, previo
     coupled groups of pixels (run in threads, a record every
     :data:`SOLVE_RECORD_SECONDS` while one runs)."""
     base = causal_neighbourhood(order) if np.ndim(order) == 0 else np.asarray(order)
+    preparing = f"{message}, preparing"
+    rings = halo_rings if halo is not None else 0
+    steps = 2 + rings
+    prepared = 0.02 / steps  # the share of the work before the fit
     if isinstance(fill_range, str):
-        known_values = frame[~mask]
-        fill_range = known_values.min(axis=0), known_values.max(axis=0)
+        fill_range = yield from stage(_iter_known_range(frame, ~mask, preparing), 0.0,
+                                      prepared / 2, name="frames")
     # the fit leaves out the ring around the damage: soft edges stay out of the model
     fit_out = ndimage.binary_dilation(mask, structure=_CROSS)
-    rings = halo_rings if halo is not None else 0
-    need = _tiles_needed(ndimage.binary_dilation(mask, structure=_CROSS, iterations=1 + rings),
-                         np.vstack([base, -base, base[:, ::-1], -base[:, ::-1]]), tile)
-    steps = 2 + rings
+    yield Progress("frames", 0.7 * prepared, preparing)
+    near = ndimage.binary_dilation(mask, structure=_CROSS, iterations=1 + rings)
+    yield Progress("frames", 0.8 * prepared, preparing)
+    need = _tiles_needed(near, np.vstack([base, -base, base[:, ::-1], -base[:, ::-1]]), tile)
+    del near
+    yield Progress("frames", prepared, preparing)
     models = yield from stage(
         iter_fit_local_models(frame, fit_out, [direction_offsets(base, d) for d in directions],
                               previous=previous, tile=tile, margin=margin, need=need),
-        0.0, 1 / steps, name="frames", prefix=f"{message}, ")
+        prepared, 1 / steps, name="frames", prefix=f"{message}, ")
     yield Progress("frames", 1 / steps, f"{message}, models fitted")
-    row_sets = _row_sets(frame, models, previous)
+    row_sets = []
+    for model in models:
+        row_sets.append(_row_set(model, previous))
+        yield Progress("frames", 1 / steps, f"{message}, models fitted")
     damage = mask.copy()
     for ring_number in range(rings):
         ring = ndimage.binary_dilation(damage, structure=_CROSS) & ~damage
@@ -753,8 +909,12 @@ def iter_fill_conditional(frame, mask, *, order=3, directions=DIRECTIONS, previo
         trial = frame.copy()
         trial[both] = values
         on_ring = ring[both]
-        alpha, chi2 = edge_statistics(frame, trial, damage, ring, draws[on_ring],
-                                      diagonal[on_ring])
+        yield Progress("frames", (2 + ring_number) / steps, f"{message}, edge test")
+        alpha, chi2 = yield from stage(
+            iter_edge_statistics(frame, trial, damage, ring, draws[on_ring], diagonal[on_ring]),
+            (2 + ring_number) / steps, (2 + ring_number) / steps, name="frames",
+            prefix=f"{message}, ")
+        del trial
         bad = (alpha > halo_blend) & (-0.5 * chi2 < halo)
         yield Progress("frames", (2 + ring_number) / steps, f"{message}, edge test")
         if not bad.any():
