@@ -305,3 +305,22 @@ def test_decimation_keeps_every_fth_pixel():
     np.testing.assert_array_equal(small, image[::2, ::2])
     same, one = restoration_widget._decimated(image, budget=70)
     assert one == 1 and same is image
+
+
+@pytest.mark.parametrize("kappa", [None, 0.0, 0.4])
+def test_display_by_bands_is_the_whole_result_as_shown(monkeypatch, kappa):
+    """The result turned into layer data by bands of rows (a record between
+    them, so that a Cancel need not wait) equals the whole conversion."""
+    from car_napari._progress import drain
+    from car_napari.restoration import restore
+
+    monkeypatch.setattr(restoration_widget, "DISPLAY_ROWS", 7)
+    rgb = np.stack([noisy_camera(40)] * 3, axis=-1)
+    result = restore(rgb, channel_axis=-1, return_result=True)
+    records = []
+    restored, changed, probability = drain(
+        restoration_widget._iter_recut(result, kappa, True, True), records.append)
+    assert len(records) == 6  # ceil(40 / 7) bands
+    np.testing.assert_array_equal(restored, result.restored(kappa).astype(np.float32))
+    np.testing.assert_array_equal(changed, result.changed(kappa).astype(np.uint8))
+    np.testing.assert_array_equal(probability, result.probability.astype(np.float32))
