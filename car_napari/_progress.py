@@ -22,7 +22,7 @@ from typing import Any
 
 from ._threads import limited_blas
 
-__all__ = ["Progress", "drain", "stage"]
+__all__ = ["Progress", "drain", "side_by_side", "stage"]
 
 
 @dataclass(frozen=True)
@@ -151,3 +151,86 @@ def stage(job, start, stop, *, name=None, prefix=""):
             prefix + record.message,
             record.preview,
         )
+
+
+def side_by_side(jobs, pool):
+    """Run jobs side by side, each stepped to its next record in a thread of
+    ``pool``: their records, as they come, then the list of their results.
+
+    Use as ``results = yield from side_by_side([iter_a(...), iter_b(...)], pool)``.
+    The jobs gain where their work between records releases the GIL (Numba
+    ``nogil`` kernels, NumPy); they must not share state they write. Closing
+    early lets each job's running step end (a record's work) and closes them.
+
+    Parameters
+    ----------
+    jobs : list of generator
+        ``iter_<name>(...)`` generators.
+    pool : concurrent.futures.Executor or None
+        Threads to run them on; None: one after the other, here.
+
+    Yields
+    ------
+    record : Progress
+        The jobs' records as they come, a fraction that would fall (a record
+        made before one that came first) raised to the one before it.
+
+    Returns
+    -------
+    results : list
+        The jobs' return values, in the order of ``jobs``.
+
+    Examples
+    --------
+    >>> from concurrent.futures import ThreadPoolExecutor
+    >>> def count(n):
+    ...     for k in range(n):
+    ...         yield Progress("count", (k + 1) / n)
+    ...     return n
+    >>> with ThreadPoolExecutor(2) as pool:
+    ...     records = []
+    ...     drain(side_by_side([count(2), count(3)], pool), records.append)
+    ...     len(records)
+    [2, 3]
+    5
+    """
+    from concurrent.futures import FIRST_COMPLETED, wait
+    from dataclasses import replace
+
+
+    jobs = list(jobs)
+    results = [None] * len(jobs)
+    if pool is None:
+        for k, job in enumerate(jobs):
+            results[k] = yield from job
+        return results
+
+    def step(job):
+        try:
+            return False, next(job)
+        except StopIteration as stop:
+            return True, stop.value
+
+    pending = {}
+    highest = -float("inf")
+    try:
+        for k, job in enumerate(jobs):
+            pending[pool.submit(step, job)] = k
+        while pending:
+            done, _ = wait(list(pending), return_when=FIRST_COMPLETED)
+            for future in sorted(done, key=pending.get):
+                k = pending.pop(future)
+                finished, value = future.result()
+                if finished:
+                    results[k] = value
+                    continue
+                pending[pool.submit(step, jobs[k])] = k
+                if value.fraction < highest:  # made before one that came first
+                    value = replace(value, fraction=highest)
+                highest = value.fraction
+                yield value
+    finally:  # a job can be closed only once its running step has returned
+        wait(list(pending))
+        for job in jobs:
+            job.close()
+    return results

@@ -18,12 +18,15 @@ is ~0.1 s with a yield after it.
 from __future__ import annotations
 
 import math
+import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
 from .._docstrings import shared_parameters
-from .._progress import Progress, drain, stage
+from .._progress import Progress, drain, side_by_side, stage
+from .._threads import usable_cpus
 from .._validation import check_not_constant, summarize
 from ..model.blocks import iter_channel_last_float, row_ranges
 from ..model.directions import DIRECTIONS, scan_view
@@ -59,17 +62,21 @@ class _Work:
         self.total = max(float(total), 1.0)
         self.done = 0.0
         self.pending = 0.0
-        self.clock = time.thread_time()
+        self._lock = threading.Lock()  # two scans side by side step it
+        self._clocks = {}  # each thread's CPU time at its last record
 
     def step(self, work, message, force=False):
-        self.done += work
-        self.pending += work
-        now = time.thread_time()
-        if force or self.pending >= _YIELD_WORK or now - self.clock >= _YIELD_CPU:
-            self.pending = 0.0
-            self.clock = now
-            return Progress("features", min(self.done / self.total, 1.0), message)
-        return None
+        thread = threading.get_ident()
+        now = time.thread_time()  # this thread's
+        with self._lock:
+            self.done += work
+            self.pending += work
+            since = now - self._clocks.setdefault(thread, now)
+            if force or self.pending >= _YIELD_WORK or since >= _YIELD_CPU:
+                self.pending = 0.0
+                self._clocks[thread] = now
+                return Progress("features", min(self.done / self.total, 1.0), message)
+            return None
 
 
 def iter_pseudo_colour(grey, gammas=(0.5, 2.0)):
@@ -350,16 +357,16 @@ def _pca_fit(S, n_components):
 
 
 def _iter_direction(centred, ctx, var, *, forgetting, direction, lag, clip, components,
-                    rng, reduced, err, work, message):
+                    pca_index, reduced, err, work, message):
     """One directional scan's reduced parameters into ``reduced`` (hm, wm, c)
-    and, with ``err``, its share of the prediction-error energy: two streamed
-    passes (samples, then projection). Yields the work's records."""
+    and, with ``err``, its share of the prediction-error energy added: two
+    streamed passes (samples, the PCA's at ``pca_index``, then projection).
+    Yields the work's records."""
     hm, wm = centred.shape[:2]
     n = hm * wm
     ws = wm if direction in ("down", "up") else hm
     shift = min(lag, ws // 4) if lag > 0 else 0
     cols = np.minimum(np.arange(ws) + shift, ws - 1)
-    pca_index = rng.choice(n, size=min(_SAMPLE, n), replace=False)
     robust_index = np.arange(0, n, max(1, n // _ROBUST_SAMPLE))
     view_err = None if err is None else scan_view(err, direction)
     view_centred = scan_view(centred, direction)
@@ -405,6 +412,7 @@ def _iter_direction(centred, ctx, var, *, forgetting, direction, lag, clip, comp
         rec = work.step(per_row * (stop - start), f"{message} (2/2), rows {stop}/{rows}")
         if rec:
             yield rec
+    yield work.step(0.0, message, force=True)  # one record after each scan
 
 
 _FEATURE_PARAMETERS = """
@@ -527,8 +535,9 @@ def iter_local_features(
     >>> import numpy as np
     >>> from car_napari.segmentation import iter_local_features
     >>> job = iter_local_features(np.random.default_rng(0).random((32, 32)), levels=1)
-    >>> [record.message for record in job][:2]
-    ['level 1/1', 'level 1/1: down scan']
+    >>> messages = [record.message for record in job]
+    >>> messages[0], sorted(m[11:] for m in messages if m.endswith(" scan"))
+    ('level 1/1', ['down scan', 'left scan', 'right scan', 'up scan'])
     """
     # the float copy by blocks (a large image yields on the way, at 0 %: a
     # small part of the work, and the plan needs its shape)
@@ -557,80 +566,104 @@ def iter_local_features(
     yield Progress("features", 0.0, f"level 1/{levels}")
     level = data
     del data
-    for m in range(levels):
-        label = f"level {m + 1}/{levels}"
-        hm, wm = level.shape[:2]
-        sig = smoothing if level_smoothing == "same" else smoothing / 2**m
-        msig = mean_smoothing if level_smoothing == "same" else mean_smoothing / 2**m
-        if decorrelate:
-            centred = yield from _iter_whiten_channels(level, work, f"{label}: decorrelating")
-        else:
-            centred = level.copy()
-        source_summary = summarize(centred)
-        rec = work.step(_NS_VALUE * hm * wm * d / 2, f"{label}: centring")
-        if rec:
-            yield rec
-        for start, stop in _long_blocks(hm * wm):
-            centred.reshape(-1, d)[start:stop] -= source_summary.mean
-            rec = work.step(_NS_VALUE * (stop - start) * d, f"{label}: centring")
-            if rec:
-                yield rec
-        reduced = np.empty((hm, wm, len(DIRECTIONS) * components), np.float32)
-        err = np.zeros((hm, wm)) if energy else None
-        for k, direction in enumerate(DIRECTIONS):
-            yield from _iter_direction(
-                centred, ctx, source_summary.var, forgetting=forgetting, direction=direction,
-                lag=lag, clip=clip, components=components, rng=rng,
-                reduced=reduced[..., k * components : (k + 1) * components], err=err,
-                work=work, message=f"{label}: {direction} scan")
-            yield work.step(0.0, f"{label}: {direction} scan", force=True)
-        del centred
-        # (in this order, so that the least is alive at once)
-        current = level
-        if m + 1 < levels:
-            level = yield from _iter_pyramid_reduce(current, work, f"{label}: next level")
-        # the stacked directional parameters, smoothed, reduced by PCA
-        if sig > 0:
-            for c in range(reduced.shape[2]):
-                yield from _iter_gaussian(reduced[..., c], sig, work, f"{label}: smoothing")
-        flat = reduced.reshape(hm * wm, -1)
-        idx = rng.choice(flat.shape[0], size=min(_SAMPLE, flat.shape[0]), replace=False)
-        mean, axes = _pca_fit(flat[idx].astype(np.float64), components + 1)
-        if m == 0:
-            result = buffer[h * w * (n_feats - per_level):].reshape(h, w, per_level)
-        else:
-            result = np.empty((hm, wm, per_level), np.float32)
-        out_flat = result.reshape(hm * wm, per_level)
-        for start, stop in _long_blocks(hm * wm):
-            out_flat[start:stop, : components + 1] = (flat[start:stop] - mean) @ axes
-            rec = work.step(_NS_VALUE * flat.shape[1] * (stop - start), f"{label}: reducing")
-            if rec:
-                yield rec
-        del reduced, flat
-        if energy:
-            # the local models' prediction-error energy (their Sigma), log scale
-            if sig > 0:
-                yield from _iter_gaussian(err, sig, work, f"{label}: energy")
-            floor = 1e-6 * float(np.mean(source_summary.var))
-            for start, stop in row_ranges(hm, wm):
-                result[start:stop, :, components + 1] = np.log(err[start:stop] + floor)
-            del err
-        # the local mean spectrum
-        plane = np.empty((hm, wm))
-        for c in range(d):
-            if msig > 0:
-                yield from _iter_gaussian(current[..., c], msig, work, f"{label}: local mean",
-                                          out=plane)
+    # the directional scans two at a time where two cores are there to take them
+    pool = ThreadPoolExecutor(2) if usable_cpus() >= 2 else None
+    try:
+        for m in range(levels):
+            label = f"level {m + 1}/{levels}"
+            hm, wm = level.shape[:2]
+            sig = smoothing if level_smoothing == "same" else smoothing / 2**m
+            msig = mean_smoothing if level_smoothing == "same" else mean_smoothing / 2**m
+            if decorrelate:
+                centred = yield from _iter_whiten_channels(level, work, f"{label}: decorrelating")
             else:
-                plane[...] = current[..., c]
-            result[..., per_level - d + c] = plane
-        del plane, current
-        level_results.append(result)
-        if m + 1 < levels:
-            yield work.step(0.0, f"{label} done", force=True)
+                centred = level.copy()
+            source_summary = summarize(centred)
+            rec = work.step(_NS_VALUE * hm * wm * d / 2, f"{label}: centring")
+            if rec:
+                yield rec
+            for start, stop in _long_blocks(hm * wm):
+                centred.reshape(-1, d)[start:stop] -= source_summary.mean
+                rec = work.step(_NS_VALUE * (stop - start) * d, f"{label}: centring")
+                if rec:
+                    yield rec
+            reduced = np.empty((hm, wm, len(DIRECTIONS) * components), np.float32)
+            err = np.zeros((hm, wm)) if energy else None
+            # the PCA samples drawn in the directions' order, whatever runs when
+            samples = [rng.choice(hm * wm, size=min(_SAMPLE, hm * wm), replace=False)
+                       for _ in DIRECTIONS]
+            # two directions side by side (their kernels release the GIL); the
+            # second adds its energy into a buffer of its own, added after it, so
+            # that the sum is the one of the directions in turn
+            spare = np.zeros((hm, wm)) if energy and pool is not None else None
+            for group in _direction_groups(pool):
+                jobs = [_iter_direction(
+                    centred, ctx, source_summary.var, forgetting=forgetting,
+                    direction=DIRECTIONS[k], lag=lag, clip=clip, components=components,
+                    pca_index=samples[k],
+                    reduced=reduced[..., k * components : (k + 1) * components],
+                    err=spare if (energy and place) else err, work=work,
+                    message=f"{label}: {DIRECTIONS[k]} scan") for place, k in enumerate(group)]
+                yield from side_by_side(jobs, pool)
+                if spare is not None and len(group) > 1:
+                    err += spare
+                    spare[...] = 0.0
+            del centred, spare
+            # (in this order, so that the least is alive at once)
+            current = level
+            if m + 1 < levels:
+                level = yield from _iter_pyramid_reduce(current, work, f"{label}: next level")
+            # the stacked directional parameters, smoothed, reduced by PCA
+            if sig > 0:
+                for c in range(reduced.shape[2]):
+                    yield from _iter_gaussian(reduced[..., c], sig, work, f"{label}: smoothing")
+            flat = reduced.reshape(hm * wm, -1)
+            idx = rng.choice(flat.shape[0], size=min(_SAMPLE, flat.shape[0]), replace=False)
+            mean, axes = _pca_fit(flat[idx].astype(np.float64), components + 1)
+            if m == 0:
+                result = buffer[h * w * (n_feats - per_level):].reshape(h, w, per_level)
+            else:
+                result = np.empty((hm, wm, per_level), np.float32)
+            out_flat = result.reshape(hm * wm, per_level)
+            for start, stop in _long_blocks(hm * wm):
+                out_flat[start:stop, : components + 1] = (flat[start:stop] - mean) @ axes
+                rec = work.step(_NS_VALUE * flat.shape[1] * (stop - start), f"{label}: reducing")
+                if rec:
+                    yield rec
+            del reduced, flat
+            if energy:
+                # the local models' prediction-error energy (their Sigma), log scale
+                if sig > 0:
+                    yield from _iter_gaussian(err, sig, work, f"{label}: energy")
+                floor = 1e-6 * float(np.mean(source_summary.var))
+                for start, stop in row_ranges(hm, wm):
+                    result[start:stop, :, components + 1] = np.log(err[start:stop] + floor)
+                del err
+            # the local mean spectrum
+            plane = np.empty((hm, wm))
+            for c in range(d):
+                if msig > 0:
+                    yield from _iter_gaussian(current[..., c], msig, work, f"{label}: local mean",
+                                              out=plane)
+                else:
+                    plane[...] = current[..., c]
+                result[..., per_level - d + c] = plane
+            del plane, current
+            level_results.append(result)
+            if m + 1 < levels:
+                yield work.step(0.0, f"{label} done", force=True)
+    finally:
+        if pool is not None:
+            pool.shutdown(wait=False, cancel_futures=True)
     theta = yield from _iter_assemble(buffer, level_results, (h, w), work)
     yield Progress("features", 1.0, f"level {levels}/{levels} done")
     return theta
+
+
+def _direction_groups(pool):
+    """The directions' indices, run a group at a time: pairs on a pool, else one by one."""
+    k = range(len(DIRECTIONS))
+    return [k[:2], k[2:]] if pool is not None else [[i] for i in k]
 
 
 def _iter_assemble(buffer, level_results, shape, work):

@@ -266,7 +266,9 @@ def test_memory_is_bounded():
     # pixel. Now: the result (72 bytes per pixel here, allocated from the start:
     # tracemalloc counts it whole, its pages are touched only as they fill), and
     # on the full-resolution level the data, its whitened copy, the energy (8
-    # each) and the 12 directional parameters (48), plus buffers of fixed size.
+    # each) and the 12 directional parameters (48), plus buffers of fixed size;
+    # two scans side by side: a second energy buffer (8) and a second scan's
+    # buffers (measured: +23 MB at 768^2, +38 MB at 1536^2).
     image = np.random.default_rng(0).random((768, 768))
     local_features(image[:64, :64], levels=1)  # kernels loaded
     tracemalloc.start()
@@ -277,7 +279,7 @@ def test_memory_is_bounded():
         tracemalloc.stop()
     assert features.nbytes / image.size == 72
     extra = peak - features.nbytes
-    assert extra < 80 * image.size + 30e6, extra / image.size
+    assert extra < 88 * image.size + 50e6, extra / image.size
 
 
 # --- quality on real grey textures (issue 14) ------------------------------------------
