@@ -68,6 +68,13 @@ Inputs, made once from real data and cached in ``--cache`` (``.npy``):
   nearest-neighbour): scratch detection, and restoration with that mask as a
   Labels layer.
 
+Before the table, one more fresh process measures napari's own floor with
+no plugin docked: the longest pause when a layer like a large image's preview
+(1000x1000 RGB float32 at scale 4) is added over the input, and when it is
+removed (napari 0.9 runs a full ``gc.collect()`` on every removal). Any
+widget that shows a result in a new layer, or undoes one on Cancel, meets
+these pauses; they are printed below the table.
+
 A child that exceeds ``--mem-limit`` GB is killed (the row says so); one whose
 worker is still running ``--cancel-timeout`` s after the click reports
 ``> timeout``.
@@ -594,6 +601,39 @@ def child(args):
     os._exit(0)  # a worker that would not stop dies with the process
 
 
+def floor_child(args):
+    """napari's own cost, no plugin docked: the longest event-loop pause when
+    a layer like a preview (1000x1000 RGB float32 at scale 4) is added over
+    the large input, and when it is removed (napari runs a full
+    ``gc.collect()`` on every removal). Printed as ``RESULT`` JSON."""
+    import napari
+
+    viewer = napari.Viewer(show=True)
+    viewer.add_image(np.load(Path(args.inputs) / "mosaic.npy"), name="mosaic", rgb=True)
+    settle()
+    out = {"key": "floor", "title": "napari itself: add / remove a layer"}
+    add, remove = [], []
+    for _ in range(4):
+        data = np.random.default_rng(0).random((1000, 1000, 3), np.float32)
+        for action, pauses in ((lambda data=data: viewer.add_image(
+                                    data, name="preview", rgb=True, scale=(4, 4),
+                                    contrast_limits=(0.0, 1.0)), add),
+                               (lambda: viewer.layers.remove("preview"), remove)):
+            from qtpy.QtCore import QTimer
+
+            monitor = EventLoopMonitor()
+            monitor.start()
+            run_until(lambda: False, 0.1)
+            QTimer.singleShot(0, action)
+            run_until(lambda: False, 0.5)
+            monitor.stop()
+            pauses.append(monitor.longest_ms())
+    out["add_ms"] = [round(p, 1) for p in add[1:]]  # the first add compiles shaders
+    out["remove_ms"] = [round(p, 1) for p in remove[1:]]
+    print("RESULT " + json.dumps(out), flush=True)
+    os._exit(0)
+
+
 # --- the parent --------------------------------------------------------------------------
 
 def run_child(case, args, inputs, cancel_after):
@@ -700,6 +740,8 @@ def main(argv=None):
     parser.add_argument("--child", default=None, help=argparse.SUPPRESS)
     parser.add_argument("--inputs", default=None, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
+    if args.child == "floor":
+        return floor_child(args)
     if args.child:
         args.cancel_after = float(args.cancel_after)
         return child(args)
@@ -727,9 +769,16 @@ def main(argv=None):
             results.append(result)
     mode = ("run to completion" if args.complete
             else f"Cancel clicked after {', '.join(f'{t:g}' for t in delays)} s")
+    floor = run_child(Case("floor", "napari itself", "", "", ""), args, inputs, 0)
+    print(f"  napari itself: {json.dumps(floor)}", file=sys.stderr, flush=True)
     print(f"\nGUI benchmark, {size}x{size} (mammogram {1024 * max(1, round(size / 1000))}"
           f"x{1024 * max(1, round(size / 1000))} grey), {mode}, {os.cpu_count()} cores\n")
     print(table(results, args))
+    if "add_ms" in floor:
+        print(f"\nnapari's own floor in the same run (no plugin docked; a 1000x1000 RGB float32 "
+              f"layer over the input): longest pause adding a layer "
+              f"{min(floor['add_ms']):.0f}-{max(floor['add_ms']):.0f} ms, removing it "
+              f"{min(floor['remove_ms']):.0f}-{max(floor['remove_ms']):.0f} ms.")
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=1))
     return 0
