@@ -614,9 +614,12 @@ def iter_local_features(
             if m + 1 < levels:
                 level = yield from _iter_pyramid_reduce(current, work, f"{label}: next level")
             # the stacked directional parameters, smoothed, reduced by PCA
-            if sig > 0:
-                for c in range(reduced.shape[2]):
-                    yield from _iter_gaussian(reduced[..., c], sig, work, f"{label}: smoothing")
+            if sig > 0:  # the planes two at a time (ndimage releases the GIL)
+                jobs = [_iter_gaussian(reduced[..., c], sig, work, f"{label}: smoothing")
+                        for c in range(reduced.shape[2])]
+                side = 2 if pool is not None else 1
+                for k in range(0, len(jobs), side):
+                    yield from side_by_side(jobs[k : k + side], pool)
             flat = reduced.reshape(hm * wm, -1)
             idx = rng.choice(flat.shape[0], size=min(_SAMPLE, flat.shape[0]), replace=False)
             mean, axes = _pca_fit(flat[idx].astype(np.float64), components + 1)
@@ -631,24 +634,28 @@ def iter_local_features(
                 if rec:
                     yield rec
             del reduced, flat
+            # the local models' prediction-error energy (their Sigma, log scale)
+            # and the local mean spectrum: their smoothings two at a time
+            planes = [np.empty((hm, wm)) for _ in range(d)]
+            jobs = [_iter_gaussian(err, sig, work, f"{label}: energy")] \
+                if energy and sig > 0 else []
+            for c in range(d):
+                if msig > 0:
+                    jobs.append(_iter_gaussian(current[..., c], msig, work,
+                                               f"{label}: local mean", out=planes[c]))
+                else:
+                    planes[c][...] = current[..., c]
+            side = 2 if pool is not None else 1
+            for k in range(0, len(jobs), side):
+                yield from side_by_side(jobs[k : k + side], pool)
             if energy:
-                # the local models' prediction-error energy (their Sigma), log scale
-                if sig > 0:
-                    yield from _iter_gaussian(err, sig, work, f"{label}: energy")
                 floor = 1e-6 * float(np.mean(source_summary.var))
                 for start, stop in row_ranges(hm, wm):
                     result[start:stop, :, components + 1] = np.log(err[start:stop] + floor)
                 del err
-            # the local mean spectrum
-            plane = np.empty((hm, wm))
             for c in range(d):
-                if msig > 0:
-                    yield from _iter_gaussian(current[..., c], msig, work, f"{label}: local mean",
-                                              out=plane)
-                else:
-                    plane[...] = current[..., c]
-                result[..., per_level - d + c] = plane
-            del plane, current
+                result[..., per_level - d + c] = planes[c]
+            del planes, current
             level_results.append(result)
             if m + 1 < levels:
                 yield work.step(0.0, f"{label} done", force=True)
