@@ -22,6 +22,7 @@ from .statistics import data_statistics
 
 __all__ = ["local_parameters", "iter_local_parameters", "scan", "iter_scan", "RecursiveScan",
            "ScanChunk", "ScanResult", "adaptive_scan", "iter_adaptive_scan", "adaptive_scanner",
+           "adaptive_start",
            "default_prior", "scan_work",
            "DIRECTIONS", "scan_shape", "scan_view", "unscan_view"]
 
@@ -923,7 +924,7 @@ def adaptive_scan(centred, context, channel_var, *, forgetting, direction, prior
 
 
 def adaptive_scanner(centred, context, channel_var, *, forgetting, direction, prior=1e-6,
-                     warm_start=True, outputs=("gamma",), stream=False):
+                     warm_start=True, outputs=("gamma",), stream=False, start=None):
     """The scan of :func:`adaptive_scan` as a :class:`RecursiveScan`, to run in chunks.
 
     Parameters
@@ -948,6 +949,10 @@ def adaptive_scanner(centred, context, channel_var, *, forgetting, direction, pr
     stream : bool, optional
         Hand each chunk's outputs out instead of keeping image-sized arrays
         (see :class:`RecursiveScan`).
+    start : tuple, optional
+        What :func:`adaptive_start` returns for these arguments, when a
+        second scan of the same data starts as the first did (default:
+        computed here).
 
     Returns
     -------
@@ -995,13 +1000,45 @@ def adaptive_scanner(centred, context, channel_var, *, forgetting, direction, pr
     ...                     direction="down", outputs=("mean",))["mean"], equal_nan=True))
     True
     """
+    pri, initial = start if start is not None else adaptive_start(
+        centred, context, channel_var, forgetting=forgetting, direction=direction,
+        prior=prior, warm_start=warm_start)
+    return RecursiveScan(centred, context, direction=direction, forgetting=float(forgetting),
+                         intercept=True, prior=pri, initial=initial, outputs=outputs,
+                         stream=stream)
+
+
+def adaptive_start(centred, context, channel_var, *, forgetting, direction, prior=1e-6,
+                   warm_start=True):
+    """The prior and warm start of :func:`adaptive_scanner` (its parameters).
+
+    Returns
+    -------
+    (prior, initial)
+        The prior's diagonal and the whole image's statistics weighted as
+        one forgetting window (None without a warm start): what a second
+        scan of the same data passes as ``start`` instead of computing them
+        again.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from car_napari.model import Context
+    >>> y = np.random.default_rng(0).standard_normal((32, 32, 1))
+    >>> ctx = Context.spatial([[0, 1], [1, 0]], 1)
+    >>> start = adaptive_start(y, ctx, [1.0], forgetting=0.99, direction="down")
+    >>> a = adaptive_scanner(y, ctx, [1.0], forgetting=0.99, direction="down", start=start)
+    >>> b = adaptive_scanner(y, ctx, [1.0], forgetting=0.99, direction="down")
+    >>> while not (a.done or b.done):
+    ...     _ = a.advance(), b.advance()
+    >>> bool(np.array_equal(a.result()["gamma"], b.result()["gamma"]))
+    True
+    """
     pri = default_prior(channel_var, context.n_regressors, True, context.n_targets, prior)
     initial = None
     if warm_start and forgetting < 1.0:
         initial = _window_statistics(centred, context, direction, pri, float(forgetting))
-    return RecursiveScan(centred, context, direction=direction, forgetting=float(forgetting),
-                         intercept=True, prior=pri, initial=initial, outputs=outputs,
-                         stream=stream)
+    return pri, initial
 
 
 def iter_adaptive_scan(centred, context, channel_var, *, forgetting, direction, prior=1e-6,

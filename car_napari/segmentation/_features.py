@@ -31,7 +31,7 @@ from .._validation import check_not_constant, summarize
 from ..model.blocks import iter_channel_last_float, row_ranges
 from ..model.directions import DIRECTIONS, scan_view
 from ..model.neighbourhood import Context, as_offsets
-from ..model.recursive import adaptive_scanner, scan_work
+from ..model.recursive import adaptive_scanner, adaptive_start, scan_work
 
 __all__ = ["iter_local_features", "iter_pseudo_colour", "local_features", "pseudo_colour"]
 
@@ -374,8 +374,9 @@ def _iter_direction(centred, ctx, var, *, forgetting, direction, lag, clip, comp
 
     # pass 1: the samples, and the energy
     outputs = ("gamma", "mean") if err is not None else ("gamma",)
+    warm = adaptive_start(centred, ctx, var, forgetting=forgetting, direction=direction)
     scanner = adaptive_scanner(centred, ctx, var, forgetting=forgetting, direction=direction,
-                               outputs=outputs, stream=True)
+                               outputs=outputs, stream=True, start=warm)
     width = ctx.n_targets * ctx.n_regressors
     rows = scanner.rows
     per_row = _NS_SCAN * scanner.pixel_work * ws
@@ -400,7 +401,7 @@ def _iter_direction(centred, ctx, var, *, forgetting, direction, lag, clip, comp
 
     # pass 2: the same scan again, every pixel projected on the axes
     scanner = adaptive_scanner(centred, ctx, var, forgetting=forgetting, direction=direction,
-                               outputs=("gamma",), stream=True)
+                               outputs=("gamma",), stream=True, start=warm)  # as pass 1
     per_row = (_NS_SCAN * scanner.pixel_work + _NS_VALUE * width) * ws
     while not scanner.done:
         start, stop, out = scanner.advance()
