@@ -93,10 +93,38 @@ def _expectations(X, mix):
     inv_t = np.ascontiguousarray(1.0 / np.asarray(mix.variances, np.float64).T)
     const = (-0.5 * (np.log(2 * np.pi * mix.variances).sum(axis=1))
              + np.log(mix.weights)).astype(np.float64)
-    nk, sx, sx2 = np.zeros(k), np.zeros((k, d)), np.zeros((k, d))
-    total = _e_step(np.ascontiguousarray(X, dtype=np.float64), means_t, inv_t, const,
-                    nk, sx, sx2)
-    return nk, sx, sx2, total / max(X.shape[0], 1)
+    X = np.ascontiguousarray(X, dtype=np.float64)
+    n = X.shape[0]
+    pool = _pool() if n >= _SPLIT_ROWS else None
+    halves = [(0, n)] if pool is None else [(0, n // 2), (n // 2, n)]
+    parts = [(np.zeros(k), np.zeros((k, d)), np.zeros((k, d))) for _ in halves]
+
+    def run(half, part):
+        return _e_step(X[half[0]:half[1]], means_t, inv_t, const, *part)
+
+    if pool is None:
+        totals = [run(halves[0], parts[0])]
+    else:  # the two halves on two threads (the kernel releases the GIL), summed in order
+        totals = list(pool.map(run, halves, parts))
+    nk, sx, sx2 = (sum(arrays[1:], arrays[0]) for arrays in zip(*parts, strict=True))
+    return nk, sx, sx2, sum(totals) / max(n, 1)
+
+
+# an E step on more rows than this runs in two halves on two threads
+_SPLIT_ROWS = 1 << 14
+_POOL = []
+
+
+def _pool():
+    """Two threads shared by the E steps of every job (None on one CPU)."""
+    if not _POOL:
+        from concurrent.futures import ThreadPoolExecutor
+
+        from .._threads import usable_cpus
+
+        _POOL.append(ThreadPoolExecutor(2, thread_name_prefix="car-e-step")
+                     if usable_cpus() >= 2 else None)
+    return _POOL[0]
 
 
 # a posterior below exp(-37) (< 2**-53 of the best's) is taken as 0: it
