@@ -24,9 +24,10 @@ import threading
 
 from threadpoolctl import OpenBLASController, threadpool_limits
 
-__all__ = ["blas_threads", "limited_blas", "usable_cpus"]
+__all__ = ["blas_threads", "job_threads", "limited_blas", "usable_cpus"]
 
 ENV = "CAR_NAPARI_BLAS_THREADS"
+JOB_ENV = "CAR_NAPARI_JOB_THREADS"
 
 _lock = threading.Lock()
 _depth = 0  # the jobs inside limited_blas(), in every thread
@@ -97,6 +98,39 @@ def blas_threads():
     if threads < 0:
         raise ValueError(f"{ENV} must be a number of threads or 'off'; got {value!r}.")
     return min(threads, usable_cpus()) if threads else None
+
+
+def job_threads():
+    """The threads a job may run its kernels on side by side.
+
+    Returns
+    -------
+    int
+        ``CAR_NAPARI_JOB_THREADS`` when set (at least 1, at most
+        :func:`usable_cpus`), else 2 where two CPUs are usable, else 1. A
+        dask worker of ``car-napari --workers N`` runs with 1: N processes
+        on N cores, each one thread.
+
+    Raises
+    ------
+    ValueError
+        ``CAR_NAPARI_JOB_THREADS`` is not a positive number.
+
+    Examples
+    --------
+    >>> 1 <= job_threads() <= 2 or "CAR_NAPARI_JOB_THREADS" in os.environ
+    True
+    """
+    value = os.environ.get(JOB_ENV, "").strip()
+    if not value:
+        return min(2, usable_cpus())
+    try:
+        threads = int(value)
+    except ValueError:
+        threads = 0
+    if threads < 1:
+        raise ValueError(f"{JOB_ENV} must be a positive number of threads; got {value!r}.")
+    return min(threads, usable_cpus())
 
 
 @contextlib.contextmanager

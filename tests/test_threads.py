@@ -10,7 +10,7 @@ from threadpoolctl import threadpool_info, threadpool_limits
 
 import car_napari as car
 from car_napari._progress import Progress, drain
-from car_napari._threads import blas_threads, limited_blas, usable_cpus
+from car_napari._threads import blas_threads, job_threads, limited_blas, usable_cpus
 
 
 def _blas():
@@ -112,3 +112,33 @@ def test_jobs_in_one_thread_after_another_are_each_limited(two_threads):
         thread.join(30)
     assert len(seen) == 3 and all(set(counts) == {1} for probe in seen for counts in probe)
     assert _blas() == two_threads
+
+
+def test_job_threads_default_and_environment(monkeypatch):
+    monkeypatch.delenv("CAR_NAPARI_JOB_THREADS", raising=False)
+    assert job_threads() == min(2, usable_cpus())
+    monkeypatch.setenv("CAR_NAPARI_JOB_THREADS", "1")
+    assert job_threads() == 1
+    for bad in ("0", "-2", "two"):
+        monkeypatch.setenv("CAR_NAPARI_JOB_THREADS", bad)
+        with pytest.raises(ValueError, match="CAR_NAPARI_JOB_THREADS"):
+            job_threads()
+
+
+@pytest.mark.skipif(usable_cpus() < 2, reason="needs two CPUs to run side by side")
+def test_segmentation_is_the_same_on_one_thread_and_two(monkeypatch):
+    """The scans side by side, the smoothings two at a time and the E step's
+    two halves on two threads give what one thread gives, bit for bit (a
+    cluster worker runs on one thread, the in-process batch on two)."""
+    from skimage import data as skdata
+
+    from car_napari.segmentation import local_features, segment
+
+    image = np.concatenate([skdata.brick()[:160, :90], skdata.grass()[:160, :90]], axis=1)
+    results = {}
+    for threads in ("1", "2"):
+        monkeypatch.setenv("CAR_NAPARI_JOB_THREADS", threads)
+        result = segment(image, n_segments=2, levels=2)
+        results[threads] = (local_features(image, levels=2), result.labels)
+    np.testing.assert_array_equal(results["1"][0], results["2"][0])
+    np.testing.assert_array_equal(results["1"][1], results["2"][1])

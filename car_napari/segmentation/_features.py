@@ -26,7 +26,7 @@ import numpy as np
 
 from .._docstrings import shared_parameters
 from .._progress import Progress, drain, side_by_side, stage
-from .._threads import usable_cpus
+from .._threads import job_threads
 from .._validation import check_not_constant, summarize
 from ..model.blocks import iter_channel_last_float, row_ranges
 from ..model.directions import DIRECTIONS, scan_view
@@ -568,7 +568,7 @@ def iter_local_features(
     level = data
     del data
     # the directional scans two at a time where two cores are there to take them
-    pool = ThreadPoolExecutor(2) if usable_cpus() >= 2 else None
+    pool = ThreadPoolExecutor(2) if job_threads() >= 2 else None
     try:
         for m in range(levels):
             label = f"level {m + 1}/{levels}"

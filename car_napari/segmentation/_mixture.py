@@ -95,35 +95,40 @@ def _expectations(X, mix):
              + np.log(mix.weights)).astype(np.float64)
     X = np.ascontiguousarray(X, dtype=np.float64)
     n = X.shape[0]
-    pool = _pool() if n >= _SPLIT_ROWS else None
-    halves = [(0, n)] if pool is None else [(0, n // 2), (n // 2, n)]
+    # the halves depend on the rows only, so the sums (and the result) do
+    # not depend on the threads that run them
+    halves = [(0, n)] if n < _SPLIT_ROWS else [(0, n // 2), (n // 2, n)]
     parts = [(np.zeros(k), np.zeros((k, d)), np.zeros((k, d))) for _ in halves]
 
     def run(half, part):
         return _e_step(X[half[0]:half[1]], means_t, inv_t, const, *part)
 
+    pool = _pool() if len(halves) > 1 else None
     if pool is None:
-        totals = [run(halves[0], parts[0])]
+        totals = [run(half, part) for half, part in zip(halves, parts, strict=True)]
     else:  # the two halves on two threads (the kernel releases the GIL), summed in order
         totals = list(pool.map(run, halves, parts))
     nk, sx, sx2 = (sum(arrays[1:], arrays[0]) for arrays in zip(*parts, strict=True))
     return nk, sx, sx2, sum(totals) / max(n, 1)
 
 
-# an E step on more rows than this runs in two halves on two threads
+# an E step on more rows than this runs in two halves (on two threads where
+# a job has them), whose sums are added
 _SPLIT_ROWS = 1 << 14
 _POOL = []
 
 
 def _pool():
-    """Two threads shared by the E steps of every job (None on one CPU)."""
+    """Two threads shared by the E steps of every job (None where a job
+    runs on one thread: :func:`~car_napari._threads.job_threads`)."""
+    from .._threads import job_threads
+
+    if job_threads() < 2:
+        return None
     if not _POOL:
         from concurrent.futures import ThreadPoolExecutor
 
-        from .._threads import usable_cpus
-
-        _POOL.append(ThreadPoolExecutor(2, thread_name_prefix="car-e-step")
-                     if usable_cpus() >= 2 else None)
+        _POOL.append(ThreadPoolExecutor(2, thread_name_prefix="car-e-step"))
     return _POOL[0]
 
 
