@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from ._progress import Progress, stage
+from ._tiles import read_array
 from ._validation import check_real
 
 __all__ = ["FrameBlock", "auto_block", "check_clip", "frame_blocks", "iter_frame_blocks",
@@ -212,7 +213,7 @@ def iter_frame_blocks(source, job, out, *, block=1, before=0, after=0, carry=0,
     blocks = frame_blocks(n, block)
     for a, b in blocks:
         lo, hi = max(a - before, 0), min(b + after, n)
-        frames = np.asarray(source[lo:hi])
+        frames = read_array(source[lo:hi])
         here = FrameBlock(a, b, frames, a - lo, hi - b, previous, n)
         where = f"frames {a + 1}-{b}/{n}"
         result = yield from _thinned(stage(job(here), a / n, b / n, name=stage_name,

@@ -24,7 +24,7 @@ import numpy as np
 
 from ._progress import Progress
 
-__all__ = ["CLUSTER_HINT", "Tile", "aligned_chunks", "is_lazy", "iter_map_tiles",
+__all__ = ["CLUSTER_HINT", "Tile", "aligned_chunks", "is_lazy", "iter_map_tiles", "read_array",
            "lazy_map_tiles", "require", "tile_grid"]
 
 #: What to install for dask, zarr and the cluster options.
@@ -154,10 +154,32 @@ def tile_grid(shape, tile, halo, align=1):
             for c0, c1 in zip(cols[:-1], cols[1:], strict=True)]
 
 
+def read_array(part):
+    """``np.asarray(part)`` of a slice of any array, a dask array computed
+    without global callbacks.
+
+    napari enters its opportunistic dask cache (a global dask callback)
+    while it slices a layer, and a compute that uses the global callbacks
+    swaps them out and back while it runs: a read in a worker thread at
+    the same time races with napari's (a ``KeyError`` of a chunk in the
+    viewer, seen in a real-viewer test). A read with ``callbacks=()``
+    neither uses nor touches them.
+
+    Examples
+    --------
+    >>> read_array(np.arange(3)[1:])
+    array([1, 2])
+    """
+    compute = getattr(part, "compute", None)
+    if compute is not None and type(part).__module__.split(".")[0] == "dask":
+        return np.asarray(compute(callbacks=()))
+    return np.asarray(part)
+
+
 def read_tile(source, tile):
     """The part of ``source`` (any sliceable array, rows and columns first)
     that ``tile`` reads, as a NumPy array."""
-    return np.asarray(source[tile.read])
+    return read_array(source[tile.read])
 
 
 def iter_map_tiles(source, function, out, tiles, *, stage="tiles", span=(0.0, 1.0)):

@@ -12,6 +12,7 @@ import numpy as np
 
 from .._frames import DEFAULT_BLOCK, check_clip, iter_frame_blocks
 from .._progress import Progress, drain, stage
+from .._tiles import read_array
 from ._detection import iter_detect_scratches
 from ._filling import iter_inpaint_in_memory
 from ._layout import fit_mask
@@ -26,7 +27,7 @@ def _block_masks(mask, block, shape):
     n = block.stop - block.start
     if mask.ndim == 2:  # fitted once, before the first block
         return np.broadcast_to(mask, (n, *mask.shape))
-    own = np.asarray(mask[block.start:block.stop])
+    own = read_array(mask[block.start:block.stop])
     fitted = fit_mask(own, (n, *shape))
     return fitted if fitted.ndim == 3 else np.broadcast_to(fitted, (n, *fitted.shape))
 
