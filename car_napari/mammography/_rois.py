@@ -43,6 +43,11 @@ from ._regions import (
     _upsample_box,
 )
 
+# the segmentation's automatic stop (nats per pixel) the breast pipeline and
+# its shipped scoring model were built with (segment's default before it
+# became a per-feature rate)
+_MERGE_THRESHOLD = 1.5
+
 __all__ = [
     "DEFAULT_MARKS_PER_IMAGE",
     "DEFAULT_POOL_SEGMENTS",
@@ -277,7 +282,7 @@ def _iter_segment_grey(grey, *, breast, n_segments, levels, neighbourhood, n_ini
     result = yield from stage(
         iter_segment(pseudo_colour(crop), n_segments=n_segments, levels=levels,
                      neighbourhood=neighbourhood, n_init=n_init, mask=crop_mask, seed=seed,
-                     **(segment_options or {})),
+                     **{"merge_threshold": _MERGE_THRESHOLD, **(segment_options or {})}),
         s0_, s1_,
     )
     R0, C0 = r0 * factor, c0 * factor
