@@ -43,10 +43,10 @@ from ._regions import (
     _upsample_box,
 )
 
-# the segmentation's automatic stop (nats per pixel) the breast pipeline and
-# its shipped scoring model were built with (segment's default before it
-# became a per-feature rate)
-_MERGE_THRESHOLD = 1.5
+# the segmentation's automatic stop (nats per pixel) and variance floor the
+# breast pipeline and its shipped scoring model were built with (segment's
+# defaults before issue 14 chose them on texture mosaics)
+_SEGMENT_DEFAULTS = {"merge_threshold": 1.5, "var_floor": 0.1}
 
 __all__ = [
     "DEFAULT_MARKS_PER_IMAGE",
@@ -282,7 +282,7 @@ def _iter_segment_grey(grey, *, breast, n_segments, levels, neighbourhood, n_ini
     result = yield from stage(
         iter_segment(pseudo_colour(crop), n_segments=n_segments, levels=levels,
                      neighbourhood=neighbourhood, n_init=n_init, mask=crop_mask, seed=seed,
-                     **{"merge_threshold": _MERGE_THRESHOLD, **(segment_options or {})}),
+                     **{**_SEGMENT_DEFAULTS, **(segment_options or {})}),
         s0_, s1_,
     )
     R0, C0 = r0 * factor, c0 * factor

@@ -64,10 +64,10 @@ _ABSORB_WORK = 3.0
 _LABEL_STEP_SIDE = 256
 # default stop of the merging, in nats of mean log-likelihood per pixel and
 # per feature dimension: a merge's loss is a sum over the features' dimensions,
-# so colour (24 features) stops later than grey (18). 1.26 / 1.68 nats for
-# grey / colour: 0.06-0.08 per dimension was a plateau on the TUNING mosaics
-# of seeds 1-3 (mean CS 65.4 -> 69.2, ARI 0.676 -> 0.687 against 1.5 for both)
-MERGE_NATS_PER_FEATURE = 0.07
+# so colour (24 features) stops later than grey (18): 1.08 / 1.44 nats for
+# grey / colour. Chosen with the variance floor (0.2) on the TUNING mosaics of
+# seeds 1-3 (docs/segmentation.md)
+MERGE_NATS_PER_FEATURE = 0.06
 
 
 @dataclass
@@ -437,8 +437,8 @@ min_area : int, optional
     1/2000 of the image, at least 16 pixels).
 merge_threshold : float or None, optional
     Automatic stop: the largest loss of mean log-likelihood per pixel (nats)
-    a merge may cost. None: 0.07 per feature dimension (1.26 for the 18
-    features of a grey image, 1.68 for the 24 of a colour one; chosen on the
+    a merge may cost. None: 0.06 per feature dimension (1.08 for the 18
+    features of a grey image, 1.44 for the 24 of a colour one; chosen on the
     TUNING mosaics, docs/segmentation.md).
 grey : {'grey', 'pseudo_colour'}, optional
     How a grey image is segmented: as it is (one channel, d = 1), or as
@@ -462,7 +462,8 @@ var_floor : float, optional
     Floor of every component's variance, in units of the standardised
     features' variance: stops EM from making narrow components that
     split one texture (0.1 lifted ARI from 0.44 to 0.57 on VisTex
-    tuning mosaics told K = 5).
+    tuning mosaics told K = 5; 0.2 with the automatic stop, chosen with
+    it: docs/segmentation.md).
 merge_em_steps : int, optional
     EM steps after each KL merge (at most 100).
 prior : float, optional
@@ -497,7 +498,7 @@ def iter_segment(
     seed=0,
     features=None,
     feature_options=None,
-    var_floor=0.1,
+    var_floor=0.2,
     merge_em_steps=3,
     prior=0.0,
     prior_iterations=5,
@@ -690,7 +691,7 @@ def segment(
     seed=0,
     features=None,
     feature_options=None,
-    var_floor=0.1,
+    var_floor=0.2,
     merge_em_steps=3,
     prior=0.0,
     prior_iterations=5,

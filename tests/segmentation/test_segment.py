@@ -129,14 +129,14 @@ def test_labels_at_recuts_the_history():
 
 @pytest.mark.parametrize("rate", [None, 0.0, 0.02])
 def test_automatic_k_is_the_first_merge_costlier_than_the_rate_times_the_features(rate):
-    """The default stop is 0.07 nats per pixel per feature dimension; the
+    """The default stop is 0.06 nats per pixel per feature dimension; the
     state kept is the one before the first costlier merge (read off the
     history here, by hand)."""
     image, _ = _two_textures()
     features = local_features(image, levels=2)
     options = {} if rate is None else {"merge_threshold": rate * features.shape[2]}
     result = segment(image, features=features, n_init=8, **options)
-    threshold = (0.07 if rate is None else rate) * features.shape[2]
+    threshold = (0.06 if rate is None else rate) * features.shape[2]
     logliks = [m.loglik for m in result.history]
     first = next((i for i in range(len(logliks) - 1)
                   if logliks[i] - logliks[i + 1] > threshold), len(logliks) - 1)
