@@ -14,8 +14,8 @@ a check on a crop: the output's 8-bit values against ``restore`` of the
 crop's region taken with a halo and the global statistics the command used
 (the tile function itself), to show the output is the restoration.
 
-``--inpaint`` measures instead how far filling a frame by tiles is from the
-in-memory fill (which is not tile-local, see car_napari/inpainting/_tiled.py):
+``--inpaint`` measures instead how far filling a frame by tiles is from one
+fill of the whole frame (see car_napari/inpainting/_tiled.py):
 on the 11 images of ``../shared/data/inpainting`` with their hand-drawn
 masks, ``inpaint`` in memory against ``iter_inpaint_tiles`` with 128-pixel
 tiles (so that every image is split) and halos of 32, 64 and 128 (the images
@@ -24,6 +24,15 @@ nothing is tuned here): the mean absolute difference of the two fills over
 the masked pixels (8-bit levels) and their PSNR (one against the other). The
 masks mark objects to remove, so the pixels under them are no ground truth:
 this is the distance to the in-memory fill, not a quality score.
+
+``--inpaint-compare SIDE`` fills the real damaged film scan
+(``film-damage/cinestill50d_half_1``, its hand-made mask) resized to SIDE x
+SIDE, two rounds alternating: ``inpaint`` in memory (a frame larger than
+2048 a side is filled by its tiles), ``inpaint`` of the same frame as a dask
+array, and the whole frame as one fill (``tiles=False``, the definition
+before issue 16). Printed: the times, whether the in-memory and the dask
+results are equal, and the PSNR of the tiles against the one fill over the
+masked pixels.
 
 ``--compare SIDE`` times, in one process, ``restore`` in memory against
 ``restore_tiled`` (NumPy in and out, ``--tile``) on the noisy photograph at
@@ -97,11 +106,15 @@ def main():
     parser.add_argument("--keep", action="store_true", help="keep the stores")
     parser.add_argument("--inpaint", action="store_true",
                         help="the quality of a frame filled by tiles instead")
+    parser.add_argument("--inpaint-compare", type=int, default=None, metavar="SIDE",
+                        help="a large damaged frame: in memory, dask and one fill")
     parser.add_argument("--compare", type=int, default=None, metavar="SIDE",
                         help="in memory against tiles at SIDE x SIDE instead")
     args = parser.parse_args()
     if args.inpaint:
         return inpaint_quality()
+    if args.inpaint_compare:
+        return inpaint_compare(args.inpaint_compare)
     if args.compare:
         return compare(args.compare, args.tile)
     work = Path(tempfile.mkdtemp(prefix="car_bench_large_"))
@@ -183,6 +196,47 @@ def compare(side, tile):
         print(f"| {name} | {min(values):.1f}-{max(values):.1f} s |")
 
 
+def inpaint_compare(side):
+    import dask.array as da
+    from skimage import io
+    from skimage.transform import resize
+
+    from car_napari._progress import drain
+    from car_napari.inpainting import inpaint
+    from car_napari.inpainting._filling import iter_inpaint_in_memory
+
+    film = ROOT.parent / "shared" / "data" / "film-damage" / "cinestill50d_half_1"
+    frame = io.imread(film / "damaged.jpg")[..., :3]
+    frame = np.clip(np.round(resize(frame, (side, side), order=1, preserve_range=True,
+                                    anti_aliasing=False)), 0, 255).astype(np.uint8)
+    mask = io.imread(film / "mask.png")
+    mask = mask[..., :3].max(axis=2) if mask.ndim == 3 else mask
+    rows = (np.arange(side) * mask.shape[0]) // side
+    cols = (np.arange(side) * mask.shape[1]) // side
+    mask = mask[rows][:, cols] > 127
+    inpaint(frame[:256, :256], mask[:256, :256])  # compiled kernels loaded
+    times = {"in memory (tiles)": [], "dask (tiles)": [], "one fill": []}
+    for _ in range(2):
+        t0 = time.perf_counter()
+        tiles = inpaint(frame, mask)
+        times["in memory (tiles)"].append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        lazy = inpaint(da.from_array(frame, chunks=(1024, 1024, 3)), mask)
+        times["dask (tiles)"].append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        whole = drain(iter_inpaint_in_memory(frame, mask, tiles=False))
+        times["one fill"].append(time.perf_counter() - t0)
+    load = psutil.getloadavg()
+    diff = tiles[mask].astype(float) - whole[mask].astype(float)
+    psnr = 10 * np.log10(255.0 ** 2 / max(float(np.mean(diff ** 2)), 1e-12))
+    print(f"{side} x {side} RGB uint8, {100 * mask.mean():.2f} % masked, load "
+          f"{load[0]:.1f}, {load[1]:.1f}, {load[2]:.1f}; in memory == dask: "
+          f"{bool(np.array_equal(tiles, lazy))}; tiles against one fill: {psnr:.1f} dB PSNR, "
+          f"max |difference| {np.abs(diff).max():.0f} levels")
+    for name, values in times.items():
+        print(f"| {name} | {min(values):.1f}-{max(values):.1f} s |")
+
+
 def inpaint_quality():
     from skimage import io
 
@@ -205,7 +259,7 @@ def inpaint_quality():
         whole = inpaint(image, mask)[mask].astype(float)
         row, cells = [], []
         for h in halos:
-            tiled = drain(iter_inpaint_tiles(image, mask, tile=128, halo=h))[mask]
+            tiled = drain(iter_inpaint_tiles(image, mask, tile=128, tile_halo=h))[mask]
             diff = np.abs(tiled.astype(float) - whole)
             mse = max(float(np.mean(diff ** 2)), 1e-12)
             row += [diff.mean(), min(10 * np.log10(255.0 ** 2 / mse), 99.0)]

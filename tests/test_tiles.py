@@ -8,7 +8,7 @@ from skimage import data as skdata
 
 from car_napari._progress import drain
 from car_napari._tiles import tile_grid
-from car_napari.inpainting import inpaint, inpaint_large, iter_inpaint_frames
+from car_napari.inpainting import inpaint, inpaint_large, iter_inpaint, iter_inpaint_frames
 from car_napari.inpainting._tiled import iter_inpaint_tiles
 from car_napari.restoration import estimate_noise, restore, restore_tiled, tile_halo
 from car_napari.restoration._tiled import _iter_statistics
@@ -138,7 +138,38 @@ def test_a_frame_by_tiles_keeps_the_known_pixels_and_copies_clean_tiles():
     frame = skdata.camera()[:160, :160]
     mask = np.zeros(frame.shape, bool)
     mask[10:40, 20:23] = True  # damage in the first tile only
-    got = drain(iter_inpaint_tiles(frame, mask, tile=80, halo=32))
+    got = drain(iter_inpaint_tiles(frame, mask, tile=80, tile_halo=32))
     np.testing.assert_array_equal(got[~mask], frame[~mask])
     alone = inpaint(frame[:112, :112], mask[:112, :112])  # the first tile with its halo
     np.testing.assert_array_equal(got[mask], alone[mask[:112, :112]])
+
+
+def test_a_large_frame_is_filled_by_the_same_tiles_in_memory_and_from_dask(monkeypatch):
+    """A frame larger than DEFAULT_TILE is defined by its tiles: in memory
+    and from a dask array the same tiles run the same code (smaller tiles
+    here, for time), so the two are equal; a scratch crosses every tile."""
+    da = pytest.importorskip("dask.array")
+    from car_napari.inpainting import _tiled
+
+    monkeypatch.setattr(_tiled, "DEFAULT_TILE", 64)
+    monkeypatch.setattr(_tiled, "DEFAULT_HALO", 24)
+    frame = skdata.astronaut()[:150, 100:250]
+    mask = np.zeros(frame.shape[:2], bool)
+    mask[:, 70:73] = True  # down the whole frame, across two tile rows
+    mask[100:104, 20:130] = True
+    in_memory = inpaint(frame, mask)
+    lazy = inpaint(da.from_array(frame, chunks=(50, 50, 3)), mask)
+    np.testing.assert_array_equal(lazy, in_memory)
+    np.testing.assert_array_equal(in_memory[~mask], frame[~mask])
+    # what defines it: each tile with its halo filled alone, its core kept
+    first = inpaint(frame[:88, :88], mask[:88, :88])
+    np.testing.assert_array_equal(in_memory[:64, :64], first[:64, :64])
+    from car_napari.inpainting._filling import iter_inpaint_in_memory
+
+    one_solve = drain(iter_inpaint_in_memory(frame, mask, tiles=False))
+    assert not np.array_equal(one_solve, in_memory)  # the tiles are in effect
+    records = []
+    drain(iter_inpaint(frame, mask), records.append)
+    assert records[-1].preview[0] == 0
+    np.testing.assert_array_equal(records[-1].preview[1], in_memory)
+    assert all(r.preview is None for r in records[:-1])  # no tile passes for the frame

@@ -467,11 +467,29 @@ def _as_frame_records(job, fraction, message):
         yield Progress("frames", fraction, message)
 
 
+def _iter_by_tiles(layout, mask, iter_inpaint_tiles, **options):
+    """A single frame filled by :func:`._tiled.iter_inpaint_tiles`, with the
+    in-memory job's last record (the frame restored)."""
+    colour = layout.colour
+    frame = layout.clip[0] if colour else layout.clip[0, ..., 0]
+    out = np.empty(frame.shape, frame.dtype)
+    yield from iter_inpaint_tiles(frame, mask, out=out, channel_axis=-1 if colour else None,
+                                  **options)
+    out = out if colour else out[..., None]
+    restored_frame = layout.frame_to_input(out).view()
+    restored_frame.flags.writeable = False
+    yield Progress("frames", 1.0, "frame 1/1", (0, restored_frame))
+    return layout.to_input(out[None])
+
+
 def iter_inpaint_in_memory(image, mask, *, temporal=True, neighbourhood=None, forgetting=0.9995,
                            interleave=DEFAULT_INTERLEAVE, halo="auto", channel_axis=-1,
-                           method="conditional", motion=True):
+                           method="conditional", motion=True, tiles=True):
     """:func:`~car_napari.inpainting.iter_inpaint` of a frame or clip in
-    memory (NumPy): the parameters, records and result documented there."""
+    memory (NumPy): the parameters, records and result documented there.
+    With ``tiles``, a single frame larger than ``_tiled.DEFAULT_TILE`` a
+    side is filled by tiles (what defines it; :mod:`._tiled`); the tiles
+    themselves are filled with ``tiles=False``."""
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}; got {method!r}.")
     if not isinstance(motion, (bool, np.bool_)):
@@ -505,11 +523,19 @@ def iter_inpaint_in_memory(image, mask, *, temporal=True, neighbourhood=None, fo
     if H <= 2 * reach or W <= 2 * reach:
         raise ValueError(f"the frame ({H}x{W}) is too small for neighbourhood order "
                          f"{neighbourhood}: it needs more than {2 * reach} pixels each way.")
-    out = np.array(clip, copy=True)
     damaged = [bool(np.asarray(masks[t]).any()) for t in range(T)]
     if not any(damaged):
         warnings.warn("the mask is empty: nothing to restore, the input is returned "
                       "unchanged.", UserWarning, stacklevel=2)
+    if tiles and layout.single and any(damaged):
+        from . import _tiled  # (it imports this module)
+
+        if max(H, W) > _tiled.DEFAULT_TILE:
+            return (yield from _iter_by_tiles(
+                layout, masks[0], _tiled.iter_inpaint_tiles, temporal=temporal,
+                neighbourhood=neighbourhood, forgetting=forgetting, interleave=interleave,
+                halo=halo, method=method, motion=motion))
+    out = np.array(clip, copy=True)
     work = np.cumsum([1.0 if d else _CLEAN_FRAME_WORK for d in damaged])
     work /= work[-1]
     previous = None

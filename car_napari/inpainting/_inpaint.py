@@ -139,7 +139,9 @@ def inpaint(image, mask, *, temporal=True, neighbourhood=None, forgetting=0.9995
         A frame or a clip, any integer or float32/64 dtype (a dask or zarr
         array is read a frame at a time, a clip exactly as in memory, a
         frame by tiles: :func:`~car_napari.inpainting.iter_inpaint_large`;
-        the result is a NumPy array). How
+        the result is a NumPy array; a frame larger than
+        :data:`~car_napari.inpainting._tiled.DEFAULT_TILE` a side is filled
+        by the same tiles in memory, so the two are equal). How
         ``channel_axis`` reads it: ``(H, W)`` is a grey frame; a 3-D array is
         a colour frame ``(H, W, C)`` when the channel axis has at most 4
         entries and a grey clip ``(T, H, W)`` otherwise; a 4-D array is a

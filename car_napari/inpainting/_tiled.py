@@ -9,37 +9,37 @@ global in space:
   read one frame at a time, carrying the last restored frame, is therefore
   the in-memory result exactly: :func:`~car_napari.inpainting.iter_inpaint_frames`
   (memory: a block of frames, whatever the clip's length).
-* Within a frame it is not tile-local. Each of the four scans
-  (``method='scans'``) carries one adaptive model through the whole frame in
-  raster order, updated at every known pixel with forgetting 0.9995: a
-  pixel's model depends on the ~1/(1 - 0.9995) = 2000 (to 1e-6: ~28000)
-  known pixels scanned before it, i.e. on whole rows of the frame, and the
-  frame's statistics (mean, variance, range of the known pixels) are
-  global. ``method='conditional'`` solves each damaged region as one sparse
-  system, so a region crossing a tile couples the tiles. A frame larger than
-  memory is filled by tiles with a halo (:func:`iter_inpaint_tiles`), each
-  tile as its own frame: close to the in-memory fill, not equal (the
-  difference is measured in ``benchmarks/bench_large.py --inpaint``). The
-  smallest change that makes the in-memory fill tile-local is to define it
-  so: scans restarted on a fixed grid of tiles (each tile's models learnt
-  from the tile and its halo), which is what the tiled fill does.
+* Within a frame the fill is defined by tiles: a frame larger than
+  :data:`DEFAULT_TILE` a side is filled tile by tile, each tile whose core
+  holds damage as a frame of its own (its core and :data:`DEFAULT_HALO`
+  pixels around it; the local fits, the known range and variance, the edge
+  test and the sparse solves all within it), its core kept. The in-memory
+  fill and :func:`iter_inpaint_tiles` (a dask or zarr frame) run the same
+  tiles through the same code, so they are equal. Against one solve over
+  the whole frame (the definition before issue 16) the tiles differ only
+  near a tile's edge, where a hole crossing it is solved from each side's
+  halo (``benchmarks/bench_large.py --inpaint``: 54.6 dB PSNR between the
+  two at a 128-pixel halo).
 """
 
 from __future__ import annotations
 
 import warnings
+from dataclasses import replace
 
 import numpy as np
 
-from .._progress import drain
-from .._tiles import iter_map_tiles, read_tile, tile_grid
+from .._progress import Progress, drain, stage
+from .._tiles import read_tile, tile_grid
 from ._filling import iter_inpaint_in_memory
 from ._frames import iter_inpaint_frames
 
 __all__ = ["DEFAULT_HALO", "DEFAULT_TILE", "inpaint_large", "iter_inpaint_large",
            "iter_inpaint_tiles"]
 
-#: Side of a tile's core, and the halo each tile reads around it (pixels).
+#: Side of a tile's core, and the halo each tile reads around it (pixels):
+#: a frame larger than DEFAULT_TILE a side is filled by these tiles, in
+#: memory or not.
 DEFAULT_TILE = 2048
 DEFAULT_HALO = 256
 
@@ -56,15 +56,16 @@ def _is_clip(shape, channel_axis):
                      f"(T, H, W, C); got shape {tuple(shape)}.")
 
 
-def iter_inpaint_tiles(image, mask, *, out=None, tile=DEFAULT_TILE, halo=DEFAULT_HALO,
+def iter_inpaint_tiles(image, mask, *, out=None, tile=None, tile_halo=None,
                        channel_axis=-1, **options):
-    """Fill one frame larger than memory by tiles with a halo.
+    """Fill one frame by tiles with a halo (a frame larger than memory, or a
+    large one in memory).
 
     Each tile whose core holds damage is filled as a frame of its own (its
-    core and ``halo`` pixels around it, :func:`inpaint`), and its core
-    kept; other tiles are copied. Not equal to the in-memory fill, which is
-    not tile-local (see the module's notes): close to it when the halo is
-    wide.
+    core and ``tile_halo`` pixels around it, :func:`inpaint`), and its core
+    kept; other tiles are copied. With the default tiles this is what
+    :func:`inpaint` computes for a frame larger than :data:`DEFAULT_TILE` a
+    side, in memory or not (see the module's notes).
 
     Parameters
     ----------
@@ -75,13 +76,15 @@ def iter_inpaint_tiles(image, mask, *, out=None, tile=DEFAULT_TILE, halo=DEFAULT
     out : array, optional
         Where the result goes, tile by tile. Default: a NumPy array.
     tile : int, optional
-        Side of a tile's core.
-    halo : int, optional
-        Pixels read around the core (the models learn there).
+        Side of a tile's core (default :data:`DEFAULT_TILE`).
+    tile_halo : int, optional
+        Pixels read around the core (the models learn there; default
+        :data:`DEFAULT_HALO`).
     channel_axis : -1 or None, optional
         A 3-D frame is (H, W, C).
     **options
-        As :func:`inpaint` (``neighbourhood``, ``method``, ...).
+        As :func:`inpaint` (``neighbourhood``, ``method``, ``halo``: the edge
+        test...).
 
     Returns
     -------
@@ -91,7 +94,9 @@ def iter_inpaint_tiles(image, mask, *, out=None, tile=DEFAULT_TILE, halo=DEFAULT
     Yields
     ------
     Progress
-        Stage ``'tiles'``, ``'tile k/n'``.
+        Stage ``'tiles'``: ``'tile k/n'`` after each tile, and the fill's
+        own records within a damaged tile (``'tile k/n: frame 1/1, ...'``, no
+        previews).
 
     Examples
     --------
@@ -100,7 +105,7 @@ def iter_inpaint_tiles(image, mask, *, out=None, tile=DEFAULT_TILE, halo=DEFAULT
     >>> frame = np.random.default_rng(0).random((40, 40))
     >>> mask = np.zeros((40, 40), bool)
     >>> mask[5:9, 5:9] = True
-    >>> restored = drain(iter_inpaint_tiles(frame, mask, tile=20, halo=10))
+    >>> restored = drain(iter_inpaint_tiles(frame, mask, tile=20, tile_halo=10))
     >>> bool(np.array_equal(restored[~mask], frame[~mask]))
     True
     """
@@ -110,28 +115,45 @@ def iter_inpaint_tiles(image, mask, *, out=None, tile=DEFAULT_TILE, halo=DEFAULT
     if tuple(np.shape(mask)) != shape[:2]:
         raise ValueError(f"mask has shape {tuple(np.shape(mask))}; the frame needs "
                          f"{shape[:2]} (True where pixels are missing).")
-    for name, value in (("tile", tile), ("halo", halo)):
-        if isinstance(value, (bool, np.bool_)) or int(value) != value or int(value) < 0 \
+    tile = DEFAULT_TILE if tile is None else tile
+    tile_halo = DEFAULT_HALO if tile_halo is None else tile_halo
+    for name, value in (("tile", tile), ("tile_halo", tile_halo)):
+        if isinstance(value, (bool, np.bool_, str)) or int(value) != value or int(value) < 0 \
                 or (name == "tile" and int(value) < 1):
             raise ValueError(f"{name} must be a {'positive' if name == 'tile' else '>= 0'} "
                              f"number of pixels; got {value!r}.")
     if out is None:
         out = np.empty(shape, np.asarray(image[:1, :1]).dtype)
-    tiles = tile_grid(shape[:2], tile, halo)
-
-    def fill(part, t):
+    tiles = tile_grid(shape[:2], int(tile), int(tile_halo))
+    for k, t in enumerate(tiles, start=1):
+        part = read_tile(image, t)
         part_mask = read_tile(mask, t) != 0
-        if not part_mask[t.inner].any():
-            return part
-        with warnings.catch_warnings():
-            warnings.filterwarnings("ignore", "the mask is empty", UserWarning)
-            return drain(iter_inpaint_in_memory(part, part_mask, channel_axis=channel_axis,
-                                                **options))
+        done = f"tile {k}/{len(tiles)}"
+        if part_mask[t.inner].any():
+            with warnings.catch_warnings():
+                warnings.filterwarnings("ignore", "the mask is empty", UserWarning)
+                job = iter_inpaint_in_memory(part, part_mask, channel_axis=channel_axis,
+                                             tiles=False, **options)
+                span = (k - 1) / len(tiles), k / len(tiles)
+                part = yield from _without_previews(
+                    stage(job, *span, name="tiles", prefix=f"{done}: "))
+        out[t.core] = part[t.inner]
+        yield Progress("tiles", k / len(tiles), done)
+    return out
 
-    return (yield from iter_map_tiles(image, fill, out, tiles))
+
+def _without_previews(job):
+    """The records of ``job`` without their previews (a tile's frame is not
+    the frame), then its result."""
+    while True:
+        try:
+            record = next(job)
+        except StopIteration as finished:
+            return finished.value
+        yield record if record.preview is None else replace(record, preview=None)
 
 
-def iter_inpaint_large(image, mask, *, out=None, tile=DEFAULT_TILE, halo=DEFAULT_HALO,
+def iter_inpaint_large(image, mask, *, out=None, tile=None, tile_halo=None,
                        temporal=True, channel_axis=-1, **options):
     """:func:`~car_napari.inpainting.iter_inpaint_frames` for a clip, :func:`iter_inpaint_tiles`
     for a frame (what ``inpaint`` of a dask or zarr array runs).
@@ -144,7 +166,7 @@ def iter_inpaint_large(image, mask, *, out=None, tile=DEFAULT_TILE, halo=DEFAULT
         Its mask.
     out : array, optional
         Where the result goes.
-    tile, halo : int, optional
+    tile, tile_halo : int, optional
         A frame's tiles (see :func:`iter_inpaint_tiles`).
     temporal : bool, optional
         A clip's temporal context.
@@ -178,7 +200,7 @@ def iter_inpaint_large(image, mask, *, out=None, tile=DEFAULT_TILE, halo=DEFAULT
         yield from iter_inpaint_frames(image, mask, out, temporal=temporal,
                                        channel_axis=None if len(shape) == 3 else -1, **options)
         return out
-    return (yield from iter_inpaint_tiles(image, mask, out=out, tile=tile, halo=halo,
+    return (yield from iter_inpaint_tiles(image, mask, out=out, tile=tile, tile_halo=tile_halo,
                                           channel_axis=channel_axis, **options))
 
 
