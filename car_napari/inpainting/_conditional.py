@@ -721,10 +721,12 @@ def stencil_solve(frame, unknown, row_sets, tile):
     return drain(iter_stencil_solve(frame, unknown, row_sets, tile))[0]
 
 
-def _row_set(model, previous):
-    """The rows of :func:`stencil_solve` of one :class:`LocalModels`."""
+def _row_set(model, previous, where=None):
+    """The rows of :func:`stencil_solve` of one :class:`LocalModels`;
+    ``where`` (H, W) bool: the pixels whose previous-frame term is wanted
+    (None: all)."""
     offsets, coeffs, constant, border, Linv = model_rows(model)
-    extra = None if previous is None else _previous_term(model, previous, Linv)
+    extra = None if previous is None else _previous_term(model, previous, Linv, where)
     return offsets, coeffs, constant, extra, border
 
 
@@ -803,19 +805,32 @@ def model_rows(models):
     return offsets, coeffs, constant, border, Linv
 
 
-def _previous_term(models, previous, Linv):
-    """``extra[r]``: the whitened contribution of the previous frame to row ``r``."""
+def _previous_term(models, previous, Linv, where=None):
+    """``extra[r]``: the whitened contribution of the previous frame to row
+    ``r``, at the pixels ``where`` (H, W) bool (None: all; elsewhere 0). A
+    solve reads it only at the rows near the damage, a small part of the
+    frame: the others are not computed."""
     H, W, C = previous.shape
     tile = models.tile
     eta = len(models.offsets)
-    rows, cols = np.arange(H) // tile, np.arange(W) // tile
-    out = np.zeros((H, W, C))
+    if where is None:
+        ii, jj = (a.ravel() for a in np.indices((H, W)))
+    else:
+        ii, jj = np.nonzero(where)
+    ti, tj = ii // tile, jj // tile
+    pmean = models.previous_mean[ti, tj]
+    total = np.zeros((len(ii), C))
     for k, (di, dj) in enumerate(PREVIOUS_OFFSETS):
         B = models.gamma[..., (eta + k) * C : (eta + k + 1) * C]  # (ty, tx, d, d)
-        G = -np.einsum("tuab,tubc->tuac", Linv, B)[rows][:, cols]  # (H, W, d, d)
-        shifted = np.stack([_shifted(previous[..., c], di, dj, 0.0) for c in range(C)], -1)
-        shifted -= models.previous_mean[rows][:, cols]
-        out += np.einsum("hwab,hwb->hwa", G, shifted)
+        G = -np.einsum("tuab,tubc->tuac", Linv, B)[ti, tj]  # (n, d, d)
+        si, sj = ii - di, jj - dj
+        inside = (si >= 0) & (si < H) & (sj >= 0) & (sj < W)
+        shifted = np.zeros((len(ii), C))  # 0 outside the frame
+        shifted[inside] = previous[si[inside], sj[inside]]
+        shifted -= pmean
+        total += np.einsum("nab,nb->na", G, shifted)
+    out = np.zeros((H, W, C))
+    out[ii, jj] = total
     return out
 
 
@@ -885,6 +900,10 @@ def iter_fill_conditional(frame, mask, *, order=3, directions=DIRECTIONS, previo
     near = ndimage.binary_dilation(mask, structure=_CROSS, iterations=1 + rings)
     yield Progress("frames", 0.8 * prepared, preparing)
     need = _tiles_needed(near, np.vstack([base, -base, base[:, ::-1], -base[:, ::-1]]), tile)
+    rows_near = None  # the rows the solves visit: within the models' reach of ``near``
+    if previous is not None:
+        rows_near = ndimage.binary_dilation(near, structure=np.ones((3, 3), bool),
+                                            iterations=int(np.abs(base).max()))
     del near
     yield Progress("frames", prepared, preparing)
     models = yield from stage(
@@ -894,7 +913,7 @@ def iter_fill_conditional(frame, mask, *, order=3, directions=DIRECTIONS, previo
     yield Progress("frames", 1 / steps, f"{message}, models fitted")
     row_sets = []
     for model in models:
-        row_sets.append(_row_set(model, previous))
+        row_sets.append(_row_set(model, previous, rows_near))
         yield Progress("frames", 1 / steps, f"{message}, models fitted")
     damage = mask.copy()
     for ring_number in range(rings):
