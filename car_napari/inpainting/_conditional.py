@@ -357,7 +357,8 @@ def _inv_chol(S):
 
 @njit(cache=True, nogil=True)
 def _assemble_kernel(frame, index, offsets, coeffs, pairs, constant, extra, tile, slot_of,
-                     reach2, rows, border, border_G, border_c, probes, state, Q, rhs, z):
+                     reach2, rows, border, border_G, border_c, probes, state, Q, rhs, z,
+                     with_q=True):
     """Add one set of whitened rows ``w_r = sum_k G_k Y_{r - s_k} + c (+
     extra_r)`` (every ``r`` with all taps inside the frame and one of them
     unknown) to the normal equations of the unknown pixels: ``Q[p, slot]
@@ -370,7 +371,8 @@ def _assemble_kernel(frame, index, offsets, coeffs, pairs, constant, extra, tile
     touch none); a call may take a part of them, ``state`` (1,) carries the
     random signs' generator from call to call. With ``border``: instead,
     an unknown pixel of ``rows`` without a full row gets ``border_G Y_p +
-    border_c``."""
+    border_c``. Without ``with_q``: ``rhs`` only (``Q`` and ``z`` left
+    alone; no random signs drawn)."""
     H, W, C = frame.shape
     K = offsets.shape[0]
     in_i, in_j, out_i, out_j = 0, 0, H, W
@@ -393,6 +395,13 @@ def _assemble_kernel(frame, index, offsets, coeffs, pairs, constant, extra, tile
                 continue
             ti = i // tile
             tj = j // tile
+            if not with_q:
+                for a in range(C):
+                    acc = 0.0
+                    for b in range(C):
+                        acc += border_G[ti, tj, b, a] * border_c[ti, tj, b]
+                    rhs[p, a] -= acc
+                continue
             for s in range(probes):
                 for a in range(C):
                     rng ^= rng << np.uint64(13)
@@ -416,6 +425,18 @@ def _assemble_kernel(frame, index, offsets, coeffs, pairs, constant, extra, tile
                     Q[p, centre, a, c] += acc
         state[0] = rng
         return
+    # the slot of each pair of taps (their offsets are fixed) and the
+    # blocks of Q and of the pairs as rows of C * C values
+    slot_kk = np.empty((K, K), np.int64)
+    for k in range(K):
+        for k2 in range(K):
+            slot_kk[k, k2] = slot_of[reach2 + offsets[k, 0] - offsets[k2, 0],
+                                     reach2 + offsets[k, 1] - offsets[k2, 1]]
+    CC = C * C
+    S = Q.shape[1]
+    Qf = Q.reshape(Q.shape[0] * S, CC)
+    ty, tx = pairs.shape[0], pairs.shape[1]
+    pf = pairs.reshape(ty * tx * K * K, CC)
     for n in range(rows.shape[0]):
         i, j = rows[n, 0], rows[n, 1]
         if not (in_i <= i < out_i and in_j <= j < out_j):
@@ -440,12 +461,14 @@ def _assemble_kernel(frame, index, offsets, coeffs, pairs, constant, extra, tile
                     for b in range(C):
                         acc += coeffs[ti, tj, k, a, b] * frame[pi, pj, b]
                     kc[a] += acc
-        for s in range(probes):
-            for a in range(C):  # xorshift64: a random sign
-                rng ^= rng << np.uint64(13)
-                rng ^= rng >> np.uint64(7)
-                rng ^= rng << np.uint64(17)
-                noise[s, a] = 1.0 if (rng >> np.uint64(40)) & np.uint64(1) else -1.0
+        if with_q:
+            for s in range(probes):
+                for a in range(C):  # xorshift64: a random sign
+                    rng ^= rng << np.uint64(13)
+                    rng ^= rng >> np.uint64(7)
+                    rng ^= rng << np.uint64(17)
+                    noise[s, a] = 1.0 if (rng >> np.uint64(40)) & np.uint64(1) else -1.0
+        tile_pairs = (ti * tx + tj) * K * K
         for k in range(K):
             p = tap[k]
             if p < 0:
@@ -455,19 +478,22 @@ def _assemble_kernel(frame, index, offsets, coeffs, pairs, constant, extra, tile
                 for b in range(C):
                     acc += coeffs[ti, tj, k, b, a] * kc[b]
                 rhs[p, a] -= acc
+            if not with_q:
+                continue
+            for a in range(C):
                 for s in range(probes):
                     acc = 0.0
                     for b in range(C):
                         acc += coeffs[ti, tj, k, b, a] * noise[s, b]
                     z[p, s, a] += acc
+            row_p = p * S
             for k2 in range(K):
                 if tap[k2] < 0:
                     continue
-                slot = slot_of[reach2 + offsets[k, 0] - offsets[k2, 0],
-                               reach2 + offsets[k, 1] - offsets[k2, 1]]
-                for a in range(C):
-                    for c in range(C):
-                        Q[p, slot, a, c] += pairs[ti, tj, k, k2, a, c]
+                q_row = row_p + slot_kk[k, k2]
+                pair_row = tile_pairs + k * K + k2
+                for m in range(CC):
+                    Qf[q_row, m] += pf[pair_row, m]
     state[0] = rng
 
 
@@ -528,6 +554,8 @@ class _System(NamedTuple):
     groups: list
     pixels: np.ndarray  # (n, 2) the unknown pixels in index order
     diagonal: np.ndarray  # (n, d, d) the diagonal blocks of Q
+    blocks: np.ndarray  # (n, slots, d, d) Q by pixel and offset
+    index: np.ndarray  # (H, W) a pixel's place in index order, -1 if known
 
 
 def _seed_state(seed):
@@ -535,10 +563,15 @@ def _seed_state(seed):
     return (int(seed) * 6364136223846793005 + 1442695040888963407) % (1 << 64)
 
 
-def _iter_assemble(frame, unknown, row_sets, tile, probes=0, seed=0):
+def _iter_assemble(frame, unknown, row_sets, tile, probes=0, seed=0, reuse=None):
     """The normal equations of the ``unknown`` pixels (a :class:`_System`),
     as a job: a record (stage ``"assembly"``) after each part of a set of
-    rows and of the sparse matrix."""
+    rows and of the sparse matrix.
+
+    ``reuse``: the :class:`_System` of a superset of the unknown pixels
+    under the same rows. ``Q`` between two pixels sums the rows that touch
+    both, the same rows (in the same order) whatever else is unknown: its
+    blocks are taken from there, and only ``rhs`` is assembled."""
     H, W, C = frame.shape
     offsets_all = [np.asarray(r[0], np.int64) for r in row_sets]
     reach = max(int(np.abs(o).max()) if len(o) else 0 for o in offsets_all)
@@ -571,7 +604,14 @@ def _iter_assemble(frame, unknown, row_sets, tile, probes=0, seed=0):
     yield Progress("assembly", 0.0, "assembling")
     rows = np.stack(np.nonzero(grown), axis=1).astype(np.int64)  # raster order
     del grown
-    Q = np.zeros((n_u, len(slots), C, C))
+    if reuse is not None:
+        at = reuse.index[ui, uj]
+        if len(at) and at.min() < 0:
+            raise ValueError("reuse must be the system of a superset of the unknown pixels.")
+        Q = reuse.blocks[at]
+        probes = 0
+    else:
+        Q = np.zeros((n_u, len(slots), C, C))
     rhs = np.zeros((n_u, C))
     z = np.zeros((n_u, probes, C))
     frame = np.ascontiguousarray(frame, np.float64)
@@ -588,7 +628,10 @@ def _iter_assemble(frame, unknown, row_sets, tile, probes=0, seed=0):
             bG, bc = np.zeros((0, 0, C, C)), np.zeros((0, 0, C))
         else:
             bG, bc = (np.ascontiguousarray(b, np.float64) for b in border)
-        pairs = np.ascontiguousarray(np.einsum("tukba,tulbc->tuklac", coeffs, coeffs))
+        if reuse is None:
+            pairs = np.ascontiguousarray(np.einsum("tukba,tulbc->tuklac", coeffs, coeffs))
+        else:  # Q is known: the pairs are not read
+            pairs = np.zeros((1, 1, *coeffs.shape[2:3] * 2, C, C))
         offsets = np.ascontiguousarray(offsets, np.int64)
         # xorshift64's state, seeded per set of rows, carried from part to part
         state = np.array([_seed_state(1 + 7919 * int(seed) + number)], np.uint64)
@@ -596,7 +639,7 @@ def _iter_assemble(frame, unknown, row_sets, tile, probes=0, seed=0):
             for a, b in parts:
                 _assemble_kernel(frame, index, offsets, coeffs, pairs, constant, extra,
                                  int(tile), slot_of, reach2, rows[a:b], phase, bG, bc,
-                                 int(probes), state, Q, rhs, z)
+                                 int(probes), state, Q, rhs, z, reuse is None)
                 done += 1
                 yield Progress("assembly", done / steps, "assembling")
     pixels = np.stack([ui, uj], axis=1).astype(np.int64)
@@ -614,7 +657,7 @@ def _iter_assemble(frame, unknown, row_sets, tile, probes=0, seed=0):
             done += 1
             yield Progress("assembly", done / steps, "assembling")
     Qm = sparse.csr_matrix((data, indices, indptr), shape=(n_u * C, n_u * C))
-    return _System(Qm, rhs, z, groups, pixels, Q[:, slot_of[reach2, reach2]].copy())
+    return _System(Qm, rhs, z, groups, pixels, Q[:, slot_of[reach2, reach2]].copy(), Q, index)
 
 
 def _group_batches(groups, C):
@@ -691,17 +734,26 @@ def iter_stencil_solve(frame, unknown, row_sets, tile, *, probes=0, seed=0,
     ``(values, draws, diagonal)``, (n, d), (n, probes, d) and (n, d, d) in
     ``np.nonzero(unknown)`` order: the draws have covariance ``Q_UU^-1``;
     ``diagonal`` is the diagonal blocks of ``Q_UU``."""
+    values, draws, diagonal, _ = yield from _iter_stencil_system(
+        frame, unknown, row_sets, tile, probes=probes, seed=seed, message=message)
+    return values, draws, diagonal
+
+
+def _iter_stencil_system(frame, unknown, row_sets, tile, *, probes=0, seed=0,
+                         message="frame", reuse=None):
+    """:func:`iter_stencil_solve`, returning its :class:`_System` too;
+    ``reuse``: see :func:`_iter_assemble`."""
     C = frame.shape[2]
     system = yield from stage(_iter_assemble(frame, unknown, row_sets, tile, probes=probes,
-                                             seed=seed), 0.0, 0.3, name="solve",
-                              prefix=f"{message}, ")
+                                             seed=seed, reuse=reuse), 0.0, 0.3,
+                              name="solve", prefix=f"{message}, ")
     yield Progress("solve", 0.3, f"{message}, solving")
     values, draws = yield from stage(_iter_solve(system, C, message), 0.3, 1.0)
     ui, uj = np.nonzero(unknown)
     order = np.full(unknown.shape, -1, np.int64)
     order[system.pixels[:, 0], system.pixels[:, 1]] = np.arange(len(system.pixels))
     at = order[ui, uj]
-    return values[at], draws[at], system.diagonal[at]
+    return values[at], draws[at], system.diagonal[at], system
 
 
 def stencil_solve(frame, unknown, row_sets, tile):
@@ -916,14 +968,15 @@ def iter_fill_conditional(frame, mask, *, order=3, directions=DIRECTIONS, previo
         row_sets.append(_row_set(model, previous, rows_near))
         yield Progress("frames", 1 / steps, f"{message}, models fitted")
     damage = mask.copy()
+    tested = None  # the last edge test's system: the damage is a part of its unknowns
     for ring_number in range(rings):
         ring = ndimage.binary_dilation(damage, structure=_CROSS) & ~damage
         if not ring.any():
             break
         both = damage | ring
-        values, draws, diagonal = yield from stage(
-            iter_stencil_solve(frame, both, row_sets, tile, probes=probes, seed=ring_number,
-                               message=message),
+        values, draws, diagonal, tested = yield from stage(
+            _iter_stencil_system(frame, both, row_sets, tile, probes=probes,
+                                 seed=ring_number, message=message),
             (1 + ring_number) / steps, (2 + ring_number) / steps, name="frames")
         trial = frame.copy()
         trial[both] = values
@@ -940,9 +993,10 @@ def iter_fill_conditional(frame, mask, *, order=3, directions=DIRECTIONS, previo
             break
         bi, bj = np.nonzero(ring)
         damage[bi[bad], bj[bad]] = True
-    values, _, _ = yield from stage(
-        iter_stencil_solve(frame, damage, row_sets, tile, message=message),
+    values, _, _, _ = yield from stage(
+        _iter_stencil_system(frame, damage, row_sets, tile, message=message, reuse=tested),
         (steps - 1) / steps, 1.0, name="frames")
+    del tested
     ui, uj = np.nonzero(damage)
     values = values[mask[ui, uj]]
     if fill_range is not None:
