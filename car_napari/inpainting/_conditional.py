@@ -93,20 +93,6 @@ def _shifted(arr, di, dj, fill):
     return out
 
 
-def _iter_zero_padded(frame, before, extra):
-    """``frame`` (H, W, d) with ``before`` zero rows and columns before it and
-    ``before + extra`` after (``np.pad``'s result, in a fraction of its time),
-    copied by bands of rows with a record (stage ``"fit"``) between them."""
-    H, W, C = frame.shape
-    out = np.zeros((H + 2 * before + extra, W + 2 * before + extra, C), frame.dtype)
-    rows = max(1, _FIT_RECORD_PIXELS * 16 // max(W, 1))
-    for r0 in range(0, H, rows):
-        r1 = min(r0 + rows, H)
-        out[before + r0 : before + r1, before : before + W] = frame[r0:r1]
-        yield Progress("fit", 0.05, "fitting")
-    return out
-
-
 def _inside(shape, offsets):
     """Pixels ``r`` whose every ``r - s`` lies in the frame."""
     H, W = shape
@@ -161,6 +147,74 @@ def _iter_known_variance(frame, known, message, fraction):
     return squares / max(n, 1)
 
 
+@njit(cache=True, nogil=True)
+def _fit_blocks_kernel(frame, previous, ok, taps, n_current, r0, cols, g, blocks, counts):
+    """The regression rows of the fitting pixels of a row of blocks:
+    ``blocks[n, y * g + x, k * d + c]`` the tap ``k`` (the first
+    ``n_current`` of ``frame``, the others of ``previous``; 0 outside the
+    frame) of pixel ``(r0 + y, cols[n] * g + x)`` times 1 when it is a
+    fitting pixel (``ok``) and 0 when not; ``counts[n]`` the fitting pixels
+    of block ``n``."""
+    H, W, C = frame.shape
+    K = taps.shape[0]
+    for n in range(cols.shape[0]):
+        c0 = cols[n] * g
+        counts[n] = 0.0
+        for y in range(g):
+            i = r0 + y
+            for x in range(g):
+                j = c0 + x
+                f = 1.0 if (i < H and j < W and ok[i, j]) else 0.0
+                counts[n] += f
+                row = y * g + x
+                for k in range(K):
+                    si = i - taps[k, 0]
+                    sj = j - taps[k, 1]
+                    inside = 0 <= si < H and 0 <= sj < W
+                    for c in range(C):
+                        v = 0.0
+                        if inside:
+                            v = frame[si, sj, c] if k < n_current else previous[si, sj, c]
+                        blocks[n, row, k * C + c] = v * f
+
+
+@njit(cache=True, nogil=True)
+def _window_sums_kernel(flat, corner_rows, a0, a1, b0, b1, m0, m1, out):
+    """``out[t, m] = I[a1, b1] - I[a0, b1] - I[a1, b0] + I[a0, b0]`` for the
+    entries ``m0 <= m < m1`` of the (R, S, M) ``flat``, ``I`` its integral
+    image (a zero row and column first): ``np.cumsum`` down the rows, then
+    along them, the same additions in the same order, kept only at the
+    ``corner_rows`` (sorted) that are read."""
+    R, S, _ = flat.shape
+    M = m1 - m0
+    slot = np.full(R + 1, -1, np.int64)
+    for r in range(corner_rows.shape[0]):
+        slot[corner_rows[r]] = r
+    rows = np.zeros((corner_rows.shape[0], S + 1, M))  # I at those rows
+    down = np.empty((S, M))  # the running column sums (the first cumsum)
+    for a in range(1, R + 1):
+        for b in range(S):
+            for m in range(M):
+                if a == 1:
+                    down[b, m] = flat[0, b, m0 + m]
+                else:
+                    down[b, m] = down[b, m] + flat[a - 1, b, m0 + m]
+        r = slot[a]
+        if r < 0:
+            continue
+        for m in range(M):
+            acc = down[0, m]
+            rows[r, 1, m] = acc
+            for b in range(1, S):
+                acc = acc + down[b, m]
+                rows[r, b + 1, m] = acc
+    for t in range(a0.shape[0]):
+        r0, r1 = slot[a0[t]], slot[a1[t]]
+        for m in range(M):
+            out[t, m0 + m] = (rows[r1, b1[t], m] - rows[r0, b1[t], m] - rows[r1, b0[t], m]
+                              + rows[r0, b0[t], m])
+
+
 def iter_fit_local_models(frame, unknown, offset_sets, *, previous=None, tile=DEFAULT_TILE,
                           margin=DEFAULT_MARGIN, need=None, prior=_PRIOR):
     """:func:`fit_local_models` as a job: a record after every band of
@@ -171,7 +225,6 @@ def iter_fit_local_models(frame, unknown, offset_sets, *, previous=None, tile=DE
     union = sorted({(int(di), int(dj)) for o in offset_sets for di, dj in o} - {(0, 0)})
     taps = np.array([(0, 0)] + union, np.int64)  # the centre first
     where = {tuple(t): k for k, t in enumerate(taps.tolist())}
-    reach = int(np.abs(np.vstack([taps, PREVIOUS_OFFSETS])).max())
     ty, tx = -(-H // tile), -(-W // tile)
     if need is None:
         need = np.ones((ty, tx), bool)
@@ -224,53 +277,48 @@ def iter_fit_local_models(frame, unknown, offset_sets, *, previous=None, tile=DE
     block_cols = np.nonzero(wanted.any(axis=0))[0]
     # the raw statistics of every wanted block: pixel count, sums, sums of products
     yield Progress("fit", 0.05, "fitting")
-    padded = yield from _iter_zero_padded(frame, reach, g)
-    ppad = None if previous is None else (yield from _iter_zero_padded(previous, reach, g))
-    okp = np.zeros((by * g, bx * g), bool)
-    okp[:H, :W] = ok
+    # the kernel reads the frames with zeros outside (no padded copies)
+    source = np.ascontiguousarray(frame, np.float64)
+    psource = (np.zeros((0, 0, C)) if previous is None
+               else np.ascontiguousarray(previous, np.float64))
+    yield Progress("fit", 0.05, "fitting")
     shape = (len(block_rows), len(block_cols))
     count = np.zeros(shape)
     s1 = np.zeros((*shape, n_cols))
     s2 = np.zeros((*shape, n_cols, n_cols))
-    taps_all = [(t, padded) for t in taps] + [(t, ppad) for t in PREVIOUS_OFFSETS[:n_prev]]
+    taps_all = np.ascontiguousarray(np.vstack([taps, PREVIOUS_OFFSETS[:n_prev]]), np.int64)
     pixels_done = 0
     for row, a in enumerate(block_rows):
         cols = np.nonzero(wanted[a])[0]
         at = np.searchsorted(block_cols, cols)
-        r0 = a * g
-        columns = (cols[:, None] * g + np.arange(g)).ravel()  # the wanted blocks' columns
         nc = len(cols)
-        Z = np.empty((g, nc * g, n_cols))
-        for k, ((di, dj), src) in enumerate(taps_all):
-            Z[..., k * C : (k + 1) * C] = src[r0 + reach - di : r0 + reach - di + g,
-                                              reach - dj + columns]
-        fits = okp[r0 : r0 + g, columns]
-        Z *= fits[..., None]
-        blocks = Z.reshape(g, nc, g, n_cols).transpose(1, 0, 2, 3).reshape(nc, g * g, n_cols)
-        count[row, at] = fits.reshape(g, nc, g).sum(axis=(0, 2))
+        blocks = np.empty((nc, g * g, n_cols))
+        counts = np.empty(nc)
+        _fit_blocks_kernel(source, psource, ok, taps_all, len(taps), a * g, cols, g, blocks,
+                           counts)
+        count[row, at] = counts
         s1[row, at] = blocks.sum(axis=1)
         s2[row, at] = np.matmul(blocks.transpose(0, 2, 1), blocks)
         pixels_done += g * g * nc
         if pixels_done >= _FIT_RECORD_PIXELS:
             pixels_done = 0
             yield Progress("fit", 0.05 + 0.75 * (row + 1) / len(block_rows), "fitting")
-    del padded, ppad, okp
+    del source, psource
     # the window sums (integral images over the blocks) of every needed tile,
     # by slices of the statistics' columns, a record between them
     a0, a1 = (np.searchsorted(block_rows, i0 // g), np.searchsorted(block_rows, -(-i1 // g)))
     b0, b1 = (np.searchsorted(block_cols, j0 // g), np.searchsorted(block_cols, -(-j1 // g)))
     step = max(1, _FIT_RECORD_PIXELS * 64 // max(shape[0] * shape[1], 1))
 
+    corner_rows = np.unique(np.concatenate([a0, a1]))  # the integral's rows read
+
     def window_sums(blocks, start, stop):
-        flat = blocks.reshape(*shape, math.prod(blocks.shape[2:]))
+        flat = np.ascontiguousarray(blocks.reshape(*shape, math.prod(blocks.shape[2:])))
         out = np.empty((len(a0), flat.shape[2]))
         for k in range(0, flat.shape[2], step):
-            part = slice(k, min(k + step, flat.shape[2]))
-            integral = np.zeros((shape[0] + 1, shape[1] + 1, part.stop - part.start))
-            np.cumsum(np.cumsum(flat[..., part], axis=0), axis=1, out=integral[1:, 1:])
-            out[:, part] = (integral[a1, b1] - integral[a0, b1] - integral[a1, b0]
-                            + integral[a0, b0])
-            yield Progress("fit", start + (stop - start) * part.stop / flat.shape[2], "fitting")
+            part = min(k + step, flat.shape[2])
+            _window_sums_kernel(flat, corner_rows, a0, a1, b0, b1, k, part, out)
+            yield Progress("fit", start + (stop - start) * part / flat.shape[2], "fitting")
         return out.reshape(len(a0), *blocks.shape[2:])
 
     N = (yield from window_sums(count, 0.8, 0.8))
