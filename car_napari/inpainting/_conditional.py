@@ -114,10 +114,57 @@ def _iter_known_bands(frame, known, message, lo, hi):
         yield Progress("fit", lo + (hi - lo) * min(r0 + rows, H) / H, message), None
 
 
+@njit(cache=True, nogil=True)
+def _known_sums_kernel(frame, known, r0, r1, centre, squares):
+    """The sums per channel over the known pixels of rows ``r0:r1`` (in
+    raster order, one after another: what NumPy's sum over the rows of an
+    (n, d >= 2) array does) of the values, or with ``squares`` of their
+    squared deviations from ``centre``; and the pixels summed."""
+    C = frame.shape[2]
+    out = np.zeros(C)
+    n = 0
+    for i in range(r0, r1):
+        for j in range(frame.shape[1]):
+            if not known[i, j]:
+                continue
+            n += 1
+            for c in range(C):
+                if squares:
+                    d = frame[i, j, c] - centre[c]
+                    out[c] += d * d
+                else:
+                    out[c] += frame[i, j, c]
+    return out, n
+
+
+@njit(cache=True, nogil=True)
+def _known_range_kernel(frame, known, r0, r1, lo, hi):
+    """``lo``, ``hi`` (d,) lowered and raised to the known pixels of rows ``r0:r1``."""
+    for i in range(r0, r1):
+        for j in range(frame.shape[1]):
+            if known[i, j]:
+                for c in range(frame.shape[2]):
+                    v = frame[i, j, c]
+                    lo[c] = min(lo[c], v)
+                    hi[c] = max(hi[c], v)
+
+
+def _compiled_sums(frame):
+    """Whether :func:`_known_sums_kernel` sums ``frame`` as NumPy does: float64
+    and at least two channels (NumPy sums one channel pairwise)."""
+    return frame.dtype == np.float64 and frame.shape[2] >= 2
+
+
 def _iter_known_range(frame, known, message):
     """(lo, hi) per channel of the known pixels, as a job."""
-    C = frame.shape[2]
+    H, W, C = frame.shape
     lo, hi = np.full(C, np.inf), np.full(C, -np.inf)
+    if frame.dtype == np.float64:  # no copy of the known pixels
+        rows = max(1, _FIT_RECORD_PIXELS * 16 // max(W, 1))
+        for r0 in range(0, H, rows):
+            _known_range_kernel(frame, known, r0, min(r0 + rows, H), lo, hi)
+            yield Progress("fit", min(r0 + rows, H) / H, message)
+        return lo, hi
     for record, values in _iter_known_bands(frame, known, message, 0.0, 1.0):
         if record is not None:
             yield record
@@ -129,7 +176,21 @@ def _iter_known_range(frame, known, message):
 def _iter_known_variance(frame, known, message, fraction):
     """The variance per channel of the known pixels (two passes: the mean,
     then the centred squares), as a job."""
-    C = frame.shape[2]
+    H, W, C = frame.shape
+    if _compiled_sums(frame):  # the same sums, without copies of the known pixels
+        rows = max(1, _FIT_RECORD_PIXELS * 16 // max(W, 1))
+        n, total = 0, np.zeros(C)
+        for r0 in range(0, H, rows):
+            part, count = _known_sums_kernel(frame, known, r0, min(r0 + rows, H), total, False)
+            n += count
+            total += part
+            yield Progress("fit", fraction, message)
+        mean = total / max(n, 1)
+        squares = np.zeros(C)
+        for r0 in range(0, H, rows):
+            squares += _known_sums_kernel(frame, known, r0, min(r0 + rows, H), mean, True)[0]
+            yield Progress("fit", fraction, message)
+        return squares / max(n, 1)
     n, total = 0, np.zeros(C)
     for record, values in _iter_known_bands(frame, known, message, fraction, fraction):
         if record is not None:
