@@ -607,18 +607,21 @@ def _assemble_kernel(frame, index, offsets, coeffs, pairs, constant, extra, tile
 
 
 @njit(cache=True, nogil=True)
-def _csr_kernel(Q, pixels, index, slots, indptr, indices, data, count_only, start, stop):
+def _csr_kernel(Q, block_rows, pixels, index, slots, indptr, indices, data, count_only,
+                start, stop):
     """The CSR pattern (``count_only``: the entries per row into
     ``indptr[1:]``) or the entries of ``Q`` (per unknown pixel, per slot of
-    ``slots`` (S, 2) offsets, a C x C block), the unknown pixels (their
-    ``pixels`` coordinates) in ``index`` order, blocks that are all zero left
-    out; of the pixels ``start`` to ``stop``."""
+    ``slots`` (S, 2) offsets, a C x C block; pixel ``p``'s blocks are
+    ``Q[block_rows[p]]``), the unknown pixels (their ``pixels``
+    coordinates) in ``index`` order, blocks that are all zero left out; of
+    the pixels ``start`` to ``stop``."""
     S, C = Q.shape[1], Q.shape[2]
     H, W = index.shape
     columns = np.empty(S, np.int64)  # the pixel's nonzero blocks: their column pixel
     blocks = np.empty(S, np.int64)  # and slot
     for p in range(start, stop):
         i, j = pixels[p, 0], pixels[p, 1]
+        row = block_rows[p]
         n = 0
         for s in range(S):
             qi, qj = i + slots[s, 0], j + slots[s, 1]
@@ -630,7 +633,7 @@ def _csr_kernel(Q, pixels, index, slots, indptr, indices, data, count_only, star
             nonzero = False
             for b in range(C):
                 for c in range(C):
-                    if Q[p, s, b, c] != 0.0:
+                    if Q[row, s, b, c] != 0.0:
                         nonzero = True
                         break
                 if nonzero:
@@ -647,7 +650,7 @@ def _csr_kernel(Q, pixels, index, slots, indptr, indices, data, count_only, star
             for t in range(n):
                 for c in range(C):
                     indices[at] = columns[t] * C + c
-                    data[at] = Q[p, blocks[t], a, c]
+                    data[at] = Q[row, blocks[t], a, c]
                     at += 1
 
 
@@ -663,7 +666,8 @@ class _System(NamedTuple):
     groups: list
     pixels: np.ndarray  # (n, 2) the unknown pixels in index order
     diagonal: np.ndarray  # (n, d, d) the diagonal blocks of Q
-    blocks: np.ndarray  # (n, slots, d, d) Q by pixel and offset
+    blocks: np.ndarray  # (m, slots, d, d) Q by pixel and offset: pixel p's at block_rows[p]
+    block_rows: np.ndarray  # (n,)
     index: np.ndarray  # (H, W) a pixel's place in index order, -1 if known
 
 
@@ -717,10 +721,10 @@ def _iter_assemble(frame, unknown, row_sets, tile, probes=0, seed=0, reuse=None)
         at = reuse.index[ui, uj]
         if len(at) and at.min() < 0:
             raise ValueError("reuse must be the system of a superset of the unknown pixels.")
-        Q = reuse.blocks[at]
+        Q, block_rows = reuse.blocks, reuse.block_rows[at]  # read in place, not copied
         probes = 0
     else:
-        Q = np.zeros((n_u, len(slots), C, C))
+        Q, block_rows = np.zeros((n_u, len(slots), C, C)), np.arange(n_u)
     rhs = np.zeros((n_u, C))
     z = np.zeros((n_u, probes, C))
     frame = np.ascontiguousarray(frame, np.float64)
@@ -756,17 +760,21 @@ def _iter_assemble(frame, unknown, row_sets, tile, probes=0, seed=0, reuse=None)
     for count_only in (True, False):
         if not count_only:
             np.cumsum(indptr, out=indptr)
-            indices = np.empty(indptr[-1], np.int64)
+            # 32-bit indices when they fit, as SciPy and SuperLU keep them (no conversion)
+            small = max(indptr[-1], n_u * C) < np.iinfo(np.int32).max
+            indices = np.empty(indptr[-1], np.int32 if small else np.int64)
             data = np.empty(indptr[-1])
         else:
             indices, data = np.zeros(0, np.int64), np.zeros(0)
         for a in csr_parts:
-            _csr_kernel(Q, pixels, index, slots, indptr, indices, data, count_only, a,
-                        min(a + _CSR_PIXELS, n_u))
+            _csr_kernel(Q, block_rows, pixels, index, slots, indptr, indices, data, count_only,
+                        a, min(a + _CSR_PIXELS, n_u))
             done += 1
             yield Progress("assembly", done / steps, "assembling")
-    Qm = sparse.csr_matrix((data, indices, indptr), shape=(n_u * C, n_u * C))
-    return _System(Qm, rhs, z, groups, pixels, Q[:, slot_of[reach2, reach2]].copy(), Q, index)
+    Qm = sparse.csr_matrix((data, indices, indptr.astype(indices.dtype)),
+                           shape=(n_u * C, n_u * C))
+    return _System(Qm, rhs, z, groups, pixels, Q[block_rows, slot_of[reach2, reach2]], Q,
+                   block_rows, index)
 
 
 def _group_batches(groups, C):
