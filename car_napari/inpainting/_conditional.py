@@ -546,6 +546,22 @@ def _assemble_kernel(frame, index, offsets, coeffs, pairs, constant, extra, tile
     Qf = Q.reshape(Q.shape[0] * S, CC)
     ty, tx = pairs.shape[0], pairs.shape[1]
     pf = pairs.reshape(ty * tx * K * K, CC)
+    # G_k^T n for each of the 2^d sign vectors n, per tile and tap: a draw's
+    # term is then looked up (the same products and sums, made once)
+    patterns = 1 << C
+    signed = np.zeros((0, 0, K, patterns, C))
+    pattern = np.zeros(probes, np.int64)
+    if with_q and probes:
+        signed = np.empty((coeffs.shape[0], coeffs.shape[1], K, patterns, C))
+        for t0 in range(coeffs.shape[0]):
+            for t1 in range(coeffs.shape[1]):
+                for k in range(K):
+                    for pat in range(patterns):
+                        for a in range(C):
+                            acc = 0.0
+                            for b in range(C):
+                                acc += coeffs[t0, t1, k, b, a] * (1.0 if (pat >> b) & 1 else -1.0)
+                            signed[t0, t1, k, pat, a] = acc
     for n in range(rows.shape[0]):
         i, j = rows[n, 0], rows[n, 1]
         if not (in_i <= i < out_i and in_j <= j < out_j):
@@ -572,11 +588,14 @@ def _assemble_kernel(frame, index, offsets, coeffs, pairs, constant, extra, tile
                     kc[a] += acc
         if with_q:
             for s in range(probes):
+                pat = 0
                 for a in range(C):  # xorshift64: a random sign
                     rng ^= rng << np.uint64(13)
                     rng ^= rng >> np.uint64(7)
                     rng ^= rng << np.uint64(17)
-                    noise[s, a] = 1.0 if (rng >> np.uint64(40)) & np.uint64(1) else -1.0
+                    if (rng >> np.uint64(40)) & np.uint64(1):
+                        pat |= 1 << a
+                pattern[s] = pat
         tile_pairs = (ti * tx + tj) * K * K
         for k in range(K):
             p = tap[k]
@@ -589,12 +608,9 @@ def _assemble_kernel(frame, index, offsets, coeffs, pairs, constant, extra, tile
                 rhs[p, a] -= acc
             if not with_q:
                 continue
-            for a in range(C):
-                for s in range(probes):
-                    acc = 0.0
-                    for b in range(C):
-                        acc += coeffs[ti, tj, k, b, a] * noise[s, b]
-                    z[p, s, a] += acc
+            for s in range(probes):
+                for a in range(C):
+                    z[p, s, a] += signed[ti, tj, k, pattern[s], a]
             row_p = p * S
             for k2 in range(K):
                 if tap[k2] < 0:
