@@ -93,6 +93,34 @@ def _shifted(arr, di, dj, fill):
     return out
 
 
+@njit(cache=True, nogil=True)
+def _dilate_kernel(mask, radius, square, out):
+    H, W = mask.shape
+    for i in range(H):
+        for j in range(W):
+            if not mask[i, j]:
+                continue
+            for di in range(-radius, radius + 1):
+                ii = i + di
+                if ii < 0 or ii >= H:
+                    continue
+                reach = radius if square else radius - abs(di)
+                for jj in range(max(j - reach, 0), min(j + reach + 1, W)):
+                    out[ii, jj] = True
+
+
+def _dilate(mask, radius, square=False):
+    """``ndimage.binary_dilation(mask, iterations=radius)`` with the cross
+    (the pixels within ``radius`` steps of a true one) or, ``square``, with
+    the 3x3 square (within ``radius`` in both coordinates): the same set,
+    made by marking each true pixel's neighbourhood (the masks are sparse;
+    SciPy's passes over the whole frame took most of the time on small
+    damage)."""
+    out = np.zeros(mask.shape, bool)
+    _dilate_kernel(np.ascontiguousarray(mask, bool), int(radius), bool(square), out)
+    return out
+
+
 def _inside(shape, offsets):
     """Pixels ``r`` whose every ``r - s`` lies in the frame."""
     H, W = shape
@@ -624,49 +652,53 @@ def _assemble_kernel(frame, index, offsets, coeffs, pairs, constant, extra, tile
 
 @njit(cache=True, nogil=True)
 def _csr_kernel(Q, block_rows, pixels, index, slots, indptr, indices, data, count_only,
-                start, stop):
+                start, stop, found, found_n):
     """The CSR pattern (``count_only``: the entries per row into
     ``indptr[1:]``) or the entries of ``Q`` (per unknown pixel, per slot of
     ``slots`` (S, 2) offsets, a C x C block; pixel ``p``'s blocks are
     ``Q[block_rows[p]]``), the unknown pixels (their ``pixels``
     coordinates) in ``index`` order, blocks that are all zero left out; of
-    the pixels ``start`` to ``stop``."""
+    the pixels ``start`` to ``stop``. The counting pass keeps each pixel's
+    nonzero blocks (their column pixel and slot, ``found`` (n, S, 2),
+    ``found_n`` (n,)) for the other."""
     S, C = Q.shape[1], Q.shape[2]
     H, W = index.shape
-    columns = np.empty(S, np.int64)  # the pixel's nonzero blocks: their column pixel
-    blocks = np.empty(S, np.int64)  # and slot
     for p in range(start, stop):
-        i, j = pixels[p, 0], pixels[p, 1]
         row = block_rows[p]
-        n = 0
-        for s in range(S):
-            qi, qj = i + slots[s, 0], j + slots[s, 1]
-            if qi < 0 or qi >= H or qj < 0 or qj >= W:
-                continue
-            q = index[qi, qj]
-            if q < 0:
-                continue
-            nonzero = False
-            for b in range(C):
-                for c in range(C):
-                    if Q[row, s, b, c] != 0.0:
-                        nonzero = True
+        if count_only:
+            i, j = pixels[p, 0], pixels[p, 1]
+            n = 0
+            for s in range(S):
+                qi, qj = i + slots[s, 0], j + slots[s, 1]
+                if qi < 0 or qi >= H or qj < 0 or qj >= W:
+                    continue
+                q = index[qi, qj]
+                if q < 0:
+                    continue
+                nonzero = False
+                for b in range(C):
+                    for c in range(C):
+                        if Q[row, s, b, c] != 0.0:
+                            nonzero = True
+                            break
+                    if nonzero:
                         break
                 if nonzero:
-                    break
-            if nonzero:
-                columns[n] = q
-                blocks[n] = s
-                n += 1
-        for a in range(C):
-            if count_only:
+                    found[p, n, 0] = q
+                    found[p, n, 1] = s
+                    n += 1
+            found_n[p] = n
+            for a in range(C):
                 indptr[p * C + a + 1] = n * C
-                continue
+            continue
+        n = found_n[p]
+        for a in range(C):
             at = indptr[p * C + a]
             for t in range(n):
+                q, s = found[p, t, 0], found[p, t, 1]
                 for c in range(C):
-                    indices[at] = columns[t] * C + c
-                    data[at] = Q[row, blocks[t], a, c]
+                    indices[at] = q * C + c
+                    data[at] = Q[row, s, a, c]
                     at += 1
 
 
@@ -708,8 +740,7 @@ def _iter_assemble(frame, unknown, row_sets, tile, probes=0, seed=0, reuse=None)
     # pixels coupled through a row lie within 2 reach of each other: a group
     # is a connected component of the damage grown by ``reach``
     if reach:
-        grown = ndimage.binary_dilation(unknown, structure=np.ones((3, 3), bool),
-                                        iterations=reach)
+        grown = _dilate(unknown, reach, square=True)
     else:
         grown = unknown
     yield Progress("assembly", 0.0, "assembling")
@@ -773,6 +804,8 @@ def _iter_assemble(frame, unknown, row_sets, tile, probes=0, seed=0, reuse=None)
                 yield Progress("assembly", done / steps, "assembling")
     pixels = np.stack([ui, uj], axis=1).astype(np.int64)
     indptr = np.zeros(n_u * C + 1, np.int64)
+    found = np.empty((n_u, len(slots), 2), np.int64)
+    found_n = np.empty(n_u, np.int64)
     for count_only in (True, False):
         if not count_only:
             np.cumsum(indptr, out=indptr)
@@ -784,7 +817,7 @@ def _iter_assemble(frame, unknown, row_sets, tile, probes=0, seed=0, reuse=None)
             indices, data = np.zeros(0, np.int64), np.zeros(0)
         for a in csr_parts:
             _csr_kernel(Q, block_rows, pixels, index, slots, indptr, indices, data, count_only,
-                        a, min(a + _CSR_PIXELS, n_u))
+                        a, min(a + _CSR_PIXELS, n_u), found, found_n)
             done += 1
             yield Progress("assembly", done / steps, "assembling")
     Qm = sparse.csr_matrix((data, indices, indptr.astype(indices.dtype)),
@@ -1033,7 +1066,7 @@ def _tiles_needed(unknown, offsets, tile):
     """Tiles holding a row that touches an unknown pixel."""
     H, W = unknown.shape
     reach = int(np.abs(offsets).max()) if len(offsets) else 0
-    near = ndimage.binary_dilation(unknown, iterations=reach) if reach else unknown
+    near = _dilate(unknown, reach) if reach else unknown
     ty, tx = -(-H // tile), -(-W // tile)
     need = np.zeros((ty, tx), bool)
     ii, jj = np.nonzero(near)
@@ -1080,15 +1113,14 @@ def iter_fill_conditional(frame, mask, *, order=3, directions=DIRECTIONS, previo
         fill_range = yield from stage(_iter_known_range(frame, ~mask, preparing), 0.0,
                                       prepared / 2, name="frames")
     # the fit leaves out the ring around the damage: soft edges stay out of the model
-    fit_out = ndimage.binary_dilation(mask, structure=_CROSS)
+    fit_out = _dilate(mask, 1)
     yield Progress("frames", 0.7 * prepared, preparing)
-    near = ndimage.binary_dilation(mask, structure=_CROSS, iterations=1 + rings)
+    near = _dilate(mask, 1 + rings)
     yield Progress("frames", 0.8 * prepared, preparing)
     need = _tiles_needed(near, np.vstack([base, -base, base[:, ::-1], -base[:, ::-1]]), tile)
     rows_near = None  # the rows the solves visit: within the models' reach of ``near``
     if previous is not None:
-        rows_near = ndimage.binary_dilation(near, structure=np.ones((3, 3), bool),
-                                            iterations=int(np.abs(base).max()))
+        rows_near = _dilate(near, int(np.abs(base).max()), square=True)
     del near
     yield Progress("frames", prepared, preparing)
     models = yield from stage(
@@ -1103,7 +1135,7 @@ def iter_fill_conditional(frame, mask, *, order=3, directions=DIRECTIONS, previo
     damage = mask.copy()
     tested = None  # the last edge test's system: the damage is a part of its unknowns
     for ring_number in range(rings):
-        ring = ndimage.binary_dilation(damage, structure=_CROSS) & ~damage
+        ring = _dilate(damage, 1) & ~damage
         if not ring.any():
             break
         both = damage | ring
