@@ -509,9 +509,15 @@ def _assemble_kernel(frame, index, offsets, coeffs, pairs, constant, extra, tile
     random signs' generator from call to call. With ``border``: instead,
     an unknown pixel of ``rows`` without a full row gets ``border_G Y_p +
     border_c``. Without ``with_q``: ``rhs`` only (``Q`` and ``z`` left
-    alone; no random signs drawn)."""
+    alone; no random signs drawn).
+
+    ``Q`` holds the slots from the centre on only (offsets ``q - p`` at or
+    after (0, 0) in ``slot_of``'s sorted order, ``Q[p, slot - centre]``):
+    the block of the opposite offset is its transpose (``pairs[t, l, k] =
+    pairs[t, k, l]^T``, added by the same rows in the same order)."""
     H, W, C = frame.shape
     K = offsets.shape[0]
+    centre = slot_of[reach2, reach2]
     in_i, in_j, out_i, out_j = 0, 0, H, W
     for k in range(K):
         in_i = max(in_i, offsets[k, 0])
@@ -524,7 +530,6 @@ def _assemble_kernel(frame, index, offsets, coeffs, pairs, constant, extra, tile
     use_extra = extra.shape[0] == H
     rng = state[0]
     if border:
-        centre = slot_of[reach2, reach2]
         for n in range(rows.shape[0]):
             i, j = rows[n, 0], rows[n, 1]
             p = index[i, j]
@@ -559,7 +564,7 @@ def _assemble_kernel(frame, index, offsets, coeffs, pairs, constant, extra, tile
                     acc = 0.0
                     for b in range(C):
                         acc += border_G[ti, tj, b, a] * border_G[ti, tj, b, c]
-                    Q[p, centre, a, c] += acc
+                    Q[p, 0, a, c] += acc
         state[0] = rng
         return
     # the slot of each pair of taps (their offsets are fixed) and the
@@ -639,9 +644,9 @@ def _assemble_kernel(frame, index, offsets, coeffs, pairs, constant, extra, tile
             for s in range(probes):
                 for a in range(C):
                     z[p, s, a] += signed[ti, tj, k, pattern[s], a]
-            row_p = p * S
+            row_p = p * S - centre
             for k2 in range(K):
-                if tap[k2] < 0:
+                if tap[k2] < 0 or slot_kk[k, k2] < centre:
                     continue
                 q_row = row_p + slot_kk[k, k2]
                 pair_row = tile_pairs + k * K + k2
@@ -660,8 +665,11 @@ def _csr_kernel(Q, block_rows, pixels, index, slots, indptr, indices, data, coun
     coordinates) in ``index`` order, blocks that are all zero left out; of
     the pixels ``start`` to ``stop``. The counting pass keeps each pixel's
     nonzero blocks (their column pixel and slot, ``found`` (n, S, 2),
-    ``found_n`` (n,)) for the other."""
-    S, C = Q.shape[1], Q.shape[2]
+    ``found_n`` (n,)) for the other. ``Q`` holds the slots from the centre
+    of ``slots`` on (see :func:`_assemble_kernel`); a slot before it is
+    the transpose of the opposite slot's block of the column pixel."""
+    S, C = slots.shape[0], Q.shape[2]
+    centre = (S - 1) // 2
     H, W = index.shape
     for p in range(start, stop):
         row = block_rows[p]
@@ -675,10 +683,14 @@ def _csr_kernel(Q, block_rows, pixels, index, slots, indptr, indices, data, coun
                 q = index[qi, qj]
                 if q < 0:
                     continue
+                if s >= centre:
+                    r, t = row, s - centre
+                else:
+                    r, t = block_rows[q], S - 1 - s - centre
                 nonzero = False
                 for b in range(C):
                     for c in range(C):
-                        if Q[row, s, b, c] != 0.0:
+                        if Q[r, t, b, c] != 0.0:
                             nonzero = True
                             break
                     if nonzero:
@@ -696,10 +708,17 @@ def _csr_kernel(Q, block_rows, pixels, index, slots, indptr, indices, data, coun
             at = indptr[p * C + a]
             for t in range(n):
                 q, s = found[p, t, 0], found[p, t, 1]
-                for c in range(C):
-                    indices[at] = q * C + c
-                    data[at] = Q[row, s, a, c]
-                    at += 1
+                if s >= centre:
+                    for c in range(C):
+                        indices[at] = q * C + c
+                        data[at] = Q[row, s - centre, a, c]
+                        at += 1
+                else:
+                    r, u = block_rows[q], S - 1 - s - centre
+                    for c in range(C):
+                        indices[at] = q * C + c
+                        data[at] = Q[r, u, c, a]
+                        at += 1
 
 
 class _System(NamedTuple):
@@ -714,7 +733,8 @@ class _System(NamedTuple):
     groups: list
     pixels: np.ndarray  # (n, 2) the unknown pixels in index order
     diagonal: np.ndarray  # (n, d, d) the diagonal blocks of Q
-    blocks: np.ndarray  # (m, slots, d, d) Q by pixel and offset: pixel p's at block_rows[p]
+    blocks: np.ndarray  # (m, slots, d, d) Q by pixel and offset from the centre on:
+    # pixel p's at block_rows[p] (see _assemble_kernel)
     block_rows: np.ndarray  # (n,)
     index: np.ndarray  # (H, W) a pixel's place in index order, -1 if known
 
@@ -760,6 +780,9 @@ def _iter_assemble(frame, unknown, row_sets, tile, probes=0, seed=0, reuse=None)
     slots = np.array(diffs, np.int64)
     slot_of = np.full((2 * reach2 + 1, 2 * reach2 + 1), -1, np.int64)
     slot_of[slots[:, 0] + reach2, slots[:, 1] + reach2] = np.arange(len(slots))
+    # sorted and symmetric: the opposite of slot s is len - 1 - s; Q keeps
+    # the slots from the centre on (the others are their transposes)
+    centre = (len(slots) - 1) // 2
     del labels
     yield Progress("assembly", 0.0, "assembling")
     rows = np.stack(np.nonzero(grown), axis=1).astype(np.int64)  # raster order
@@ -771,7 +794,7 @@ def _iter_assemble(frame, unknown, row_sets, tile, probes=0, seed=0, reuse=None)
         Q, block_rows = reuse.blocks, reuse.block_rows[at]  # read in place, not copied
         probes = 0
     else:
-        Q, block_rows = np.zeros((n_u, len(slots), C, C)), np.arange(n_u)
+        Q, block_rows = np.zeros((n_u, len(slots) - centre, C, C)), np.arange(n_u)
     rhs = np.zeros((n_u, C))
     z = np.zeros((n_u, probes, C))
     frame = np.ascontiguousarray(frame, np.float64)
@@ -822,7 +845,7 @@ def _iter_assemble(frame, unknown, row_sets, tile, probes=0, seed=0, reuse=None)
             yield Progress("assembly", done / steps, "assembling")
     Qm = sparse.csr_matrix((data, indices, indptr.astype(indices.dtype)),
                            shape=(n_u * C, n_u * C))
-    return _System(Qm, rhs, z, groups, pixels, Q[block_rows, slot_of[reach2, reach2]], Q,
+    return _System(Qm, rhs, z, groups, pixels, Q[block_rows, 0], Q,
                    block_rows, index)
 
 
