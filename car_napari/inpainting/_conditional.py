@@ -962,12 +962,12 @@ def stencil_solve(frame, unknown, row_sets, tile):
     return drain(iter_stencil_solve(frame, unknown, row_sets, tile))[0]
 
 
-def _row_set(model, previous, where=None):
+def _row_set(model, previous, where=None, taps=None):
     """The rows of :func:`stencil_solve` of one :class:`LocalModels`;
     ``where`` (H, W) bool: the pixels whose previous-frame term is wanted
-    (None: all)."""
+    (None: all); ``taps``: see :func:`_previous_term`."""
     offsets, coeffs, constant, border, Linv = model_rows(model)
-    extra = None if previous is None else _previous_term(model, previous, Linv, where)
+    extra = None if previous is None else _previous_term(model, previous, Linv, where, taps)
     return offsets, coeffs, constant, extra, border
 
 
@@ -1046,29 +1046,44 @@ def model_rows(models):
     return offsets, coeffs, constant, border, Linv
 
 
-def _previous_term(models, previous, Linv, where=None):
-    """``extra[r]``: the whitened contribution of the previous frame to row
-    ``r``, at the pixels ``where`` (H, W) bool (None: all; elsewhere 0). A
-    solve reads it only at the rows near the damage, a small part of the
-    frame: the others are not computed."""
+def _previous_taps(models, previous, where=None):
+    """The pixels ``where`` (H, W) bool (None: all) and the previous frame at
+    each of their :data:`PREVIOUS_OFFSETS` (0 outside the frame) less the
+    tile's previous-frame mean: ``(ii, jj, [(n, d)] * 5)``. The models of
+    the scan directions share the mean, so they share these."""
     H, W, C = previous.shape
-    tile = models.tile
-    eta = len(models.offsets)
     if where is None:
         ii, jj = (a.ravel() for a in np.indices((H, W)))
     else:
         ii, jj = np.nonzero(where)
-    ti, tj = ii // tile, jj // tile
-    pmean = models.previous_mean[ti, tj]
-    total = np.zeros((len(ii), C))
-    for k, (di, dj) in enumerate(PREVIOUS_OFFSETS):
-        B = models.gamma[..., (eta + k) * C : (eta + k + 1) * C]  # (ty, tx, d, d)
-        G = -np.einsum("tuab,tubc->tuac", Linv, B)[ti, tj]  # (n, d, d)
+    pmean = models.previous_mean[ii // models.tile, jj // models.tile]
+    centred = []
+    for di, dj in PREVIOUS_OFFSETS:
         si, sj = ii - di, jj - dj
         inside = (si >= 0) & (si < H) & (sj >= 0) & (sj < W)
         shifted = np.zeros((len(ii), C))  # 0 outside the frame
         shifted[inside] = previous[si[inside], sj[inside]]
         shifted -= pmean
+        centred.append(shifted)
+    return ii, jj, centred
+
+
+def _previous_term(models, previous, Linv, where=None, taps=None):
+    """``extra[r]``: the whitened contribution of the previous frame to row
+    ``r``, at the pixels ``where`` (H, W) bool (None: all; elsewhere 0). A
+    solve reads it only at the rows near the damage, a small part of the
+    frame: the others are not computed. ``taps``: :func:`_previous_taps`
+    of these pixels, if made already (models with the same previous-frame
+    mean)."""
+    H, W, C = previous.shape
+    tile = models.tile
+    eta = len(models.offsets)
+    ii, jj, centred = _previous_taps(models, previous, where) if taps is None else taps
+    ti, tj = ii // tile, jj // tile
+    total = np.zeros((len(ii), C))
+    for k, shifted in enumerate(centred):
+        B = models.gamma[..., (eta + k) * C : (eta + k + 1) * C]  # (ty, tx, d, d)
+        G = -np.einsum("tuab,tubc->tuac", Linv, B)[ti, tj]  # (n, d, d)
         total += np.einsum("nab,nb->na", G, shifted)
     out = np.zeros((H, W, C))
     out[ii, jj] = total
@@ -1152,8 +1167,12 @@ def iter_fill_conditional(frame, mask, *, order=3, directions=DIRECTIONS, previo
         prepared, 1 / steps, name="frames", prefix=f"{message}, ")
     yield Progress("frames", 1 / steps, f"{message}, models fitted")
     row_sets = []
+    taps = None  # the previous frame's taps, shared by models with one previous-frame mean
+    if previous is not None and all(m.previous_mean is models[0].previous_mean
+                                    for m in models):
+        taps = _previous_taps(models[0], previous, rows_near)
     for model in models:
-        row_sets.append(_row_set(model, previous, rows_near))
+        row_sets.append(_row_set(model, previous, rows_near, taps))
         yield Progress("frames", 1 / steps, f"{message}, models fitted")
     damage = mask.copy()
     tested = None  # the last edge test's system: the damage is a part of its unknowns
