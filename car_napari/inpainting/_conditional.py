@@ -663,9 +663,9 @@ def _csr_kernel(Q, block_rows, pixels, index, slots, indptr, indices, data, coun
     ``slots`` (S, 2) offsets, a C x C block; pixel ``p``'s blocks are
     ``Q[block_rows[p]]``), the unknown pixels (their ``pixels``
     coordinates) in ``index`` order, blocks that are all zero left out; of
-    the pixels ``start`` to ``stop``. The counting pass keeps each pixel's
-    nonzero blocks (their column pixel and slot, ``found`` (n, S, 2),
-    ``found_n`` (n,)) for the other. ``Q`` holds the slots from the centre
+    the pixels ``start`` to ``stop``. The counting pass keeps the slots of
+    each pixel's nonzero blocks (``found`` (n, S), ``found_n`` (n,)) for
+    the other. ``Q`` holds the slots from the centre
     of ``slots`` on (see :func:`_assemble_kernel`); a slot before it is
     the transpose of the opposite slot's block of the column pixel."""
     S, C = slots.shape[0], Q.shape[2]
@@ -696,18 +696,19 @@ def _csr_kernel(Q, block_rows, pixels, index, slots, indptr, indices, data, coun
                     if nonzero:
                         break
                 if nonzero:
-                    found[p, n, 0] = q
-                    found[p, n, 1] = s
+                    found[p, n] = s
                     n += 1
             found_n[p] = n
             for a in range(C):
                 indptr[p * C + a + 1] = n * C
             continue
         n = found_n[p]
+        i, j = pixels[p, 0], pixels[p, 1]
         for a in range(C):
             at = indptr[p * C + a]
             for t in range(n):
-                q, s = found[p, t, 0], found[p, t, 1]
+                s = found[p, t]
+                q = index[i + slots[s, 0], j + slots[s, 1]]
                 if s >= centre:
                     for c in range(C):
                         indices[at] = q * C + c
@@ -827,7 +828,7 @@ def _iter_assemble(frame, unknown, row_sets, tile, probes=0, seed=0, reuse=None)
                 yield Progress("assembly", done / steps, "assembling")
     pixels = np.stack([ui, uj], axis=1).astype(np.int64)
     indptr = np.zeros(n_u * C + 1, np.int64)
-    found = np.empty((n_u, len(slots), 2), np.int64)
+    found = np.empty((n_u, len(slots)), np.uint8 if len(slots) <= 256 else np.int64)
     found_n = np.empty(n_u, np.int64)
     for count_only in (True, False):
         if not count_only:
