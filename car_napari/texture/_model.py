@@ -63,6 +63,10 @@ _BLUR_SIGMA = 1.0  # pyramid smoothing before 2x2 decimation, in pixels
 _MIN_TOP = 16  # smallest side of the coarsest level: the order-5 decision rule needs it
 _MAX_ORDER = 5  # largest candidate order for neighbourhood='auto'
 _SHRINK_RADIUS = 0.99  # last-resort target when even order 1 is unstable
+# a fit is usable below this radius: degenerate textures (ramps, step edges)
+# fit unit roots, 1 - 1e-12, that the float32 rounding of the file and of
+# the fit's end pushes to 1 or beyond (synthesis then refuses them)
+_STABLE_RADIUS = 1.0 - 1e-6
 _BAND_QUANTILES = 32  # stored quantiles per band and channel (histogram matching)
 _OUT_QUANTILES = 64  # stored quantiles of the input per channel
 _CHUNK_PIXELS = 1 << 19  # pixels per block of a long pass (a record between blocks)
@@ -460,6 +464,20 @@ def _iter_shrunk(model, target=_SHRINK_RADIUS):
     return trial, scale
 
 
+def _stored_radius(model):
+    """The spectral radius of ``model`` with ``gamma`` rounded to float32, as
+    a fitted texture keeps it (the stability that synthesis will test)."""
+    rounded = CARModel(**{**model.__dict__})
+    rounded.gamma = _f32(model.gamma)
+    return spectral_radius(rounded)
+
+
+def _radius_text(radius):
+    """``radius`` to 4 digits, or to 10 when those would show a unit root as 1."""
+    text = f"{radius:.4g}"
+    return f"{radius:.10g}" if text == "1" else text
+
+
 def _iter_stable_fit(band, neighbourhood, *, model="3d", orders=range(1, _MAX_ORDER + 1),
                      what="the fitted model"):
     """Fit ``band`` (channel-last) by :func:`~car_napari.model.iter_fit_car`
@@ -472,23 +490,23 @@ def _iter_stable_fit(band, neighbourhood, *, model="3d", orders=range(1, _MAX_OR
     """
     first = yield from iter_fit_car(band, neighbourhood, model=model, orders=orders,
                                     channel_axis=-1)
-    radius = spectral_radius(first)
-    if radius < 1.0:
+    radius = _stored_radius(first)
+    if radius < _STABLE_RADIUS:
         return first, None
     label = first.order if first.order is not None else f"{first.eta} offsets"
     for order in _fallback_orders(first):
         trial = yield from stage(iter_fit_car(band, order, model=model, channel_axis=-1),
                                  1.0, 1.0, prefix=f"unstable, refitting order {order}: ")
-        if spectral_radius(trial) < 1.0:
+        if _stored_radius(trial) < _STABLE_RADIUS:
             return trial, (
                 f"{what} (order {label}) was unstable (spectral radius "
-                f"{radius:.4g}); used order {order} instead"
+                f"{_radius_text(radius)}); used order {order} instead"
             )
     lowest = yield from stage(iter_fit_car(band, 1, model=model, channel_axis=-1), 1.0, 1.0,
                               prefix="unstable, refitting order 1: ")
     shrunk, scale = yield from stage(_iter_shrunk(lowest), 1.0, 1.0)
     return shrunk, (
-        f"{what} (order {label}) was unstable (spectral radius {radius:.4g}) "
+        f"{what} (order {label}) was unstable (spectral radius {_radius_text(radius)}) "
         f"and so was every lower order; used order 1 with gamma scaled by {scale:.4g} "
         f"(spectral radius {_SHRINK_RADIUS})"
     )
