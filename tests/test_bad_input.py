@@ -457,3 +457,20 @@ def test_texture_of_a_degenerate_image_synthesises(kind):
     for tileable in (False, True):
         out = model.synthesize((16, 16), seed=0, tileable=tileable)
         assert out.shape == image.shape and np.isfinite(out).all()
+
+
+@pytest.mark.parametrize("bands, error, match", [
+    ([np.ones((8, 8)), np.ones((8, 8))], ValueError, r"bands\[1\] .* needs \(4, 4\)"),
+    ([np.ones((8, 8)), np.ones((2, 2))], ValueError, r"bands\[1\] .* needs \(4, 4\)"),
+    ([np.ones((8, 8, 3)), np.ones((4, 4, 2))], ValueError, r"bands\[1\] .* \(4, 4, 3\)"),
+    ([np.ones((8, 8)), np.ones((0, 0))], ValueError, r"bands\[1\] is empty"),
+    ([np.ones((8, 8)), np.full((4, 4), np.nan)], ValueError, r"bands\[1\] .* NaN"),
+    ([np.ones((8, 8), complex)], TypeError, r"bands\[0\] has dtype complex"),
+    (np.ones((8, 8)), TypeError, "bands must be a list"),
+    ([], ValueError, "bands is empty"),
+])
+def test_collapse_refuses_what_is_not_a_pyramid(bands, error, match):
+    from car_napari.texture import collapse_pyramid
+
+    with pytest.raises(error, match=match):
+        collapse_pyramid(bands)

@@ -38,6 +38,7 @@ from scipy import ndimage as ndi
 from .._progress import Progress, drain, stage
 from .._validation import (
     as_channel_last_float,
+    check_axis,
     check_flag,
     check_memory,
     check_not_constant,
@@ -380,7 +381,12 @@ def collapse_pyramid(bands, *, wrap=False, channel_axis=-1):
     ------
     ValueError
         If there are no bands, or grey and multichannel bands are mixed, or
-        3-D bands come with ``channel_axis=None``.
+        3-D bands come with ``channel_axis=None``, or a band is not half the
+        size of the finer one (rounded up) or has other channels, or holds
+        NaN or infinite values.
+    TypeError
+        If ``bands`` is not a list or tuple, a band is not real-valued, or
+        ``wrap`` is not a bool.
 
     Examples
     --------
@@ -391,22 +397,67 @@ def collapse_pyramid(bands, *, wrap=False, channel_axis=-1):
     >>> np.allclose(collapse_pyramid(bands), image)
     True
     """
-    arrays = [np.asarray(band, dtype=np.float64) for band in bands]
-    if not arrays:
+    wrap = check_flag(wrap, "wrap")
+    arrays = _check_bands(bands, channel_axis)
+    out = _collapse([a if a.ndim == 3 else a[..., np.newaxis] for a in arrays], wrap)
+    if arrays[0].ndim == 2:
+        return out[..., 0]
+    return np.moveaxis(out, -1, channel_axis)
+
+
+def _check_bands(bands, channel_axis):
+    """The bands of :func:`collapse_pyramid` as float64 arrays (3-D ones
+    channel-last), checked for what a pyramid is: numeric, finite, all grey
+    or all with the same channels, each band half the size of the finer one
+    (rounded up, as :func:`laplacian_pyramid` makes them); else a ValueError
+    or TypeError naming the band. Checked before any work."""
+    if isinstance(bands, np.ndarray) or not isinstance(bands, (list, tuple)):
+        raise TypeError("bands must be a list of arrays (those of laplacian_pyramid, finest "
+                        f"first); got {type(bands).__name__}.")
+    if not bands:
         raise ValueError("bands is empty: pass the bands of laplacian_pyramid, finest first.")
+    if len(bands) > MAX_PYRAMID_LEVELS:
+        raise ValueError(f"bands has {len(bands)} bands; a pyramid has at most "
+                         f"{MAX_PYRAMID_LEVELS}.")
+    arrays = []
+    for k, band in enumerate(bands):
+        try:
+            arr = np.asarray(band)
+        except (ValueError, TypeError) as exc:  # ragged nested lists
+            raise ValueError(f"bands[{k}] is not an array: {exc}") from None
+        if arr.dtype == object or arr.dtype.kind not in "biuf":
+            raise TypeError(f"bands[{k}] has dtype {arr.dtype}; pass real (integer or float) "
+                            "arrays.")
+        if arr.size == 0:
+            raise ValueError(f"bands[{k}] is empty (shape {arr.shape}).")
+        arrays.append(arr)
     ndims = {a.ndim for a in arrays}
-    if ndims == {2}:
-        return _collapse([a[..., np.newaxis] for a in arrays], check_flag(wrap, "wrap"))[..., 0]
-    if ndims != {3}:
+    if ndims not in ({2}, {3}):
         raise ValueError(
             f"bands must be all 2-D (grey) or all 3-D (multichannel); got dimensions "
             f"{sorted(ndims)}."
         )
-    if channel_axis is None:
-        raise ValueError("the bands are 3-D but channel_axis=None; pass the channel axis "
-                         "(e.g. channel_axis=-1) or 2-D grey bands.")
-    out = _collapse([np.moveaxis(a, channel_axis, -1) for a in arrays], check_flag(wrap, "wrap"))
-    return np.moveaxis(out, -1, channel_axis)
+    if ndims == {3}:
+        if channel_axis is None:
+            raise ValueError("the bands are 3-D but channel_axis=None; pass the channel axis "
+                             "(e.g. channel_axis=-1) or 2-D grey bands.")
+        axis = check_axis(channel_axis, 3, "channel_axis")
+        arrays = [np.moveaxis(a, axis, -1) for a in arrays]
+    expected = _level_shapes(arrays[0].shape[:2], len(arrays))
+    for k, (a, shape) in enumerate(zip(arrays, expected, strict=True)):
+        if a.shape[:2] != shape or a.shape[2:] != arrays[0].shape[2:]:
+            want = shape + arrays[0].shape[2:]
+            raise ValueError(
+                f"bands[{k}] has shape {a.shape} (channels last) but a pyramid whose finest "
+                f"band is {arrays[0].shape} needs {want} there: each band is half the size "
+                "of the finer one, rounded up. Pass the bands of laplacian_pyramid, finest "
+                "first."
+            )
+    arrays = [a.astype(np.float64) for a in arrays]
+    for k, a in enumerate(arrays):
+        if not np.isfinite(a).all():
+            raise ValueError(f"bands[{k}] contains NaN or infinite values.")
+    return arrays
 
 
 def _max_order_below(offsets):
