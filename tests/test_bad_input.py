@@ -474,3 +474,16 @@ def test_collapse_refuses_what_is_not_a_pyramid(bands, error, match):
 
     with pytest.raises(error, match=match):
         collapse_pyramid(bands)
+
+
+@pytest.mark.parametrize("kind", ["ramp", "ramp_rows", "diagonal", "step", "stripes",
+                                  "checkerboard"])
+def test_features_of_a_degenerate_image_are_finite(kind):
+    # a singular data matrix (or its one-pixel prior) raised LinAlgError
+    from car_napari import rank, texture_features
+
+    image = _degenerate_textures(32)[kind]
+    assert np.isfinite(illumination_invariants(image, 1)).all()
+    assert np.isfinite(texture_features(image, levels=1, neighbourhood=1)).all()
+    ranking = rank(image, [GOOD[..., 0], GOOD[..., 1]], levels=1, neighbourhood=1)
+    assert np.isfinite(ranking.distances).all()

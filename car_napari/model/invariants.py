@@ -14,16 +14,9 @@ import numpy as np
 from .._validation import as_channel_last_float, check_not_constant, check_size
 from .neighbourhood import Context, as_offsets
 from .recursive import scan
-from .statistics import data_statistics, estimate_parameters
+from .statistics import covariant_estimates, data_statistics
 
 __all__ = ["illumination_invariants"]
-
-
-# A texture that its neighbours predict exactly (a ramp, stripes, a checkerboard,
-# a step) has a singular data matrix. The fallback prior is then a small multiple
-# of kron(I, S), S the channels' scatter: each d x d block transforms as
-# B S B^T, so the features stay exactly invariant.
-_DEGENERATE_PRIOR = 1e-9
 
 
 def _unit_scale(data):
@@ -36,19 +29,6 @@ def _unit_scale(data):
     if abs(exponent) <= 64:
         return data
     return np.ldexp(data, -exponent)
-
-
-def _estimate(V, count, m, d, scatter):
-    """The estimates with the covariant prior of one pixel's scatter; with the
-    degenerate-texture prior added where that is singular."""
-    prior_V = V / count
-    try:
-        est = estimate_parameters(V + prior_V, count, m, d, np.zeros(m + d))
-        np.linalg.cholesky(est.lam)
-        return est, prior_V
-    except np.linalg.LinAlgError:
-        prior_V = prior_V + _DEGENERATE_PRIOR * np.kron(np.eye(m // d + 1), scatter)
-        return estimate_parameters(V + prior_V, count, m, d, np.zeros(m + d)), prior_V
 
 
 def _level_features(level, offsets):
@@ -75,7 +55,8 @@ def _level_features(level, offsets):
             f"least {m + 1}: it is nearly flat. Use a more textured region or a lower order."
         )
     # Covariant prior: one pixel's worth of the data's own scatter.
-    (gamma, lam, _, _, _), prior_V = _estimate(V, count, m, d, scatter / flat.shape[0])
+    (gamma, lam, _, _, _), prior_V = covariant_estimates(V, count, m, d, scatter / flat.shape[0],
+                                                         factor_prior=True)
     A = gamma.reshape(d, len(offsets), d).transpose(1, 0, 2)
     traces = np.trace(A, axis1=1, axis2=2)
     eig = np.linalg.eigvals(A)  # (eta, d)

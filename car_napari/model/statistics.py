@@ -10,8 +10,8 @@ import numpy as np
 from .._progress import Progress, drain
 from .directions import scan_view
 
-__all__ = ["Estimates", "data_statistics", "design_chunks", "estimate_parameters",
-           "iter_data_statistics"]
+__all__ = ["Estimates", "covariant_estimates", "data_statistics", "design_chunks",
+           "estimate_parameters", "iter_data_statistics"]
 
 _CHUNK_ELEMENTS = 4_000_000
 
@@ -255,3 +255,74 @@ def estimate_parameters(V, n_pixels, m, d, prior):
     lam = L22 @ L22.T
     beta = (m - 1) + n_pixels
     return Estimates(gamma, lam, Vp[:m, :m], float(beta), L)
+
+
+# A texture that its neighbours predict exactly (a ramp, stripes, a checkerboard,
+# a step) has a singular data matrix. The fallback prior is then a small multiple
+# of kron(I, S), S the channels' scatter: each d x d block transforms as
+# B S B^T, so estimates built on it stay exactly invariant to Y -> B Y.
+DEGENERATE_PRIOR = 1e-9
+
+
+def covariant_estimates(V, n_pixels, m, d, scatter, *, factor_prior=False):
+    """:func:`estimate_parameters` with the covariant prior ``V / n_pixels``
+    (one pixel's worth of the data), and, where that leaves the system
+    singular (a degenerate texture), a prior of ``DEGENERATE_PRIOR`` times
+    ``kron(I, scatter)`` added.
+
+    Parameters
+    ----------
+    V : (m + d, m + d) ndarray
+        The data-gathering matrix (see :func:`data_statistics`).
+    n_pixels : int
+        The number of pixels summed in ``V``.
+    m, d : int
+        Lengths of the regressors and of the modelled channels (``m`` a
+        multiple of ``d``).
+    scatter : (d, d) ndarray
+        One pixel's scatter of the centred channels; positive definite.
+    factor_prior : bool, optional
+        Also require the prior itself to have a Cholesky factor (for a
+        recursive estimator started from it).
+
+    Returns
+    -------
+    estimates : Estimates
+        As :func:`estimate_parameters`, with ``lam`` positive definite.
+    prior_V : (m + d, m + d) ndarray
+        The prior used.
+
+    Raises
+    ------
+    ValueError
+        If even the degenerate-texture prior leaves the system singular.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> V = np.array([[1.0, 1.0], [1.0, 1.0]])  # exactly predicted: singular
+    >>> est, prior = covariant_estimates(V, 10, 1, 1, np.array([[0.1]]))
+    >>> bool(np.all(np.linalg.eigvalsh(est.lam) > 0))
+    True
+    """
+    prior_V = V / n_pixels
+    try:
+        est = estimate_parameters(V + prior_V, n_pixels, m, d, np.zeros(m + d))
+        np.linalg.cholesky(est.lam)
+        if factor_prior:
+            np.linalg.cholesky(prior_V + 1e-300 * np.eye(m + d))
+        return est, prior_V
+    except np.linalg.LinAlgError:
+        prior_V = prior_V + DEGENERATE_PRIOR * np.kron(np.eye(m // d + 1), scatter)
+    try:
+        est = estimate_parameters(V + prior_V, n_pixels, m, d, np.zeros(m + d))
+        np.linalg.cholesky(est.lam)
+        if factor_prior:
+            np.linalg.cholesky(prior_V + 1e-300 * np.eye(m + d))
+    except np.linalg.LinAlgError:
+        raise ValueError(
+            "the texture is degenerate: its neighbours predict it exactly (a ramp, "
+            "stripes, a step edge...) and even a regularised estimate is singular. "
+            "Use a more textured region or a lower order."
+        ) from None
+    return est, prior_V

@@ -48,7 +48,7 @@ from .._validation import (
     check_size,
 )
 from ..model.neighbourhood import Context, as_offsets
-from ..model.statistics import design_chunks, estimate_parameters
+from ..model.statistics import covariant_estimates, design_chunks
 
 __all__ = ["Ranking", "iter_rank", "minimum_size", "rank", "texture_features"]
 
@@ -280,8 +280,9 @@ def _iter_features(view, *, levels, offsets, name):
                 "stored as RGB): illumination invariants need independent channels. Pass "
                 "one channel (channel_axis=None on a 2-D image) or a true colour image."
             )
-        # covariant prior: one pixel's worth of the data's own scatter
-        gamma, lam = estimate_parameters(V + V / count, count, m, d, np.zeros(m + d))[:2]
+        # covariant prior: one pixel's worth of the data's own scatter (and a
+        # small multiple of it where a degenerate texture leaves V singular)
+        gamma, lam = covariant_estimates(V, count, m, d, scatter / (H * W))[0][:2]
         A = gamma.reshape(d, eta, d).transpose(1, 0, 2)
         chol = np.linalg.cholesky(lam)
         white = np.linalg.solve(chol, np.linalg.solve(chol, scatter).T)
