@@ -487,3 +487,15 @@ def test_features_of_a_degenerate_image_are_finite(kind):
     assert np.isfinite(texture_features(image, levels=1, neighbourhood=1)).all()
     ranking = rank(image, [GOOD[..., 0], GOOD[..., 1]], levels=1, neighbourhood=1)
     assert np.isfinite(ranking.distances).all()
+
+
+def test_texture_of_equal_channels_synthesises():
+    # a grey texture stored as RGB: a singular innovation covariance, whose
+    # Cholesky factor synthesis took (LinAlgError)
+    from car_napari.texture import BTFModel, TextureModel
+
+    image = np.dstack([GOOD[..., 0]] * 3)
+    out = TextureModel.fit(image, levels=1).synthesize((16, 16), seed=0)
+    assert out.shape == (16, 16, 3) and np.isfinite(out).all()
+    out = BTFModel.fit([image, image], levels=1, n_subspaces=1).synthesize((8, 8), seed=0)
+    assert np.isfinite(out).all()

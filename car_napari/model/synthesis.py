@@ -42,6 +42,58 @@ def cached_radius(model):
     return radius
 
 
+def innovation_factor(sigma):
+    """The lower Cholesky factor of a (d, d) innovation covariance, by which a
+    synthesis mixes its white noise.
+
+    A covariance that is only semi-definite (linearly dependent channels, say
+    a grey texture stored as RGB, rounded to float32) has no factor; it gets
+    the smallest jitter of 1e-12, 1e-9 or 1e-6 times its mean variance that
+    gives one. A positive definite one is factored as it is.
+
+    Parameters
+    ----------
+    sigma : (d, d) ndarray
+        A symmetric positive semi-definite covariance.
+
+    Returns
+    -------
+    (d, d) ndarray
+        Lower triangular ``L`` with ``L @ L.T`` equal to ``sigma`` (up to the
+        jitter).
+
+    Raises
+    ------
+    ValueError
+        If ``sigma`` is not positive semi-definite (or not finite).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> innovation_factor(np.array([[4.0, 0.0], [0.0, 1.0]])).tolist()
+    [[2.0, 0.0], [0.0, 1.0]]
+    >>> bool(np.isfinite(innovation_factor(np.ones((3, 3)))).all())  # rank 1
+    True
+    """
+    sym = 0.5 * (sigma + sigma.T)
+    d = sym.shape[0]
+    try:
+        return np.linalg.cholesky(sym + 1e-300 * np.eye(d))
+    except np.linalg.LinAlgError:
+        pass
+    scale = float(np.trace(sym)) / d
+    if np.isfinite(scale) and scale > 0:
+        for jitter in (1e-12, 1e-9, 1e-6):
+            try:
+                return np.linalg.cholesky(sym + jitter * scale * np.eye(d))
+            except np.linalg.LinAlgError:
+                continue
+    raise ValueError(
+        "the model's innovation covariance (sigma) is not positive semi-definite: "
+        "refit the model."
+    )
+
+
 def _companion_radius(coeffs, lead=None):
     """Spectral radius of the VAR companion of ``y_t = sum_k C_k y_{t-k}``.
 
@@ -270,7 +322,7 @@ def iter_synthesize(model, shape, *, seed=None, margin=None, chunk_rows=None):
         noise[start:stop] = rng.standard_normal((stop - start,) + noise.shape[1:])
         yield Progress("synthesis", edges[1] * stop / n_rows, f"noise {stop}/{n_rows}")
     taps = model.context.taps
-    chol = np.linalg.cholesky(0.5 * (model.sigma + model.sigma.T) + 1e-300 * np.eye(d))
+    chol = innovation_factor(model.sigma)
     scale = math.sqrt(float(np.trace(model.sigma)))
     tap_di, tap_dj, tap_ch = taps[:, 0].copy(), taps[:, 1].copy(), taps[:, 2].copy()
     limit = 1e8 * max(scale, 1e-300) / max(1.0 - radius, 1e-6)

@@ -35,7 +35,12 @@ from ..model.blocks import row_ranges
 from ..model.estimation import CARModel
 from ..model.neighbourhood import Context, as_offsets
 from ..model.statistics import estimate_parameters, iter_data_statistics
-from ..model.synthesis import iter_synthesize, spectral_radius, synthesize_field
+from ..model.synthesis import (
+    innovation_factor,
+    iter_synthesize,
+    spectral_radius,
+    synthesize_field,
+)
 from ._model import _SHRINK_RADIUS, _iter_scale, _iter_stable_fit, _max_order_below
 from ._stack import as_stack
 
@@ -541,7 +546,7 @@ class DynamicTextureModel:
         taps = context.taps
         tap_di, tap_dj, tap_ch = taps[:, 0].copy(), taps[:, 1].copy(), taps[:, 2].copy()
         gamma = np.ascontiguousarray(self.gamma)
-        chol = np.linalg.cholesky(0.5 * (self.sigma + self.sigma.T) + 1e-300 * np.eye(d))
+        chol = innovation_factor(self.sigma)
         first = self.first
         # the work of a frame and of the first one, in multiply-adds (as iter_synthesize)
         per_pixel = gamma.size + d * d + 8
