@@ -499,3 +499,44 @@ def test_texture_of_equal_channels_synthesises():
     assert out.shape == (16, 16, 3) and np.isfinite(out).all()
     out = BTFModel.fit([image, image], levels=1, n_subspaces=1).synthesize((8, 8), seed=0)
     assert np.isfinite(out).all()
+
+
+@pytest.mark.parametrize("call, error, match", [
+    (lambda: _tiled(tile=np.inf), ValueError, "tile"),
+    (lambda: _tiled(tile=np.nan), ValueError, "tile"),
+    (lambda: _tiled(window=np.inf), ValueError, "window"),
+    (lambda: _tiled(window=1e300), ValueError, "window"),
+    (lambda: _tiled(window=10**30), ValueError, "window"),
+    (lambda: _tiled(window=None), TypeError, "window"),
+    (lambda: _tiled(noise=[1.0, 2.0]), ValueError, "noise"),
+    (lambda: _tiled(out=np.zeros((16, 16))), ValueError, "out"),
+    (lambda: _tiled(out=3.0), TypeError, "out"),
+    (lambda: _halo(window=np.inf), ValueError, "window"),
+    (lambda: _halo(reach=-np.inf), ValueError, "reach"),
+    (lambda: _halo(reach=None), TypeError, "reach"),
+])
+def test_tiled_restoration_options(call, error, match):
+    # OverflowError, "cannot convert float NaN to integer" or an error of the
+    # writes into out before
+    with pytest.raises(error, match=match):
+        call()
+
+
+def _tiled(**kw):
+    from car_napari.restoration import restore_tiled
+
+    return restore_tiled(GOOD[..., 0], **{"tile": 16, **kw})
+
+
+def _halo(**kw):
+    from car_napari.restoration import tile_halo
+
+    return tile_halo(**kw)
+
+
+def test_restore_tiled_takes_a_nested_list():
+    from car_napari.restoration import restore_tiled
+
+    image = GOOD[..., 0]
+    np.testing.assert_array_equal(restore_tiled(image.tolist(), tile=16),
+                                  restore_tiled(image, tile=16))

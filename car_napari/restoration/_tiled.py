@@ -37,7 +37,14 @@ import numpy as np
 
 from .._progress import Progress, drain
 from .._tiles import is_lazy, iter_map_tiles, lazy_map_tiles, read_tile, require, tile_grid
-from .._validation import SummaryPasses, as_channel_last_float, check_not_constant, check_size
+from .._validation import (
+    MAX_SIDE,
+    SummaryPasses,
+    as_channel_last_float,
+    check_not_constant,
+    check_real,
+    check_size,
+)
 from ..model.neighbourhood import Context, as_offsets
 from ._checks import check_kappa, check_options
 from ._noise import noise_from_medians
@@ -86,8 +93,10 @@ def tile_halo(window=DEFAULT_WINDOW, reach=1):
     >>> tile_halo(48, 1)
     48
     """
+    window = check_real(window, "window", low=6, high=MAX_SIDE, integer=True)
+    reach = check_real(reach, "reach", low=0, high=MAX_SIDE, integer=True)
     block = _block(window)
-    return block * (2 + -(-int(reach) // block))
+    return block * (2 + -(-reach // block))
 
 
 def _block(window):
@@ -108,12 +117,14 @@ def _check(image, neighbourhood, estimator, window, directions, kappa, noise, ch
             f"neighbourhood={neighbourhood!r}: the decision rule chooses the order on the "
             "whole image; for a large image pass an order (e.g. 1) or offsets.")
     offsets, _ = as_offsets(neighbourhood)
-    if isinstance(window, (bool, np.bool_)) or int(window) != window or int(window) < 6:
-        raise ValueError(f"window must be an integer of at least 6 pixels; got {window!r}.")
+    # pixels, bounded so that a halo or a tile never overflows (nor allocates a
+    # window's buffers larger than the image)
+    window = check_real(window, "window (an integer of at least 6 pixels)", low=6,
+                        high=MAX_SIDE, integer=True)
     _, directions = check_options(0.995, directions, CORNERS)
     kappa = check_kappa(kappa)
-    if isinstance(tile, (bool, np.bool_)) or int(tile) != tile or int(tile) < 1:
-        raise ValueError(f"tile must be a positive number of pixels; got {tile!r}.")
+    tile = check_real(tile, "tile (a positive number of pixels)", low=1, high=MAX_SIDE,
+                      integer=True)
     shape = tuple(int(s) for s in np.shape(image))
     if len(shape) == 2:
         C = 1
@@ -126,13 +137,32 @@ def _check(image, neighbourhood, estimator, window, directions, kappa, noise, ch
     dtype = np.dtype(getattr(image, "dtype", None) or np.asarray(image).dtype)
     if dtype.kind not in "biuf":
         raise TypeError(f"image has dtype {dtype}; pass a numeric (integer or float) array.")
+    if window > max(*shape[:2], DEFAULT_WINDOW):  # as restore: its buffers grow with it
+        raise ValueError(f"window {window} is larger than the image {shape[:2]}: use at most "
+                         f"{max(*shape[:2], DEFAULT_WINDOW)}.")
     if noise is not None:
-        noise = np.broadcast_to(np.asarray(noise, float), (C,)).copy()
+        try:
+            noise = np.broadcast_to(np.asarray(noise, float), (C,)).copy()
+        except (TypeError, ValueError):
+            raise ValueError(f"noise must be a number or one per channel ({C}) of them; "
+                             f"got {noise!r}.") from None
         if np.any(noise < 0) or not np.all(np.isfinite(noise)):
             raise ValueError(f"noise must be finite and >= 0; got {noise}.")
     context = Context.spatial(offsets, C)
     check_size(np.broadcast_to(np.float64(0), shape[:2]), context.reach)
-    return offsets, directions, kappa, C, noise
+    return offsets, directions, kappa, C, noise, window, tile
+
+
+def _check_out(out, shape):
+    """``out`` is None or an array of the image's shape to write into."""
+    if out is None:
+        return
+    if not (hasattr(out, "shape") and hasattr(out, "__setitem__")):
+        raise TypeError(f"out must be None or an array of shape {shape} to write into; got "
+                        f"{type(out).__name__}.")
+    if tuple(out.shape) != tuple(shape):
+        raise ValueError(f"out has shape {tuple(out.shape)}; it must have the image's shape "
+                         f"{tuple(shape)}.")
 
 
 def _channel_last(part, channel_axis):
@@ -309,8 +339,11 @@ def iter_restore_tiled(image, *, out=None, tile=DEFAULT_TILE, neighbourhood=1,
     >>> restored.shape
     (200, 150)
     """
-    offsets, directions, kappa, C, noise = _check(
+    if not (hasattr(image, "shape") and hasattr(image, "__getitem__")):
+        image = np.asarray(image)  # a nested list: as restore takes it
+    offsets, directions, kappa, C, noise, window, tile = _check(
         image, neighbourhood, estimator, window, directions, kappa, noise, channel_axis, tile)
+    _check_out(out, image.shape)
     H, W = image.shape[:2]
     yield Progress("start", 0.0, f"{H} x {W} image by tiles")
     lazy = out is None and is_lazy(image) and type(image).__module__.startswith("dask.")
