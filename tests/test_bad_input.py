@@ -540,3 +540,10 @@ def test_restore_tiled_takes_a_nested_list():
     image = GOOD[..., 0]
     np.testing.assert_array_equal(restore_tiled(image.tolist(), tile=16),
                                   restore_tiled(image, tile=16))
+
+
+@pytest.mark.parametrize("orders, error", [(3, TypeError), (None, TypeError), ("12", TypeError),
+                                           (range(0, 3), ValueError), ([1, "x"], ValueError)])
+def test_select_support_orders(orders, error):
+    with pytest.raises(error, match="orders"):
+        select_support(GOOD, orders=orders)

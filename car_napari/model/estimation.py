@@ -243,10 +243,21 @@ def _channels(image, channel_axis):
     return 1
 
 
+_MAX_CANDIDATES = 256  # more candidate supports than there are orders and then some
+
+
 def _candidate_offsets(orders):
+    if isinstance(orders, (str, bytes)) or not hasattr(orders, "__iter__"):
+        raise TypeError(f"orders must be an iterable of orders (ints) or (eta, 2) offset "
+                        f"arrays, e.g. range(1, 6); got {orders!r}.")
     cands = []
     for item in orders:
-        offsets, order = as_offsets(item)
+        if len(cands) == _MAX_CANDIDATES:  # an endless iterable would never end the loop
+            raise ValueError(f"orders has more than {_MAX_CANDIDATES} candidates; pass fewer.")
+        try:
+            offsets, order = as_offsets(item)
+        except (TypeError, ValueError) as exc:
+            raise type(exc)(f"orders: candidate {item!r}: {exc}") from None
         key = order if order is not None else tuple(map(tuple, offsets.tolist()))
         cands.append((key, offsets))
     if not cands:

@@ -116,7 +116,10 @@ def as_offsets(neighbourhood):
     if isinstance(neighbourhood, (int, np.integer)) and not isinstance(
         neighbourhood, (bool, np.bool_)
     ):
-        return causal_neighbourhood(neighbourhood), int(neighbourhood)
+        try:
+            return causal_neighbourhood(neighbourhood), int(neighbourhood)
+        except ValueError as exc:  # say which argument: the order came as a neighbourhood
+            raise ValueError(f"neighbourhood {exc}") from None
     if isinstance(neighbourhood, str):
         raise ValueError(
             f"neighbourhood {neighbourhood!r} is not understood here; pass an order "
@@ -144,7 +147,7 @@ def as_offsets(neighbourhood):
     ]
     if noncausal:
         raise ValueError(
-            f"offsets {noncausal} are not causal: each (di, dj) needs di > 0, or di == 0 "
+            f"neighbourhood offsets {noncausal} are not causal: each (di, dj) needs di > 0, or di == 0 "
             "and dj > 0 (the neighbour r - s must come before r in the raster scan)."
         )
     if len({(int(a), int(b)) for a, b in offsets}) != len(offsets):
