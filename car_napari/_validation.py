@@ -341,6 +341,19 @@ def check_shape(shape, name, *, lengths=(2, 3), high=1 << 40):
     return out
 
 
+def check_path(path, name="path"):
+    """``path`` as it is when it is a file name (a str, bytes or path-like
+    object), else a TypeError (an int would be taken by ``open`` for a file
+    descriptor: 0 reads stdin, 1 writes and closes stdout) or, when empty, a
+    ValueError, naming it."""
+    if not isinstance(path, (str, bytes, os.PathLike)):
+        raise TypeError(f"{name} must be a file name (a str or path-like object); got "
+                        f"{path!r}.")
+    if not os.fspath(path):
+        raise ValueError(f"{name} is empty; pass a file name.")
+    return path
+
+
 def check_seed(seed, name="seed"):
     """``seed`` (None, a non-negative int, a SeedSequence, BitGenerator or
     Generator) as a numpy Generator, or a TypeError / ValueError naming it."""

@@ -547,3 +547,16 @@ def test_restore_tiled_takes_a_nested_list():
 def test_select_support_orders(orders, error):
     with pytest.raises(error, match="orders"):
         select_support(GOOD, orders=orders)
+
+
+@pytest.mark.parametrize("path, error", [(0, TypeError), (1, TypeError), (True, TypeError),
+                                         (-1, TypeError), ("", ValueError)])
+def test_model_paths_are_file_names(path, error):
+    # an int was taken for a file descriptor: load(0) waited on stdin,
+    # load(True) read and closed stdout
+    from car_napari.texture import TextureModel
+
+    with pytest.raises(error, match="path"):
+        TextureModel.load(path)
+    with pytest.raises(error, match="path"):
+        _texture().save(path)

@@ -42,6 +42,7 @@ from .._validation import (
     check_flag,
     check_memory,
     check_not_constant,
+    check_path,
     check_seed,
     check_shape,
     output_shape,
@@ -1381,6 +1382,8 @@ class TextureModel:
         ------
         OSError
             If the file cannot be written.
+        TypeError
+            If ``path`` is not a file name (a str or path-like object).
 
         See Also
         --------
@@ -1416,6 +1419,7 @@ class TextureModel:
                 "expand": "Keys cubic convolution, pixel extents aligned",
             },
         }
+        check_path(path)
         arrays = {key: (a.astype(np.int16) if key.endswith("_offsets") else
                         np.asarray(a, np.float64).astype(np.float32))
                   for key, a in self._parameter_arrays().items()}
@@ -1443,6 +1447,9 @@ class TextureModel:
             newer version of the format than this code reads.
         FileNotFoundError
             If ``path`` does not exist.
+        TypeError
+            If ``path`` is not a file name (a str or path-like object; an int
+            would be taken for a file descriptor).
 
         See Also
         --------
@@ -1668,6 +1675,7 @@ def _read_model_file(path):
     """The header, the arrays and the format version of a model file, every
     member checked before it is read; a ValueError naming the file and what
     is wrong for anything else."""
+    check_path(path)
     try:
         with open(path, "rb") as file:
             magic = file.read(6)
