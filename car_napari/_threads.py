@@ -24,6 +24,8 @@ import threading
 
 from threadpoolctl import OpenBLASController, threadpool_limits
 
+from ._validation import check_real
+
 __all__ = ["blas_threads", "job_threads", "limited_blas", "usable_cpus"]
 
 ENV = "CAR_NAPARI_BLAS_THREADS"
@@ -168,6 +170,8 @@ def limited_blas(threads=None):
     True
     """
     global _depth, _limiter, _limit
+    if threads is not None:  # an int (below 1 means 1): no float, bool or string
+        threads = check_real(threads, "threads", integer=True)
     with _lock:
         if _depth == 0:
             limit = blas_threads() if threads is None else max(1, min(int(threads), usable_cpus()))

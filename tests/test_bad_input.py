@@ -560,3 +560,26 @@ def test_model_paths_are_file_names(path, error):
         TextureModel.load(path)
     with pytest.raises(error, match="path"):
         _texture().save(path)
+
+
+@pytest.mark.parametrize("offsets, n_channels, match", [
+    (np.inf, 1, "offsets"), ([1, 2], 1, "offsets"), ([[1e300, 1]], 1, "offsets"),
+    ([[0.5, 1]], 1, "offsets"), ([[0, 1]], np.inf, "n_channels"), ([[0, 1]], -1, "n_channels"),
+    ([[0, 1]], 10**30, "n_channels"),
+])
+def test_context_checks_offsets_and_channels(offsets, n_channels, match):
+    # OverflowError, IndexError or "Maximum allowed dimension exceeded" before
+    from car_napari import Context
+
+    with pytest.raises(ValueError, match=match):
+        Context.spatial(offsets, n_channels)
+
+
+@pytest.mark.parametrize("threads, error", [(np.inf, ValueError), (np.nan, ValueError),
+                                            (1.5, ValueError), ([1], TypeError)])
+def test_limited_blas_threads(threads, error):
+    from car_napari import limited_blas
+
+    with pytest.raises(error, match="threads"):
+        with limited_blas(threads):
+            pass

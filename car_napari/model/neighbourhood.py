@@ -20,6 +20,8 @@ from functools import cache
 
 import numpy as np
 
+from .._validation import check_real
+
 __all__ = ["causal_neighbourhood", "as_offsets", "Context", "MAX_ORDER"]
 
 MAX_ORDER = 30
@@ -147,12 +149,35 @@ def as_offsets(neighbourhood):
     ]
     if noncausal:
         raise ValueError(
-            f"neighbourhood offsets {noncausal} are not causal: each (di, dj) needs di > 0, or di == 0 "
-            "and dj > 0 (the neighbour r - s must come before r in the raster scan)."
+            f"neighbourhood offsets {noncausal} are not causal: each (di, dj) needs di > 0, "
+            "or di == 0 and dj > 0 (the neighbour r - s must come before r in the raster "
+            "scan)."
         )
     if len({(int(a), int(b)) for a, b in offsets}) != len(offsets):
         raise ValueError(f"neighbourhood offsets contain duplicates: {offsets.tolist()}.")
     return offsets, None
+
+
+_MAX_CONTEXT_CHANNELS = 1 << 12  # channels of a context: far more than any stack holds
+_MAX_REACH = 1 << 20  # the largest offset a context takes (an image side, MAX_SIDE)
+
+
+def _offset_array(offsets):
+    """``offsets`` as an (eta, 2) int64 array of integer values within
+    ``_MAX_REACH``, or a TypeError / ValueError naming them (not an
+    OverflowError or an IndexError from a later step)."""
+    try:
+        arr = np.asarray(offsets)
+    except (TypeError, ValueError) as exc:
+        raise TypeError(f"offsets could not be read as an (eta, 2) array: {exc}") from None
+    if arr.ndim != 2 or arr.shape[1] != 2:
+        raise ValueError(f"offsets must be an (eta, 2) array of (di, dj); got shape {arr.shape}.")
+    if arr.dtype.kind not in "iuf" or (arr.dtype.kind == "f" and not (
+            np.isfinite(arr).all() and np.array_equal(arr, np.round(arr)))):
+        raise ValueError(f"offsets must be integers; got {arr.tolist()}.")
+    if arr.size and np.abs(arr).max() > _MAX_REACH:
+        raise ValueError(f"offsets must be at most {_MAX_REACH} pixels; got {arr.tolist()}.")
+    return arr.astype(np.int64)
 
 
 @dataclass(frozen=True)
@@ -235,15 +260,19 @@ class Context:
         Raises
         ------
         ValueError
-            If an offset is not causal.
+            If an offset is not causal or not an integer, the offsets are not
+            an (eta, 2) array, or ``n_channels`` is not a positive int.
+        TypeError
+            If ``n_channels`` is not an int.
 
         Examples
         --------
         >>> Context.spatial([[0, 1], [1, 0]], 2).taps.tolist()
         [[0, 1, 0], [0, 1, 1], [1, 0, 0], [1, 0, 1]]
         """
-        offsets = np.asarray(offsets, dtype=np.int64)
-        d = int(n_channels)
+        offsets = _offset_array(offsets)
+        d = check_real(n_channels, "n_channels", low=1, high=_MAX_CONTEXT_CHANNELS,
+                       integer=True)
         taps = np.empty((len(offsets) * d, 3), dtype=np.int64)
         taps[:, 0] = np.repeat(offsets[:, 0], d)
         taps[:, 1] = np.repeat(offsets[:, 1], d)
