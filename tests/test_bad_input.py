@@ -583,3 +583,21 @@ def test_limited_blas_threads(threads, error):
     with pytest.raises(error, match="threads"):
         with limited_blas(threads):
             pass
+
+
+@pytest.mark.parametrize("path, image, error, match", [
+    ("{tmp}", np.zeros((4, 4), np.uint8), ValueError, "folder"),
+    ("", np.zeros((4, 4), np.uint8), ValueError, "path is empty"),
+    (3, np.zeros((4, 4), np.uint8), TypeError, "path"),
+    ("{tmp}/a.tif", None, TypeError, "object"),
+    ("{tmp}/a.tif", np.float64(3.0), ValueError, "shape"),
+    ("{tmp}/a.tif", np.ones((4, 4), complex), TypeError, "complex"),
+])
+def test_write_image_refuses_what_no_file_holds(tmp_path, path, image, error, match):
+    # IndexError from tifffile for a scalar; OSError "ImageIO does not support
+    # reading folders" when writing to a folder
+    from car_napari.io import write_image
+
+    path = path.format(tmp=tmp_path) if isinstance(path, str) else path
+    with pytest.raises(error, match=match):
+        write_image(path, image)

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._validation import check_path
 from .dicom import DICOM_SUFFIXES, read_dicom
 
 __all__ = ["DICOM_SUFFIXES", "IMAGE_SUFFIXES", "is_colour", "read_image", "write_image"]
@@ -48,7 +49,10 @@ def read_image(path, *, on_note=None):
     Raises
     ------
     ValueError
-        If the file does not exist or cannot be read as an image.
+        If the file does not exist or cannot be read as an image, or
+        ``path`` is empty.
+    TypeError
+        If ``path`` is not a file name (a str or path-like object).
     ImportError
         If the file is DICOM and ``pydicom`` is not installed.
 
@@ -67,7 +71,7 @@ def read_image(path, *, on_note=None):
     >>> image.shape, image.dtype
     ((8, 64), dtype('uint8'))
     """
-    path = Path(path)
+    path = Path(check_path(path))
     if not path.exists():
         raise ValueError(f"no such file: {path}")
     if path.suffix.lower() in DICOM_SUFFIXES:
@@ -156,6 +160,11 @@ def write_image(path, image):
     ------
     OSError
         If the file cannot be written.
+    ValueError
+        If the image is empty or not at least 2-D, the file's format cannot
+        hold its pixels, or ``path`` is a folder or empty.
+    TypeError
+        If the image is not numeric, or ``path`` is not a file name.
 
     See Also
     --------
@@ -173,8 +182,16 @@ def write_image(path, image):
     """
     from skimage import io
 
-    path = Path(path)
+    path = Path(check_path(path))
+    if path.is_dir():
+        raise ValueError(f"cannot write {path}: it is a folder; pass a file name.")
     image = np.asarray(image)
+    if image.dtype.kind not in "biuf":
+        raise TypeError(f"cannot write {image.dtype} pixels to {path.name}: pass a numeric "
+                        "(bool, integer or float) image.")
+    if image.ndim < 2 or image.size == 0:
+        raise ValueError(f"cannot write an image of shape {image.shape} to {path.name}: pass "
+                         "a non-empty (H, W) or (H, W, C) image.")
     suffix = path.suffix.lower()
     grey16_png = suffix == ".png" and image.dtype == np.uint16 and image.ndim == 2
     if suffix in _EIGHT_BIT and image.dtype not in (np.uint8, np.bool_) and not grey16_png:
