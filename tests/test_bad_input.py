@@ -601,3 +601,50 @@ def test_write_image_refuses_what_no_file_holds(tmp_path, path, image, error, ma
     path = path.format(tmp=tmp_path) if isinstance(path, str) else path
     with pytest.raises(error, match=match):
         write_image(path, image)
+
+
+_SEGMENTS = np.repeat([[1] * 16 + [2] * 16], 32, 0)
+
+
+@pytest.mark.parametrize("kwargs, error, match", [
+    (dict(split_sigmas=3.0), TypeError, "split_sigmas"),
+    (dict(split_sigmas=(-1.0,)), ValueError, "split_sigmas"),
+    (dict(split_delta="x"), TypeError, "split_delta"),
+    (dict(split_delta=[1, 2]), TypeError, "split_delta"),
+    (dict(radius_range=(130.0, 20.0)), ValueError, "radius_range"),
+    (dict(split="no"), TypeError, "split"),
+])
+def test_filter_regions_options(kwargs, error, match):
+    # "'float' object is not iterable", UFuncTypeError or a NumPy broadcast
+    # error from deep in the candidates before
+    from car_napari.mammography import filter_regions
+
+    with pytest.raises(error, match=match):
+        filter_regions(GOOD[..., 0], _SEGMENTS, **kwargs)
+
+
+@pytest.mark.parametrize("labels, error", [
+    (_SEGMENTS * 1.0, TypeError), (np.full((4, 4), "a"), TypeError),
+    (np.zeros((0, 0), int), ValueError), (-_SEGMENTS, ValueError),
+])
+def test_region_outlines_labels(labels, error):
+    # float labels: "'numpy.float64' object cannot be interpreted as an
+    # integer" from scipy; strings: UFuncTypeError; empty: a NumPy reduction
+    from car_napari.mammography import region_outlines
+
+    with pytest.raises(error, match="labels"):
+        region_outlines(labels)
+
+
+@pytest.mark.parametrize("kwargs, error, match", [
+    (dict(pool=3), TypeError, "pool"), (dict(pool=(0,)), ValueError, "pool"),
+    (dict(segment_options=3), TypeError, "segment_options"),
+    (dict(segment_options={"nope": 1}), TypeError, "segment_options"),
+])
+def test_segment_breast_options(kwargs, error, match):
+    # "object of type 'int' has no len()" or "argument after ** must be a
+    # mapping" before
+    from car_napari import segment_breast
+
+    with pytest.raises(error, match=match):
+        segment_breast(GOOD[..., 0], levels=1, n_init=2, **kwargs)

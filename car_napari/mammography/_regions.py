@@ -9,7 +9,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .._progress import Progress, drain
-from .._validation import check_real
+from .._validation import check_flag, check_real
 from ._candidates import _generate
 from ._images import _as_grey, _block_mean, _grey01, _upsample_mask
 
@@ -222,8 +222,12 @@ def filter_regions(image, segments, *, reference=None, tolerance=None, max_regio
     Raises
     ------
     ValueError
-        If ``tolerance`` or ``max_regions`` is out of range, the image is
-        constant, or a labelling's shape differs from the image's.
+        If ``tolerance``, ``max_regions``, ``radius_range``, ``split_sigmas``
+        or ``split_delta`` is out of range, the image is constant, or a
+        labelling's shape differs from the image's.
+    TypeError
+        If an option is not a number (or a sequence of them where one is
+        asked), or ``split`` is not a bool.
 
     Examples
     --------
@@ -237,7 +241,9 @@ def filter_regions(image, segments, *, reference=None, tolerance=None, max_regio
     >>> int(rois.labels.max()), rois.table["area"].tolist()
     (1, [1596])
     """
-    _check_filter_options(reference, tolerance, max_regions, min_area)
+    _check_filter_options(reference, tolerance, max_regions, min_area, split=split,
+                          radius_range=radius_range, split_sigmas=split_sigmas,
+                          split_delta=split_delta)
     grey_full = _grey01(_as_grey(image, channel_axis), name="mammogram")
     return drain(_iter_filter(
         grey_full, segments, reference=reference, tolerance=tolerance,
@@ -245,8 +251,27 @@ def filter_regions(image, segments, *, reference=None, tolerance=None, max_regio
         split_sigmas=split_sigmas, split_delta=split_delta))
 
 
-def _check_filter_options(reference, tolerance, max_regions, min_area=None):
+def _check_filter_options(reference, tolerance, max_regions, min_area=None, *, split=True,
+                          radius_range=None, split_sigmas=SPLIT_SIGMAS,
+                          split_delta=SPLIT_DELTA):
     """The region filter's options, checked before any work."""
+    check_flag(split, "split")
+    if radius_range is not None:
+        if isinstance(radius_range, (str, bytes)) or not hasattr(radius_range, "__len__") \
+                or len(radius_range) != 2:
+            raise TypeError(f"radius_range must be None or two radii (pixels), e.g. (20, 130); "
+                            f"got {radius_range!r}.")
+        low, high = (check_real(r, "radius_range (pixels)", low=0.0, low_open=True)
+                     for r in radius_range)
+        if not low < high:
+            raise ValueError(f"radius_range must be (smaller, larger); got {radius_range!r}.")
+    if isinstance(split_sigmas, (str, bytes)) or not hasattr(split_sigmas, "__len__") \
+            or not 1 <= len(split_sigmas) <= 16:
+        raise TypeError(f"split_sigmas must be a sequence of 1 to 16 widths (pixels), e.g. "
+                        f"(16, 64); got {split_sigmas!r}.")
+    for sigma in split_sigmas:
+        check_real(sigma, "split_sigmas (pixels)", low=0.0, high=1 << 20, low_open=True)
+    check_real(split_delta, "split_delta (grey / 255)", low=0.0)
     reference = (REFERENCE_GREY if reference is None
                  else check_real(reference, "reference", low=0.0, high=1.0))
     tolerance = (REFERENCE_TOLERANCE if tolerance is None
@@ -391,7 +416,10 @@ def region_outlines(labels, *, tolerance=0.0):
     Raises
     ------
     ValueError
-        If ``tolerance`` is negative.
+        If ``tolerance`` is negative or not finite, or ``labels`` is not a
+        non-empty 2-D array of labels >= 0.
+    TypeError
+        If ``labels`` is not integer (or bool), or ``tolerance`` not a number.
 
     Examples
     --------
@@ -409,9 +437,17 @@ def region_outlines(labels, *, tolerance=0.0):
     from scipy import ndimage
     from skimage.measure import approximate_polygon, find_contours
 
-    if not tolerance >= 0:
-        raise ValueError(f"tolerance must be >= 0 pixels; got {tolerance}.")
+    tolerance = check_real(tolerance, "tolerance (pixels)", low=0.0)
     labels = np.asarray(labels)
+    if labels.dtype.kind not in "biu":
+        raise TypeError(f"labels has dtype {labels.dtype}; pass integer labels (regions "
+                        "1..n, 0 elsewhere).")
+    if labels.ndim != 2 or labels.size == 0:
+        raise ValueError(f"labels must be a non-empty (H, W) array; got shape {labels.shape}.")
+    if labels.dtype.kind == "b":
+        labels = labels.astype(np.int32)  # one region
+    elif labels.size and labels.min() < 0:
+        raise ValueError("labels must be >= 0 (regions 1..n, 0 elsewhere).")
     outlines = []
     for i, sl in enumerate(ndimage.find_objects(labels), start=1):
         if sl is None:

@@ -223,7 +223,7 @@ def iter_segment_breast(image, *, breast=None, n_segments=None, levels=3, neighb
     'breast'
     >>> job.close()
     """
-    _check_segment_options(levels, work_side, seed)
+    _check_segment_options(levels, work_side, seed, pool, segment_options)
     work = _work(np.size(image), len(pool or ()) + 1)
     spans = _spans(work, ("reading", "breast", "segmentation", "pooling"))
     grey = yield from stage(_iter_grey(image, channel_axis), *spans["reading"])
@@ -243,13 +243,38 @@ def _block_fraction(mask, factor):
     return counts / float(factor * factor)
 
 
-def _check_segment_options(levels, work_side, seed):
+# segment's options that the breast segmentation sets itself
+_OWN_SEGMENT_OPTIONS = ("image", "n_segments", "levels", "neighbourhood", "n_init", "mask",
+                        "seed")
+_MAX_POOL = 64  # pooled segmentations: each costs a pass over the merge history
+
+
+def _check_segment_options(levels, work_side, seed, pool=None, segment_options=None):
     """The breast segmentation's own options, checked before any work (the
     segmentation checks the rest)."""
     check_real(levels, "levels", low=1, high=6, integer=True)
     check_real(work_side, "work_side (pixels)", low=64, high=8192, integer=True)
     if seed is not None:
         check_real(seed, "seed", low=0, integer=True)
+    if pool is not None:
+        if isinstance(pool, (str, bytes)) or not hasattr(pool, "__len__"):
+            raise TypeError(f"pool must be None or a sequence of numbers of segments, e.g. "
+                            f"(8, 10, 12); got {pool!r}.")
+        if len(pool) > _MAX_POOL:
+            raise ValueError(f"pool has {len(pool)} entries; at most {_MAX_POOL}.")
+        for k in pool:
+            check_real(k, "pool (numbers of segments)", low=1, high=1 << 16, integer=True)
+    if segment_options is not None:
+        if not isinstance(segment_options, dict):
+            raise TypeError(f"segment_options must be None or a dict of segment's options; "
+                            f"got {type(segment_options).__name__}.")
+        import inspect
+
+        known = set(inspect.signature(iter_segment).parameters) - set(_OWN_SEGMENT_OPTIONS)
+        unknown = sorted(map(str, set(segment_options) - known))
+        if unknown:
+            raise TypeError(f"segment_options has {unknown}, which segment_breast does not "
+                            f"pass on; allowed: {sorted(known)}.")
 
 
 def _iter_segment_grey(grey, *, breast, n_segments, levels, neighbourhood, n_init, work_side,
@@ -463,7 +488,7 @@ def iter_detect_mammogram_rois(image, *, marks_per_image=DEFAULT_MARKS_PER_IMAGE
     ('breast', 'regions', 1.0)
     """
     _check_roi_options(marks_per_image, reference, tolerance, max_regions, min_area)
-    _check_segment_options(levels, work_side, seed)
+    _check_segment_options(levels, work_side, seed, pool)
     model = shipped_model()
     pool = None if n_segments is not None else pool
     spans = _spans(_work(np.size(image), len(pool or ()) + 1),
