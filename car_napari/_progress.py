@@ -79,6 +79,12 @@ def drain(job, on_progress=None):
     result : object
         The generator's return value: what ``<name>(...)`` returns.
 
+    Raises
+    ------
+    TypeError
+        If ``job`` is not a generator (an iterator) or ``on_progress`` is not
+        callable.
+
     Examples
     --------
     >>> import numpy as np
@@ -89,6 +95,12 @@ def drain(job, on_progress=None):
     >>> restored.shape, stages[0]
     ((64, 64), 'start')
     """
+    if not hasattr(job, "__next__"):
+        raise TypeError(f"job must be a generator (an iter_<name>(...) call); got "
+                        f"{type(job).__name__}.")
+    if on_progress is not None and not callable(on_progress):
+        raise TypeError(f"on_progress must be None or a callable taking a Progress; got "
+                        f"{on_progress!r}.")
     with limited_blas():
         while True:
             try:

@@ -648,3 +648,35 @@ def test_segment_breast_options(kwargs, error, match):
 
     with pytest.raises(error, match=match):
         segment_breast(GOOD[..., 0], levels=1, n_init=2, **kwargs)
+
+
+@pytest.mark.parametrize("call, error, match", [
+    (lambda: _select_marks(threshold="x"), TypeError, "threshold"),
+    (lambda: _select_marks(threshold=[1, 2]), TypeError, "threshold"),
+    (lambda: _select_marks(threshold=np.nan), ValueError, "threshold"),
+    (lambda: __import__("car_napari").drain(3), TypeError, "job"),
+    (lambda: __import__("car_napari").drain(iter([]), on_progress=3), TypeError, "on_progress"),
+    (lambda: __import__("car_napari.io").io.read_dicom(""), ValueError, "path"),
+    (lambda: __import__("car_napari.io").io.read_dicom(0), TypeError, "path"),
+])
+def test_small_entry_points_check_their_arguments(call, error, match):
+    # UFuncTypeError or a NumPy broadcast error (select_marks), "'int' object
+    # is not an iterator" (drain), "cannot read  as DICOM" before
+    with pytest.raises(error, match=match):
+        call()
+
+
+def _select_marks(**kw):
+    from car_napari.mammography import MammogramROIs, select_marks
+
+    labels = np.array([[1, 1, 2, 3]], np.int32)
+    table = {"label": np.array([1, 2, 3]), "score": np.array([0.9, 0.5, 0.1])}
+    return select_marks(MammogramROIs(labels, table), **kw)
+
+
+def test_write_image_needs_a_suffix(tmp_path):
+    # "cannot write ...: None. Write a .tif instead." before
+    from car_napari.io import write_image
+
+    with pytest.raises(ValueError, match="suffix"):
+        write_image(tmp_path / "image", np.zeros((4, 4), np.uint8))

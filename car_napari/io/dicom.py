@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .._validation import check_path
+
 #: Suffixes (lower case) of DICOM files.
 DICOM_SUFFIXES = frozenset({".dcm", ".dicom"})
 
@@ -69,6 +71,7 @@ def read_dicom(path):
     >>> bool(0.0 <= image.min() and image.max() <= 1.0)
     True
     """
+    check_path(path)
     pydicom = _pydicom()
     from pydicom.pixels import apply_modality_lut, apply_voi_lut
 

@@ -193,6 +193,9 @@ def write_image(path, image):
         raise ValueError(f"cannot write an image of shape {image.shape} to {path.name}: pass "
                          "a non-empty (H, W) or (H, W, C) image.")
     suffix = path.suffix.lower()
+    if not suffix:
+        raise ValueError(f"cannot write {path}: its name has no suffix to choose the format; "
+                         "end it in .png, .jpg or .tif.")
     grey16_png = suffix == ".png" and image.dtype == np.uint16 and image.ndim == 2
     if suffix in _EIGHT_BIT and image.dtype not in (np.uint8, np.bool_) and not grey16_png:
         holds = "8-bit pixels (or 16-bit grey)" if suffix == ".png" else "8-bit pixels"

@@ -608,6 +608,14 @@ def select_marks(rois, marks_per_image=DEFAULT_MARKS_PER_IMAGE, *, threshold=Non
         regions were painted best first, so the first m are those the
         detection at this operating point paints.
 
+    Raises
+    ------
+    TypeError
+        If ``rois`` is not a MammogramROIs, or ``threshold`` not a number.
+    ValueError
+        If ``threshold`` is not finite, or ``marks_per_image`` is out of
+        range.
+
     Examples
     --------
     >>> import numpy as np
@@ -622,6 +630,11 @@ def select_marks(rois, marks_per_image=DEFAULT_MARKS_PER_IMAGE, *, threshold=Non
         check_real(marks_per_image, "marks_per_image (false marks per image)", low=0.0,
                    low_open=True, high=100.0)
         threshold = shipped_model().threshold(marks_per_image)
+    else:
+        threshold = check_real(threshold, "threshold (a score)")
+    if not isinstance(rois, MammogramROIs):
+        raise TypeError(f"rois must be a MammogramROIs (from detect_mammogram_rois); got "
+                        f"{type(rois).__name__}.")
     labels, table = rois
     m = int(np.sum(np.asarray(table["score"]) >= threshold))
     cut = {k: np.asarray(v)[:m] for k, v in table.items()}
