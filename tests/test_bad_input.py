@@ -680,3 +680,32 @@ def test_write_image_needs_a_suffix(tmp_path):
 
     with pytest.raises(ValueError, match="suffix"):
         write_image(tmp_path / "image", np.zeros((4, 4), np.uint8))
+
+
+def _edited_model(**changes):
+    model = fit_car(GOOD[..., 0], 1)
+    for key, value in changes.items():
+        setattr(model, key, value)
+    return model
+
+
+@pytest.mark.parametrize("changes, match", [
+    (dict(gamma=np.full((1, 2), np.nan)), "gamma holds NaN"),
+    (dict(sigma=np.full((1, 1), np.inf)), "sigma holds NaN"),
+    (dict(mean=np.array([np.nan])), "mean holds NaN"),
+    (dict(gamma=np.zeros((1, 1))), "gamma has shape"),
+    (dict(offsets=np.array([[0, 1], [5000, 0]])), "reach 5000"),
+    (dict(offsets=np.array([[0, -1], [1, 0]])), "not causal"),
+])
+@pytest.mark.parametrize("use", ["radius", "synthesize", "predict"])
+def test_edited_models_are_refused(changes, match, use):
+    # NaN gamma: LinAlgError (radius, synthesis) or NaN predictions; NaN mean:
+    # NaN synthesis; an offset of 5000: the stability test ran for minutes
+    from car_napari import spectral_radius, synthesize
+
+    model = _edited_model(**changes)
+    call = {"radius": lambda: spectral_radius(model),
+            "synthesize": lambda: synthesize(model, (8, 8), seed=0),
+            "predict": lambda: predict(model, GOOD[..., 0])}[use]
+    with pytest.raises(ValueError, match=match):
+        call()

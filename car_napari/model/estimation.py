@@ -232,6 +232,76 @@ def _statistics_cost(n_columns):
     return 2.0 * n_columns**2
 
 
+# the stability test solves an eigenproblem of (reach x channels) rows per
+# frequency, and synthesis pads by the reach: beyond it a test takes minutes
+MAX_MODEL_REACH = 64
+
+
+def check_model(model, name="model"):
+    """A TypeError unless ``model`` is a CARModel, and a ValueError naming it
+    unless its parameters fit together and are finite: gamma (d, d * eta),
+    sigma (d, d), mean (d,), eta causal integer offsets that reach at most
+    ``MAX_MODEL_REACH`` pixels (a hand-made or edited model; those of
+    :func:`fit_car` with orders pass).
+
+    Parameters
+    ----------
+    model : CARModel
+        The model to check.
+    name : str, optional
+        What to call it in the messages.
+
+    Raises
+    ------
+    TypeError
+        If ``model`` is not a CARModel.
+    ValueError
+        If its parameters are inconsistent, not finite or reach too far.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> model = fit_car(np.random.default_rng(0).random((16, 16)), 1)
+    >>> check_model(model)
+    >>> model.gamma = model.gamma * np.nan
+    >>> check_model(model)
+    Traceback (most recent call last):
+    ...
+    ValueError: model.gamma holds NaN or infinite values; refit the model.
+    """
+    if not isinstance(model, CARModel):
+        raise TypeError(f"{name} must be a CARModel (from fit_car); got "
+                        f"{type(model).__name__}.")
+    try:
+        gamma, sigma, mean = (np.asarray(getattr(model, k), dtype=np.float64)
+                              for k in ("gamma", "sigma", "mean"))
+        offsets = np.asarray(model.offsets)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} has parameters that are not numeric arrays: {exc}") from None
+    if offsets.ndim != 2 or offsets.shape[1] != 2 or offsets.shape[0] == 0 \
+            or offsets.dtype.kind not in "iu":
+        raise ValueError(f"{name}.offsets must be a non-empty (eta, 2) integer array; got "
+                         f"shape {offsets.shape} of {offsets.dtype}.")
+    d, eta = (gamma.shape[0] if gamma.ndim == 2 else 0), offsets.shape[0]
+    if gamma.ndim != 2 or d == 0 or gamma.shape[1] != d * eta:
+        raise ValueError(f"{name}.gamma has shape {gamma.shape}; with {eta} offsets it must be "
+                         f"(d, d * {eta}).")
+    if sigma.shape != (d, d) or mean.shape != (d,):
+        raise ValueError(f"{name} has sigma {sigma.shape} and mean {mean.shape}; for {d} "
+                         f"channels they must be {(d, d)} and {(d,)}.")
+    for key, values in (("gamma", gamma), ("sigma", sigma), ("mean", mean)):
+        if not np.isfinite(values).all():
+            raise ValueError(f"{name}.{key} holds NaN or infinite values; refit the model.")
+    di, dj = offsets[:, 0], offsets[:, 1]
+    if np.any((di < 0) | ((di == 0) & (dj <= 0))):
+        raise ValueError(f"{name}.offsets are not causal (each needs di > 0, or di == 0 and "
+                         f"dj > 0); got {offsets.tolist()}.")
+    reach = int(max(di.max(), np.abs(dj).max()))
+    if reach > MAX_MODEL_REACH:
+        raise ValueError(f"{name}.offsets reach {reach} pixels; at most {MAX_MODEL_REACH} are "
+                         "allowed (the stability test and the synthesis margin grow with it).")
+
+
 def _channels(image, channel_axis):
     """The channels an image will have (for progress shares only; 1 if unclear)."""
     shape = np.shape(image)
@@ -877,8 +947,7 @@ def predict(model, image, *, channel_axis=-1):
     >>> bool(np.isfinite(log_density[1:, 1:]).all())
     True
     """
-    if not isinstance(model, CARModel):
-        raise TypeError(f"model must be a CARModel (from fit_car); got {type(model).__name__}.")
+    check_model(model)
     data = as_channel_last_float(image, channel_axis=channel_axis)
     d = model.n_channels
     if data.shape[2] != d:

@@ -12,7 +12,7 @@ from .._validation import check_memory, check_real, check_seed, output_shape
 from ._kernels import synthesize_field
 from .blocks import row_ranges
 from .directions import unscan_view
-from .estimation import CARModel
+from .estimation import check_model
 
 __all__ = ["iter_synthesize", "synthesize", "spectral_radius"]
 
@@ -137,6 +137,9 @@ def spectral_radius(model):
     ------
     TypeError
         If ``model`` is not a CARModel.
+    ValueError
+        If its parameters are inconsistent or not finite, or its offsets
+        reach too far (see :func:`~car_napari.model.estimation.check_model`).
 
     Examples
     --------
@@ -146,8 +149,7 @@ def spectral_radius(model):
     >>> bool(spectral_radius(model) < 1)
     True
     """
-    if not isinstance(model, CARModel):
-        raise TypeError(f"model must be a CARModel; got {type(model).__name__}.")
+    check_model(model)
     A = model.A
     di, dj = model.offsets[:, 0], model.offsets[:, 1]
     d = model.n_channels
@@ -210,8 +212,9 @@ def synthesize(model, shape, *, seed=None, margin=None):
     Raises
     ------
     ValueError
-        If the model is unstable (its field would grow without bound), or
-        ``shape`` is not two positive ints.
+        If the model is unstable (its field would grow without bound) or its
+        parameters are inconsistent or not finite, or ``shape`` is not two
+        positive ints.
     TypeError
         If ``model`` is not a CARModel.
 
@@ -286,8 +289,7 @@ def iter_synthesize(model, shape, *, seed=None, margin=None, chunk_rows=None):
     >>> records[-1].fraction, bool(np.array_equal(texture, synthesize(model, (40, 30), seed=0)))
     (1.0, True)
     """
-    if not isinstance(model, CARModel):
-        raise TypeError(f"model must be a CARModel (from fit_car); got {type(model).__name__}.")
+    check_model(model)
     h, w = output_shape(shape)
     rng = check_seed(seed)
     if chunk_rows is not None:
