@@ -696,6 +696,8 @@ def _edited_model(**changes):
     (dict(gamma=np.zeros((1, 1))), "gamma has shape"),
     (dict(offsets=np.array([[0, 1], [5000, 0]])), "reach 5000"),
     (dict(offsets=np.array([[0, -1], [1, 0]])), "not causal"),
+    (dict(gamma=np.full((1, 2), 1e200)), "magnitude"),  # predict overflowed to inf
+    (dict(gamma="x"), "numeric arrays"),
 ])
 @pytest.mark.parametrize("use", ["radius", "synthesize", "predict"])
 def test_edited_models_are_refused(changes, match, use):

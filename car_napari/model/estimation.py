@@ -15,7 +15,12 @@ from typing import NamedTuple
 import numpy as np
 
 from .._progress import Progress, drain, stage
-from .._validation import as_channel_last_float, check_not_constant, check_size
+from .._validation import (
+    MAGNITUDE_LIMIT,
+    as_channel_last_float,
+    check_not_constant,
+    check_size,
+)
 from .blocks import iter_centre, iter_channel_last_float, row_ranges
 from .directions import DIRECTIONS, scan_view
 from .neighbourhood import Context, as_offsets
@@ -239,7 +244,8 @@ MAX_MODEL_REACH = 64
 
 def check_model(model, name="model"):
     """A TypeError unless ``model`` is a CARModel, and a ValueError naming it
-    unless its parameters fit together and are finite: gamma (d, d * eta),
+    unless its parameters fit together and are finite (gamma and mean at most
+    ``MAGNITUDE_LIMIT``, as an image's values): gamma (d, d * eta),
     sigma (d, d), mean (d,), eta causal integer offsets that reach at most
     ``MAX_MODEL_REACH`` pixels (a hand-made or edited model; those of
     :func:`fit_car` with orders pass).
@@ -276,8 +282,9 @@ def check_model(model, name="model"):
         gamma, sigma, mean = (np.asarray(getattr(model, k), dtype=np.float64)
                               for k in ("gamma", "sigma", "mean"))
         offsets = np.asarray(model.offsets)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name} has parameters that are not numeric arrays: {exc}") from None
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}'s gamma, sigma and mean must be numeric arrays; refit the "
+                         "model.") from None
     if offsets.ndim != 2 or offsets.shape[1] != 2 or offsets.shape[0] == 0 \
             or offsets.dtype.kind not in "iu":
         raise ValueError(f"{name}.offsets must be a non-empty (eta, 2) integer array; got "
@@ -292,6 +299,12 @@ def check_model(model, name="model"):
     for key, values in (("gamma", gamma), ("sigma", sigma), ("mean", mean)):
         if not np.isfinite(values).all():
             raise ValueError(f"{name}.{key} holds NaN or infinite values; refit the model.")
+        # gamma and mean at most the magnitude of an image's values (sigma is
+        # of their squares): beyond it the predictions overflow
+        if key != "sigma" and values.size and np.abs(values).max() > MAGNITUDE_LIMIT:
+            raise ValueError(f"{name}.{key} holds values of magnitude "
+                             f"{np.abs(values).max():.3g}, beyond {MAGNITUDE_LIMIT:g}; refit the "
+                             "model.")
     di, dj = offsets[:, 0], offsets[:, 1]
     if np.any((di < 0) | ((di == 0) & (dj <= 0))):
         raise ValueError(f"{name}.offsets are not causal (each needs di > 0, or di == 0 and "
