@@ -711,3 +711,83 @@ def test_edited_models_are_refused(changes, match, use):
             "predict": lambda: predict(model, GOOD[..., 0])}[use]
     with pytest.raises(ValueError, match=match):
         call()
+
+
+# --- segmentation and inpainting: options, shapes and magnitudes ------------------------
+
+def _segmentation_calls():
+    from car_napari.segmentation import local_features, pseudo_colour, segment
+
+    image = np.random.default_rng(1).random((64, 64))
+    result = segment(image, levels=1, n_init=4)
+    return [
+        (lambda: local_features(image, levels=10**30), ValueError, "levels"),
+        (lambda: segment(image, levels=2**62), ValueError, "levels"),
+        (lambda: local_features(image, forgetting=np.nan), ValueError, "forgetting"),
+        (lambda: local_features(image, forgetting=0.0), ValueError, "forgetting"),
+        (lambda: local_features(image, smoothing=np.inf), ValueError, "smoothing"),
+        (lambda: local_features(image, mean_smoothing=1e300), ValueError, "mean_smoothing"),
+        (lambda: local_features(image, clip=np.nan), ValueError, "clip"),
+        (lambda: local_features(image, components=None), TypeError, "components"),
+        (lambda: local_features(image, level_smoothing="x"), ValueError, "level_smoothing"),
+        (lambda: result.labels_at("x"), TypeError, "k"),
+        (lambda: result.mixture_at(np.nan), ValueError, "k"),
+        (lambda: result.labels_at(2, threshold=2.0), ValueError, "threshold"),
+        (lambda: pseudo_colour(None), ValueError, "grey"),
+        (lambda: pseudo_colour(np.ones(5)), ValueError, "grey"),
+        (lambda: pseudo_colour(image, gammas=(-1, 2)), ValueError, "gammas"),
+    ]
+
+
+def _inpainting_calls():
+    from car_napari.inpainting import detect_scratches, estimate_motion, fit_mask, inpaint
+
+    frame = np.random.default_rng(2).random((48, 48))
+    mask = np.zeros((48, 48), bool)
+    mask[10:30, 20:22] = True
+    return [
+        (lambda: inpaint(frame, mask, neighbourhood=np.inf), ValueError, "neighbourhood"),
+        (lambda: inpaint(frame, mask, method="scans", neighbourhood=1e300), ValueError,
+         "neighbourhood"),
+        (lambda: detect_scratches(frame, line_width=np.inf), ValueError, "line_width"),
+        (lambda: detect_scratches(frame, line_length="3"), TypeError, "line_length"),
+        (lambda: estimate_motion(frame, frame, radius=10**30), ValueError, "radius"),
+        (lambda: estimate_motion(frame, frame, iterations=np.inf), ValueError, "iterations"),
+        (lambda: fit_mask(mask, (10**6, 10**6)), ValueError, "shape"),
+        (lambda: fit_mask(mask, 5), ValueError, "shape"),
+    ]
+
+
+@pytest.mark.parametrize("case", range(15))
+def test_segmentation_options_are_checked_first(case):
+    call, error, match = _segmentation_calls()[case]
+    with pytest.raises(error, match=match):
+        call()
+
+
+@pytest.mark.parametrize("case", range(8))
+def test_inpainting_options_are_checked_first(case):
+    call, error, match = _inpainting_calls()[case]
+    with pytest.raises(error, match=match):
+        call()
+
+
+@pytest.mark.parametrize("scale, shift", [(1e300, 0.0), (1e-300, 0.0), (1.0, 1e10)])
+def test_inpaint_of_any_finite_magnitude_is_the_unit_fill_rescaled(scale, shift):
+    """The fill is affine-equivariant: an image near 1e300, 1e-300 or 1e10 +
+    [0, 1] is filled as the unit one (once 'Factor is exactly singular')."""
+    from skimage import data as skdata
+
+    from car_napari.inpainting import inpaint
+
+    frame = skdata.camera()[:64, :64] / 255.0
+    mask = np.zeros(frame.shape, bool)
+    mask[16:48, 30:33] = True
+    unit = inpaint(frame, mask)
+    image = frame * scale + shift
+    got = inpaint(image, mask)
+    assert np.isfinite(got).all()
+    # 1e10 + x holds x to about 2e-6
+    tolerance = 1e-9 if shift == 0 else 1e-5
+    np.testing.assert_allclose((got[mask] - shift) / scale, unit[mask], rtol=0,
+                               atol=tolerance)

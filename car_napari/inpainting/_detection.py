@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._progress import Progress, drain
-from .._validation import as_channel_last_float
+from .._validation import as_channel_last_float, check_real
 from . import _motion
 from ._layout import read_layout
 
@@ -321,7 +321,10 @@ def iter_detect_scratches(image, *, kinds=KINDS, channel_axis=-1, line_width=3,
     T, H, W = layout.clip.shape[:3]
     lines = "line" in kinds
     blotches = "blotch" in kinds and T >= 3
-    w = int(line_width)
+    w = check_real(line_width, "line_width (pixels)", low=1, high=1 << 16, integer=True)
+    line_length = check_real(line_length, "line_length (a fraction of the frame's height)",
+                             low=0.0, high=1.0, low_open=True)
+    check_real(line_threshold, "line_threshold", low=0.0, low_open=True)
     if lines and W <= 2 * w:
         raise ValueError(f"the frame is too narrow ({W} px) for line_width {w}.")
     band = int(BAND_PIXELS)

@@ -27,6 +27,7 @@ import numpy as np
 from numba import njit
 
 from .._progress import Progress, stage
+from .._validation import check_real
 from ..model.neighbourhood import Context, causal_neighbourhood
 from ..model.recursive import RecursiveScan, default_prior
 from ._conditional import iter_fill_conditional
@@ -152,9 +153,7 @@ def line_offsets(depth, half_width=2):
     >>> line_offsets(1, half_width=1).tolist()
     [[1, -1], [1, 0], [1, 1]]
     """
-    if isinstance(depth, (bool, np.bool_)) or int(depth) != depth or not 1 <= depth <= 8:
-        raise ValueError(f"neighbourhood (scan lines used) must be an int from 1 to 8; "
-                         f"got {depth!r}.")
+    check_real(depth, "neighbourhood (scan lines used)", low=1, high=8, integer=True)
     return np.array([(di, dj) for di in range(1, int(depth) + 1)
                      for dj in range(-half_width, half_width + 1)], np.int64)
 
@@ -208,15 +207,34 @@ def _bands(n, width):
     return [(a, min(a + size, n)) for a in range(0, n, size)]
 
 
-def _as_float(array, out, meter, fraction, message):
+def _as_float(array, out, meter, fraction, message, units=None):
     """``array.astype(np.float64)`` into ``out``, by bands (exact: element
-    by element); a record (at ``fraction``) when due."""
+    by element), in ``units`` ``(shift, scale)`` if given; a record (at
+    ``fraction``) when due."""
     H, W = array.shape[:2]
     for a, b in _bands(H, W):
         out[a:b] = array[a:b]
+        if units is not None:
+            out[a:b] -= units[0]
+            out[a:b] /= units[1]
         if meter.due((b - a) * W):
             yield Progress("frames", fraction, message)
     return out
+
+
+def _working_units(clip):
+    """``(shift, scale)`` that bring a float clip far from unit scale (values
+    near 1e300 or 1e-300, or 1e10 plus small noise) to [-1, 1], or None
+    for one within reach (every 8- and 16-bit image). The fill is affine-
+    equivariant, so this changes rounding only, and magnitude never decides
+    whether the fits and sparse solves succeed."""
+    if clip.dtype.kind != "f":
+        return None
+    lo, hi = float(clip.min()), float(clip.max())
+    half, middle = hi / 2 - lo / 2, lo / 2 + hi / 2  # no overflow near 1.8e308
+    if 1e-6 <= half <= 1e8 and abs(middle) <= 1e6 * half:
+        return None
+    return middle, half if half > 0 else max(abs(middle), 1.0)
 
 
 def _iter_known_statistics(frame, mask, meter, message):
@@ -511,10 +529,8 @@ def iter_inpaint_in_memory(image, mask, *, temporal=True, neighbourhood=None, fo
     if neighbourhood is None:
         neighbourhood = CONDITIONAL_ORDER if conditional else 1
     if conditional:
-        if isinstance(neighbourhood, (bool, np.bool_)) or int(neighbourhood) != neighbourhood \
-                or not 1 <= neighbourhood <= 8:
-            raise ValueError(f"neighbourhood (the models' hierarchical order) must be an int "
-                             f"from 1 to 8; got {neighbourhood!r}.")
+        check_real(neighbourhood, "neighbourhood (the models' hierarchical order)", low=1,
+                   high=8, integer=True)
         offsets = causal_neighbourhood(int(neighbourhood))
     else:
         offsets = line_offsets(neighbourhood)
@@ -536,6 +552,7 @@ def iter_inpaint_in_memory(image, mask, *, temporal=True, neighbourhood=None, fo
                 neighbourhood=neighbourhood, forgetting=forgetting, interleave=interleave,
                 halo=halo, method=method, motion=motion))
     out = np.array(clip, copy=True)
+    units = _working_units(clip)
     work = np.cumsum([1.0 if d else _CLEAN_FRAME_WORK for d in damaged])
     work /= work[-1]
     previous = None
@@ -547,7 +564,7 @@ def iter_inpaint_in_memory(image, mask, *, temporal=True, neighbourhood=None, fo
         if damaged[t]:
             frame_mask = np.asarray(masks[t])
             yield from _as_float(clip[t], frame, meter, work[t - 1] if t else 0.0,
-                                 f"{message}, preparing")
+                                 f"{message}, preparing", units=units)
             context = previous if temporal else None
             if context is not None and motion:  # the previous frame moved onto this one
                 flow = yield from _as_frame_records(
@@ -566,12 +583,14 @@ def iter_inpaint_in_memory(image, mask, *, temporal=True, neighbourhood=None, fo
                                         None if halo is None else float(halo), message,
                                         buffers)
             values = yield from stage(fill, work[t - 1] if t else 0.0, work[t])
+            if units is not None:
+                values = values * units[1] + units[0]
             out[t][frame_mask] = _to_dtype(values, clip.dtype)
         if temporal and t + 1 < T:  # the next frame's context: this one, restored
             if previous is None:
                 previous = np.empty((H, W, C))
             yield from _as_float(out[t], previous, meter, float(work[t]),
-                                 f"{message}, preparing")
+                                 f"{message}, preparing", units=units)
         restored_frame = layout.frame_to_input(out[t]).view()
         restored_frame.flags.writeable = False
         yield Progress("frames", float(work[t]), message, (t, restored_frame))

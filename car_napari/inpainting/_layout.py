@@ -13,9 +13,12 @@ One rule serves :func:`~car_napari.inpainting.inpaint` and
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
+
+from .._validation import check_memory, check_shape
 
 MAX_COLOURS = 4  # more entries on the channel axis of a 3-D array: a grey clip
 
@@ -142,10 +145,12 @@ def fit_mask(mask, shape, *, channel_axis=None):
     >>> fit_mask(np.ones((2, 3, 3), bool), (2, 6, 6)).shape
     (2, 6, 6)
     """
-    shape = tuple(int(n) for n in shape)
-    if len(shape) not in (2, 3) or min(shape) < 1:
+    try:
+        shape = check_shape(shape, "shape")
+    except ValueError:
         raise ValueError(f"shape must be a frame (H, W) or a clip (T, H, W) of positive "
-                         f"sizes; got {shape}.")
+                         f"sizes; got {shape!r}.") from None
+    check_memory(math.prod(shape), "shape")
     m = np.asarray(mask)
     if m.dtype.kind not in "biuf":
         raise TypeError(f"mask must be boolean or numeric (non-zero = damaged); got "

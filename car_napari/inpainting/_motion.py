@@ -20,7 +20,7 @@ import numpy as np
 from numba import njit
 
 from .._progress import Progress, drain
-from .._validation import as_channel_last_float
+from .._validation import as_channel_last_float, check_real
 from ._layout import read_layout
 
 __all__ = ["compensate_motion", "estimate_motion", "iter_compensate_motion",
@@ -284,12 +284,15 @@ def _work_units(H, W, iterations, flow_pixels):
     return iterations * sum(0.25 ** (k - finest) for k in range(finest, levels + 1))
 
 
+# the largest window radius (pixels) and warps per level an option may ask:
+# far beyond any use, and each costs time in proportion
+_MAX_RADIUS = 256
+_MAX_ITERATIONS = 100
+
+
 def _check_options(radius, iterations):
-    if isinstance(radius, (bool, np.bool_)) or int(radius) != radius or radius < 1:
-        raise ValueError(f"radius must be a positive int (pixels); got {radius!r}.")
-    if isinstance(iterations, (bool, np.bool_)) or int(iterations) != iterations \
-            or iterations < 1:
-        raise ValueError(f"iterations must be a positive int; got {iterations!r}.")
+    check_real(radius, "radius (pixels)", low=1, high=_MAX_RADIUS, integer=True)
+    check_real(iterations, "iterations", low=1, high=_MAX_ITERATIONS, integer=True)
 
 
 def _as_frame(image, channel_axis, name):

@@ -27,7 +27,7 @@ import numpy as np
 from .._docstrings import shared_parameters
 from .._progress import Progress, drain, side_by_side, stage
 from .._threads import job_threads
-from .._validation import check_not_constant, summarize
+from .._validation import check_not_constant, check_real, summarize
 from ..model.blocks import iter_channel_last_float, row_ranges
 from ..model.directions import DIRECTIONS, scan_view
 from ..model.neighbourhood import Context, as_offsets
@@ -37,6 +37,26 @@ __all__ = ["iter_local_features", "iter_pseudo_colour", "local_features", "pseud
 
 # the coarsest pyramid level must keep at least this many pixels a side
 _MIN_LEVEL_SIDE = 16
+# more levels than any image has (2**30 * 16 pixels a side), and the widest
+# Gaussian smoothing (pixels) and PCA components an option may ask
+_MAX_LEVELS = 30
+_MAX_SMOOTHING = 256.0
+_MAX_COMPONENTS = 64
+
+
+def _check_feature_options(levels, forgetting, components, smoothing, mean_smoothing, clip,
+                           level_smoothing):
+    """The numeric options of :func:`iter_local_features`, checked before any
+    pass over the image: a TypeError / ValueError naming the option."""
+    check_real(levels, "levels", low=1, high=_MAX_LEVELS, integer=True)
+    check_real(forgetting, "forgetting", low=0.0, high=1.0, low_open=True)
+    check_real(components, "components", low=1, high=_MAX_COMPONENTS, integer=True)
+    check_real(smoothing, "smoothing", low=0.0, high=_MAX_SMOOTHING)
+    if mean_smoothing is not None:
+        check_real(mean_smoothing, "mean_smoothing", low=0.0, high=_MAX_SMOOTHING)
+    check_real(clip, "clip", low=0.0)
+    if level_smoothing not in ("same", "scaled"):
+        raise ValueError(f"level_smoothing must be 'same' or 'scaled'; got {level_smoothing!r}.")
 # pixels each PCA is fitted on, and the robust scaling (medians) before it
 _SAMPLE = 20000
 _ROBUST_SAMPLE = 20000
@@ -107,8 +127,17 @@ def iter_pseudo_colour(grey, gammas=(0.5, 2.0)):
     array([0.5       , 0.70710678, 0.25      ])
     """
     g = np.asarray(grey)
+    if g.ndim != 2 or g.size == 0 or g.dtype.kind not in "biuf":
+        raise ValueError(f"grey must be a non-empty 2-D numeric image (H, W); got shape "
+                         f"{g.shape}, dtype {g.dtype}.")
+    try:
+        gammas = tuple(check_real(gm, "gammas", low=0.0, low_open=True) for gm in gammas)
+    except TypeError:
+        raise TypeError(f"gammas must be positive exponents; got {gammas!r}.") from None
     if g.dtype != np.float64:
         g = g.astype(np.float64)
+    if not np.isfinite(g).all():
+        raise ValueError("grey has NaN or infinite values; pass finite values.")
     lo, hi = g.min(), g.max()
     out = np.empty(g.shape + (1 + len(gammas),))
     blocks = row_ranges(g.shape[0], g.shape[1] * 8 * (1 + len(gammas)))
@@ -155,8 +184,7 @@ def pseudo_colour(grey, gammas=(0.5, 2.0)):
 
 
 def _check_levels(shape, levels, neighbourhood):
-    if not isinstance(levels, (int, np.integer)) or levels < 1:
-        raise ValueError(f"levels must be a positive int; got {levels!r}.")
+    levels = check_real(levels, "levels", low=1, high=_MAX_LEVELS, integer=True)
     offsets, _ = as_offsets(neighbourhood)
     reach = Context.spatial(offsets, 1).reach
     need = (2 ** (levels - 1)) * max(_MIN_LEVEL_SIDE, 4 * (1 + sum(reach[1]) + sum(reach[0])))
@@ -540,6 +568,8 @@ def iter_local_features(
     >>> messages[0], sorted(m[11:] for m in messages if m.endswith(" scan"))
     ('level 1/1', ['down scan', 'left scan', 'right scan', 'up scan'])
     """
+    _check_feature_options(levels, forgetting, components, smoothing, mean_smoothing, clip,
+                           level_smoothing)
     # the float copy by blocks (a large image yields on the way, at 0 %: a
     # small part of the work, and the plan needs its shape)
     convert = iter_channel_last_float(image, channel_axis=channel_axis, stage="features")

@@ -160,6 +160,7 @@ class SegmentationResult:
         ks = [mx.k for mx in self.history]
         if not ks:
             raise ValueError("the merge history is empty.")
+        k = check_real(k, "k (the number of segments)", low=1, integer=True)
         k = int(np.clip(k, min(ks), max(ks)))
         return min((i for i, kk in enumerate(ks) if kk >= k), key=lambda i: ks[i])
 
@@ -231,7 +232,8 @@ class SegmentationResult:
         >>> np.array_equal(result.cached_labels_at(3, threshold=0.9), labels)
         True
         """
-        threshold = self.threshold if threshold is None else float(threshold)
+        threshold = self.threshold if threshold is None else check_real(
+            threshold, "threshold", low=0.0, high=1.0, high_open=True)
         i = self._index(k)
         labels, prob = self._cut(i, writable=threshold > 0 or self.mask is not None), \
             self._probs.get(i)
@@ -276,7 +278,8 @@ class SegmentationResult:
         >>> result.cached_labels_at(3, threshold=0.9) is None
         True
         """
-        threshold = self.threshold if threshold is None else float(threshold)
+        threshold = self.threshold if threshold is None else check_real(
+            threshold, "threshold", low=0.0, high=1.0, high_open=True)
         i = self._index(k)
         prob = self._probs.get(i)  # one look-up: another thread may drop it later
         if i not in self._cuts or (threshold > 0 and prob is None):
@@ -338,7 +341,7 @@ def _check_options(image, features, mask, channel_axis, options):
     if o["n_segments"] is not None and o["n_segments"] > o["n_init"]:
         raise ValueError(f"n_segments ({o['n_segments']}) must not exceed n_init "
                          f"({o['n_init']}).")
-    o["levels"] = check_real(o["levels"], "levels", low=1, integer=True)
+    o["levels"] = check_real(o["levels"], "levels", low=1, high=30, integer=True)
     o["forgetting"] = check_real(o["forgetting"], "forgetting", low=0.0, high=1.0,
                                  low_open=True)
     o["smoothing"] = check_real(o["smoothing"], "smoothing", low=0.0, high=_MAX_SMOOTHING)
