@@ -43,10 +43,10 @@ from ._regions import (
     _upsample_box,
 )
 
-# the segmentation's automatic stop (nats per pixel) and variance floor the
-# breast pipeline and its shipped scoring model were built with (segment's
+# the segmentation's automatic stop (nats per pixel), variance floor and
+# forgetting the breast pipeline and its shipped scoring model were built with (segment's
 # defaults before issue 14 chose them on texture mosaics)
-_SEGMENT_DEFAULTS = {"merge_threshold": 1.5, "var_floor": 0.1}
+_SEGMENT_DEFAULTS = {"merge_threshold": 1.5, "var_floor": 0.1, "forgetting": 0.99}
 
 __all__ = [
     "DEFAULT_MARKS_PER_IMAGE",

@@ -453,7 +453,9 @@ neighbourhood : int or (eta, 2) array_like, optional
     Causal neighbourhood of the local models: an order or explicit
     (row, column) offsets (causal neighbourhoods, docs/model.md).
 forgetting : float, optional
-    Forgetting factor of the adaptive models, in (0, 1].
+    Forgetting factor of the adaptive models, in (0, 1] (0.98: an effective
+    window of about 50 pixels along each scan; 0.97-0.98 was best on the
+    TUNING mosaics, docs/segmentation.md).
 components : int, optional
     PCA components kept per direction (and ``components + 1`` per level).
 smoothing : float, optional
@@ -517,7 +519,7 @@ def iter_local_features(
     *,
     levels=3,
     neighbourhood=2,
-    forgetting=0.99,
+    forgetting=0.98,
     components=3,
     smoothing=10.0,
     mean_smoothing=None,
@@ -783,7 +785,7 @@ def local_features(
     *,
     levels=3,
     neighbourhood=2,
-    forgetting=0.99,
+    forgetting=0.98,
     components=3,
     smoothing=10.0,
     mean_smoothing=None,

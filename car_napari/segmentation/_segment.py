@@ -426,7 +426,9 @@ neighbourhood : int or (eta, 2) array_like, optional
     Causal neighbourhood of the local models: an order or explicit
     offsets (causal neighbourhoods, docs/model.md).
 forgetting : float, optional
-    Forgetting factor of the adaptive models, in (0, 1].
+    Forgetting factor of the adaptive models, in (0, 1] (0.98: an effective
+    window of about 50 pixels along each scan; 0.97-0.98 was best on the
+    TUNING mosaics, docs/segmentation.md).
 n_init : int, optional
     ``K_ini``: components of the initial regular block division, 2 to 64
     (and no more blocks a side than the image has pixels).
@@ -489,7 +491,7 @@ def iter_segment(
     n_segments=None,
     levels=3,
     neighbourhood=2,
-    forgetting=0.99,
+    forgetting=0.98,
     n_init=16,
     smoothing=2.0,
     threshold=0.0,
@@ -682,7 +684,7 @@ def segment(
     n_segments=None,
     levels=3,
     neighbourhood=2,
-    forgetting=0.99,
+    forgetting=0.98,
     n_init=16,
     smoothing=2.0,
     threshold=0.0,
