@@ -29,10 +29,10 @@ this is the distance to the in-memory fill, not a quality score.
 (``film-damage/cinestill50d_half_1``, its hand-made mask) resized to SIDE x
 SIDE, two rounds alternating: ``inpaint`` in memory (a frame larger than
 2048 a side is filled by its tiles), ``inpaint`` of the same frame as a dask
-array, and the whole frame as one fill (``tiles=False``, the definition
-before issue 16). Printed: the times, whether the in-memory and the dask
-results are equal, and the PSNR of the tiles against the one fill over the
-masked pixels.
+array, and the whole frame as one fill (``iter_inpaint_in_memory`` without
+``by_tiles``, the definition before issue 16). Printed: the times, whether
+the in-memory and the dask results are equal, and the PSNR of the tiles
+against the one fill over the masked pixels.
 
 ``--compare SIDE`` times, in one process, ``restore`` in memory against
 ``restore_tiled`` (NumPy in and out, ``--tile``) on the noisy photograph at
@@ -224,7 +224,7 @@ def inpaint_compare(side):
         lazy = inpaint(da.from_array(frame, chunks=(1024, 1024, 3)), mask)
         times["dask (tiles)"].append(time.perf_counter() - t0)
         t0 = time.perf_counter()
-        whole = drain(iter_inpaint_in_memory(frame, mask, tiles=False))
+        whole = drain(iter_inpaint_in_memory(frame, mask))
         times["one fill"].append(time.perf_counter() - t0)
     load = psutil.getloadavg()
     diff = tiles[mask].astype(float) - whole[mask].astype(float)

@@ -166,7 +166,7 @@ def test_a_large_frame_is_filled_by_the_same_tiles_in_memory_and_from_dask(monke
     np.testing.assert_array_equal(in_memory[:64, :64], first[:64, :64])
     from car_napari.inpainting._filling import iter_inpaint_in_memory
 
-    one_solve = drain(iter_inpaint_in_memory(frame, mask, tiles=False))
+    one_solve = drain(iter_inpaint_in_memory(frame, mask))
     assert not np.array_equal(one_solve, in_memory)  # the tiles are in effect
     records = []
     drain(iter_inpaint(frame, mask), records.append)

@@ -502,12 +502,14 @@ def _iter_by_tiles(layout, mask, iter_inpaint_tiles, **options):
 
 def iter_inpaint_in_memory(image, mask, *, temporal=True, neighbourhood=None, forgetting=0.9995,
                            interleave=DEFAULT_INTERLEAVE, halo="auto", channel_axis=-1,
-                           method="conditional", motion=True, tiles=True):
+                           method="conditional", motion=True, by_tiles=None, tile_side=None):
     """:func:`~car_napari.inpainting.iter_inpaint` of a frame or clip in
     memory (NumPy): the parameters, records and result documented there.
-    With ``tiles``, a single frame larger than ``_tiled.DEFAULT_TILE`` a
-    side is filled by tiles (what defines it; :mod:`._tiled`); the tiles
-    themselves are filled with ``tiles=False``."""
+    ``by_tiles``: :func:`._tiled.iter_inpaint_tiles` (passed in by
+    :func:`~car_napari.inpainting.iter_inpaint`, which imports both), by
+    which a single frame larger than ``tile_side`` (its default tile) a side
+    is filled (what defines it; :mod:`._tiled`); None (its tiles
+    themselves) fills the frame as one."""
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}; got {method!r}.")
     if not isinstance(motion, (bool, np.bool_)):
@@ -515,17 +517,15 @@ def iter_inpaint_in_memory(image, mask, *, temporal=True, neighbourhood=None, fo
     conditional = method == "conditional"
     layout, masks = _as_clip(image, mask, channel_axis)
     clip = layout.clip
-    if not 0.0 < float(forgetting) <= 1.0:
-        raise ValueError(f"forgetting must be in (0, 1]; got {forgetting}.")
-    if not float(interleave) > 0:
-        raise ValueError(f"interleave must be a positive length in pixels; got {interleave}.")
+    forgetting = check_real(forgetting, "forgetting", low=0.0, high=1.0, low_open=True)
+    interleave = check_real(interleave, "interleave (pixels)", low=0.0, low_open=True)
     if isinstance(halo, str):
         if halo != "auto":
             raise ValueError(f"halo must be 'auto', a log density ratio <= 0 or None (off); "
                              f"got {halo!r}.")
         halo = CONDITIONAL_HALO if conditional else EDGE_OUTLIER_LOGREL
-    if halo is not None and not float(halo) <= 0:
-        raise ValueError(f"halo must be a log density ratio <= 0 (or None: off); got {halo}.")
+    if halo is not None:
+        halo = check_real(halo, "halo (a log density ratio <= 0, 'auto' or None)", high=0.0)
     if neighbourhood is None:
         neighbourhood = CONDITIONAL_ORDER if conditional else 1
     if conditional:
@@ -543,12 +543,10 @@ def iter_inpaint_in_memory(image, mask, *, temporal=True, neighbourhood=None, fo
     if not any(damaged):
         warnings.warn("the mask is empty: nothing to restore, the input is returned "
                       "unchanged.", UserWarning, stacklevel=2)
-    if tiles and layout.single and any(damaged):
-        from . import _tiled  # (it imports this module)
-
-        if max(H, W) > _tiled.DEFAULT_TILE:
-            return (yield from _iter_by_tiles(
-                layout, masks[0], _tiled.iter_inpaint_tiles, temporal=temporal,
+    if by_tiles is not None and layout.single and any(damaged) \
+            and max(H, W) > tile_side:
+        return (yield from _iter_by_tiles(
+                layout, masks[0], by_tiles, temporal=temporal,
                 neighbourhood=neighbourhood, forgetting=forgetting, interleave=interleave,
                 halo=halo, method=method, motion=motion))
     out = np.array(clip, copy=True)

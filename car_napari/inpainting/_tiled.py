@@ -133,7 +133,7 @@ def iter_inpaint_tiles(image, mask, *, out=None, tile=None, tile_halo=None,
             with warnings.catch_warnings():
                 warnings.filterwarnings("ignore", "the mask is empty", UserWarning)
                 job = iter_inpaint_in_memory(part, part_mask, channel_axis=channel_axis,
-                                             tiles=False, **options)
+                                             **options)
                 span = (k - 1) / len(tiles), k / len(tiles)
                 part = yield from _without_previews(
                     stage(job, *span, name="tiles", prefix=f"{done}: "))
