@@ -736,6 +736,8 @@ def _segmentation_calls():
         (lambda: pseudo_colour(None), ValueError, "grey"),
         (lambda: pseudo_colour(np.ones(5)), ValueError, "grey"),
         (lambda: pseudo_colour(image, gammas=(-1, 2)), ValueError, "gammas"),
+        (lambda: local_features(image, seed=-1), ValueError, "seed"),
+        (lambda: local_features(image, neighbourhood=9), ValueError, "neighbourhood"),
     ]
 
 
@@ -755,17 +757,23 @@ def _inpainting_calls():
         (lambda: estimate_motion(frame, frame, iterations=np.inf), ValueError, "iterations"),
         (lambda: fit_mask(mask, (10**6, 10**6)), ValueError, "shape"),
         (lambda: fit_mask(mask, 5), ValueError, "shape"),
+        (lambda: fit_mask(mask, (48, 48), channel_axis=np.nan), ValueError, "channel_axis"),
+        (lambda: detect_scratches(frame, kinds=3), TypeError, "kinds"),
+        (lambda: detect_scratches(frame, blotch_threshold=[1]), TypeError, "blotch_threshold"),
+        (lambda: inpaint(frame, mask, forgetting=None), TypeError, "forgetting"),
+        (lambda: inpaint(frame, mask, interleave=[2]), TypeError, "interleave"),
+        (lambda: inpaint(frame, mask, halo=[0]), TypeError, "halo"),
     ]
 
 
-@pytest.mark.parametrize("case", range(15))
+@pytest.mark.parametrize("case", range(17))
 def test_segmentation_options_are_checked_first(case):
     call, error, match = _segmentation_calls()[case]
     with pytest.raises(error, match=match):
         call()
 
 
-@pytest.mark.parametrize("case", range(8))
+@pytest.mark.parametrize("case", range(14))
 def test_inpainting_options_are_checked_first(case):
     call, error, match = _inpainting_calls()[case]
     with pytest.raises(error, match=match):

@@ -307,7 +307,12 @@ def iter_detect_scratches(image, *, kinds=KINDS, channel_axis=-1, line_width=3,
     >>> mask.shape, records[-1].stage, records[-1].fraction
     ((3, 16, 16), 'blotches', 1.0)
     """
-    kinds = (kinds,) if isinstance(kinds, str) else tuple(kinds)
+    if isinstance(kinds, str):
+        kinds = (kinds,)
+    elif isinstance(kinds, (tuple, list, set, frozenset)):
+        kinds = tuple(kinds)
+    else:
+        raise TypeError(f"kinds must be 'line', 'blotch' or a tuple of them; got {kinds!r}.")
     bad = [k for k in kinds if k not in KINDS]
     if bad or not kinds:
         raise ValueError(f"kinds must be a subset of ('line', 'blotch'); got {kinds}.")
@@ -332,10 +337,8 @@ def iter_detect_scratches(image, *, kinds=KINDS, channel_axis=-1, line_width=3,
     motion = bool(motion)
     if blotch_threshold is None:
         blotch_threshold = COMPENSATED_THRESHOLD if motion else BLOTCH_THRESHOLD
-    blotch_threshold = float(blotch_threshold)
-    if not blotch_threshold > 0:
-        raise ValueError(f"blotch_threshold must be a positive difference (image scale "
-                         f"[0, 1]); got {blotch_threshold}.")
+    blotch_threshold = check_real(blotch_threshold, "blotch_threshold (a difference on the "
+                                  "image scale [0, 1])", low=0.0, low_open=True)
     total = H * W * (T + (_LINE_PASSES * T if lines else 0)
                      + (_BLOTCH_PASSES * (T - 2) if blotches else 0)
                      + (_MOTION_PASSES * (T - 2) if blotches and motion else 0))

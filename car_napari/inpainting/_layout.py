@@ -18,7 +18,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .._validation import check_memory, check_shape
+from .._validation import check_memory, check_real, check_shape
 
 MAX_COLOURS = 4  # more entries on the channel axis of a 3-D array: a grey clip
 
@@ -151,6 +151,8 @@ def fit_mask(mask, shape, *, channel_axis=None):
         raise ValueError(f"shape must be a frame (H, W) or a clip (T, H, W) of positive "
                          f"sizes; got {shape!r}.") from None
     check_memory(math.prod(shape), "shape")
+    if channel_axis is not None:
+        check_real(channel_axis, "channel_axis", integer=True)
     m = np.asarray(mask)
     if m.dtype.kind not in "biuf":
         raise TypeError(f"mask must be boolean or numeric (non-zero = damaged); got "

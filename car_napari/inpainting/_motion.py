@@ -296,6 +296,8 @@ def _check_options(radius, iterations):
 
 
 def _as_frame(image, channel_axis, name):
+    if channel_axis is not None:
+        check_real(channel_axis, "channel_axis", integer=True)
     arr = np.asarray(image)
     if arr.ndim not in (2, 3) or (arr.ndim == 3 and channel_axis is None):
         raise ValueError(f"{name} must be a frame, (H, W) or (H, W, C) with channel_axis; "

@@ -27,7 +27,7 @@ import numpy as np
 from .._docstrings import shared_parameters
 from .._progress import Progress, drain, side_by_side, stage
 from .._threads import job_threads
-from .._validation import check_not_constant, check_real, summarize
+from .._validation import check_not_constant, check_real, check_seed, summarize
 from ..model.blocks import iter_channel_last_float, row_ranges
 from ..model.directions import DIRECTIONS, scan_view
 from ..model.neighbourhood import Context, as_offsets
@@ -45,7 +45,7 @@ _MAX_COMPONENTS = 64
 
 
 def _check_feature_options(levels, forgetting, components, smoothing, mean_smoothing, clip,
-                           level_smoothing):
+                           level_smoothing, seed):
     """The numeric options of :func:`iter_local_features`, checked before any
     pass over the image: a TypeError / ValueError naming the option."""
     check_real(levels, "levels", low=1, high=_MAX_LEVELS, integer=True)
@@ -55,6 +55,7 @@ def _check_feature_options(levels, forgetting, components, smoothing, mean_smoot
     if mean_smoothing is not None:
         check_real(mean_smoothing, "mean_smoothing", low=0.0, high=_MAX_SMOOTHING)
     check_real(clip, "clip", low=0.0)
+    check_seed(seed)
     if level_smoothing not in ("same", "scaled"):
         raise ValueError(f"level_smoothing must be 'same' or 'scaled'; got {level_smoothing!r}.")
 # pixels each PCA is fitted on, and the robust scaling (medians) before it
@@ -191,8 +192,8 @@ def _check_levels(shape, levels, neighbourhood):
     if min(shape[:2]) < need:
         raise ValueError(
             f"image {shape[0]}x{shape[1]} is too small for {levels} resolution "
-            f"levels: each side needs at least {need} pixels. Use fewer levels or a "
-            "larger image."
+            f"levels with this neighbourhood: each side needs at least {need} pixels. Use "
+            "fewer levels, a smaller neighbourhood or a larger image."
         )
 
 
@@ -571,7 +572,7 @@ def iter_local_features(
     ('level 1/1', ['down scan', 'left scan', 'right scan', 'up scan'])
     """
     _check_feature_options(levels, forgetting, components, smoothing, mean_smoothing, clip,
-                           level_smoothing)
+                           level_smoothing, seed)
     # the float copy by blocks (a large image yields on the way, at 0 %: a
     # small part of the work, and the plan needs its shape)
     convert = iter_channel_last_float(image, channel_axis=channel_axis, stage="features")
