@@ -155,6 +155,8 @@ def test_memory_does_not_grow_with_the_clip(docked, qtbot, film, kind):
         assert viewer.layers["film restored"].data.shape[0] == n
 
     run(12)  # warm-up: the kernels loaded, the viewer's first layers drawn
-    short = _peak(lambda: run(50))
-    long = _peak(lambda: run(200))
+    # the lower of two peaks each: a collection that comes late in one run
+    # (a CI run once measured 1.21x) is not the clip's length
+    short = min(_peak(lambda: run(50)) for _ in range(2))
+    long = min(_peak(lambda: run(200)) for _ in range(2))
     assert long <= 1.2 * short, (short, long)
