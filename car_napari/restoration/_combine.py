@@ -199,9 +199,19 @@ class DirectionalAverage:
         """(prediction + offset, probability) in image shape."""
         pred = np.empty(self.observed.shape)
         prob = np.empty(self.observed.shape[:2])
-        combine_directions(self.mean_sum, self.prob_sum, self.weight_sum, self.observed,
-                           self.offset, pred, prob, 0, pred.shape[0])
+        for _ in self.iter_prediction(pred, prob):
+            pass
         return pred, prob
+
+    def iter_prediction(self, pred, prob):
+        """:meth:`prediction` into ``pred`` (H, W, C) and ``prob`` (H, W) in
+        chunks of rows (a 4000x4000 image is ~0.3 s in one call); yields the
+        rows done after each chunk. Rows are independent: bit for bit one call."""
+        H, W, C = self.observed.shape
+        for a, b in row_chunks(0, H, chunk_rows(W, C)):
+            combine_directions(self.mean_sum, self.prob_sum, self.weight_sum, self.observed,
+                               self.offset, pred, prob, a, b)
+            yield b - a
 
 
 def edge_rule(observed, prediction, spread, noise, pool=None, blend=False, out=None):

@@ -500,17 +500,13 @@ def _iter_scans(versions, observed, reference, context, forgetting, directions,
     spread = np.zeros(shape)
     total = steps * shape[0] * shape[1]
     scanned = done = 0
+    channel_pred, channel_prob = np.empty(shape[:2] + (1,)), np.empty(shape[:2])
+    rows = chunk_rows(shape[1], len(versions) + len(extra))
     for c in range(C):  # colour versions: one 2.5D model per colour channel
         fraction = lo + (hi - lo) * scanned / total
         message = f"channel {c + 1}/{C}: preparing"
-        source = np.stack([v[..., c] for v in versions + extra], axis=-1)
-        yield Progress("directions", fraction, message)
-        means = source.reshape(-1, source.shape[2]).mean(axis=0)
-        yield Progress("directions", fraction, message)
-        source -= means
-        var = source.reshape(-1, source.shape[2]).var(axis=0)
-        var = np.where(var > 0, var, 1.0)
-        yield Progress("directions", fraction, message)
+        source, means, var = yield from _iter_centred_source(
+            versions + extra, c, rows, Progress("directions", fraction, message))
         average = DirectionalAverage(source[..., reference : reference + 1], means[[reference]])
         k = 0
         for pixels, finished in iter_directions(
@@ -528,16 +524,53 @@ def _iter_scans(versions, observed, reference, context, forgetting, directions,
                     yield Progress("directions", fraction,
                                    f"channel {c + 1}/{C}, direction {k}/{n_dir}: combining")
                 del result
-                pred[..., c] = average.prediction()[0][..., 0]
-                running = pred.copy()
-                running[..., c + 1 :] = observed[..., c + 1 :]
+                # the preview in chunks of rows, a yield between (a 4000x4000
+                # colour image is seconds in one piece: Cancel waits for it)
+                message = f"channel {c + 1}/{C}, direction {k}/{n_dir}: preview"
+                for _ in average.iter_prediction(channel_pred, channel_prob):
+                    yield Progress("directions", fraction, message)
+                running = np.empty(shape)
+                for a, b in row_chunks(0, shape[0], rows):
+                    pred[a:b, :, c] = channel_pred[a:b, :, 0]
+                    running[a:b, :, : c + 1] = pred[a:b, :, : c + 1]
+                    running[a:b, :, c + 1 :] = observed[a:b, :, c + 1 :]
+                    yield Progress("directions", fraction, message)
                 yield Progress("directions", fraction,
                                f"channel {c + 1}/{C}, direction {k}/{n_dir}",
                                _in_version_layout(running, position))
-        _, prob_c = average.prediction()
-        prob_sum += prob_c
+                del running
+        prob_sum += channel_prob
         spread[..., c] = average.spread()[..., 0]
     return pred, prob_sum / C, spread
+
+
+def _iter_centred_source(versions, c, rows, record):
+    """Colour channel ``c`` of every version stacked as (H, W, n) float64,
+    centred on its per-version means, in chunks of ``rows`` rows with
+    ``record`` yielded between them; returns (source, means, variances, the
+    variances 1 where 0). np.mean / np.var's two passes; the sums go by row
+    sums, so that any chunking gives the same bits."""
+    H, W = versions[0].shape[:2]
+    n = len(versions)
+    chunks = row_chunks(0, H, rows)
+    source = np.empty((H, W, n))
+    row_sums = np.empty((H, n))
+    for a, b in chunks:
+        for k, v in enumerate(versions):
+            source[a:b, :, k] = v[a:b, :, c]
+        row_sums[a:b] = source[a:b].sum(axis=1)
+        yield record
+    means = row_sums.sum(axis=0) / (H * W)
+    for a, b in chunks:
+        source[a:b] -= means
+        row_sums[a:b] = source[a:b].sum(axis=1)
+        yield record
+    residual = row_sums.sum(axis=0) / (H * W)  # the centred mean, ~0: np.var subtracts it too
+    for a, b in chunks:
+        row_sums[a:b] = ((source[a:b] - residual) ** 2).sum(axis=1)
+        yield record
+    var = row_sums.sum(axis=0) / (H * W)
+    return source, means, np.where(var > 0, var, 1.0)
 
 
 def restore_multichannel(stack, *, axis=0, kappa=DEFAULT_KAPPA, reference="auto",
