@@ -60,6 +60,11 @@ _CSR_PIXELS = 1 << 14  # unknown pixels' entries of the sparse matrix between re
 SOLVE_UNKNOWNS = 1 << 14
 SOLVE_RECORD_SECONDS = 0.25
 _SOLVERS = 2
+# The widest band (half-bandwidth, in unknowns) of a batch solved by the band
+# Cholesky factorisation rather than SuperLU: on 640x480 RGB holes, the band
+# solve is 3-5x faster on 3-8 px wide scratches (half-bandwidth 32-77), 1.2x
+# at 221 (24 px wide) and slower from about 290 (32 px) on
+BAND_WIDTH = 200
 PREVIOUS_OFFSETS = np.array([(0, 0), (0, 1), (1, 0), (0, -1), (-1, 0)], np.int64)
 
 
@@ -866,20 +871,94 @@ def _group_batches(groups, C):
     return batches
 
 
+@njit(cache=True, nogil=True)
+def _lower_bandwidth(indptr, indices, lo, hi):
+    """The largest ``r - c`` over the entries ``(r, c)`` of the CSR rows
+    ``lo:hi`` (the block ``[lo:hi, lo:hi]`` of a symmetric matrix: its
+    half-bandwidth)."""
+    width = 0
+    for r in range(lo, hi):
+        for at in range(indptr[r], indptr[r + 1]):
+            width = max(width, r - indices[at])
+    return width
+
+
+@njit(cache=True, nogil=True)
+def _band_cholesky(indptr, indices, data, lo, hi, width, right):
+    """Solve ``A x = right`` in place for the SPD block ``A = [lo:hi, lo:hi]``
+    of a symmetric CSR matrix of half-bandwidth ``width``, by the band
+    Cholesky factorisation ``A = L L^T``; returns False (``right`` partly
+    changed) if ``A`` is not numerically positive definite.
+
+    ``L`` is kept by columns, ``band[j, t] = L[j + t, j]``: each update of
+    a column by an earlier one is then a contiguous multiply-add (which the
+    compiler vectorises), not a dot product."""
+    n = hi - lo
+    band = np.zeros((n, width + 1))
+    for r in range(lo, hi):  # the upper triangle of row r: column r of the lower one
+        for at in range(indptr[r], indptr[r + 1]):
+            c = indices[at]
+            if c >= r:
+                band[r - lo, c - r] = data[at]
+    for j in range(n):
+        column = band[j]
+        for k in range(max(0, j - width), j):
+            earlier = band[k]
+            off = j - k
+            f = earlier[off]  # L[j, k]
+            if f == 0.0:
+                continue
+            for t in range(width + 1 - off):
+                column[t] -= f * earlier[off + t]
+        if not column[0] > 0.0:
+            return False
+        pivot = math.sqrt(column[0])
+        column[0] = pivot
+        for t in range(1, width + 1):
+            column[t] /= pivot
+    m = right.shape[1]
+    for j in range(n):  # L y = right
+        for s in range(m):
+            right[j, s] /= band[j, 0]
+        for t in range(1, min(width, n - 1 - j) + 1):
+            f = band[j, t]
+            for s in range(m):
+                right[j + t, s] -= f * right[j, s]
+    for j in range(n - 1, -1, -1):  # L^T x = y
+        for t in range(1, min(width, n - 1 - j) + 1):
+            f = band[j, t]
+            for s in range(m):
+                right[j, s] -= f * right[j + t, s]
+        for s in range(m):
+            right[j, s] /= band[j, 0]
+    return True
+
+
 def _solve_block(Q, rhs, z, a, b, C):
-    """Solve ``Q[a:b] x = rhs[a:b]`` (pixel range) and ``Q x_s = z_s``."""
+    """Solve ``Q[a:b] x = rhs[a:b]`` (pixel range) and ``Q x_s = z_s``.
+
+    A narrow band (a scratch: its pixels in raster order couple only with
+    pixels a few rows away) is solved by a band Cholesky factorisation,
+    about three times faster than SuperLU there; any other by SuperLU."""
     ip = Q.indptr
     lo, hi = a * C, b * C
-    sub = sparse.csc_matrix((Q.data[ip[lo] : ip[hi]], Q.indices[ip[lo] : ip[hi]] - lo,
-                             ip[lo : hi + 1] - ip[lo]), shape=(hi - lo, hi - lo))
-    # Q is symmetric: its CSR rows are the CSC columns of the same matrix
-    lu = splu(sub, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-              options=dict(SymmetricMode=True))
     right = rhs[a:b].reshape(-1, 1)
     if z.shape[1]:
         right = np.concatenate([right, z[a:b].transpose(0, 2, 1).reshape(-1, z.shape[1])],
                                axis=1)
-    x = lu.solve(right)
+    x = None
+    width = _lower_bandwidth(ip, Q.indices, lo, hi)
+    if width <= BAND_WIDTH:
+        x = np.array(right, order="C")
+        if not _band_cholesky(ip, Q.indices, Q.data, lo, hi, width, x):
+            x = None  # not positive definite in floating point: SuperLU pivots
+    if x is None:
+        sub = sparse.csc_matrix((Q.data[ip[lo] : ip[hi]], Q.indices[ip[lo] : ip[hi]] - lo,
+                                 ip[lo : hi + 1] - ip[lo]), shape=(hi - lo, hi - lo))
+        # Q is symmetric: its CSR rows are the CSC columns of the same matrix
+        lu = splu(sub, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                  options=dict(SymmetricMode=True))
+        x = lu.solve(right)
     values = x[:, 0].reshape(-1, C)
     draws = x[:, 1:].reshape(b - a, C, -1).transpose(0, 2, 1)
     return values, draws

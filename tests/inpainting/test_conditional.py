@@ -4,12 +4,14 @@ biharmonic inpainting (the squared-Laplacian precision) and against a plain
 least-squares fit."""
 
 import numpy as np
-from scipy import ndimage
+import pytest
+from scipy import ndimage, sparse
 from skimage import data as skdata
 from skimage.restoration import inpaint_biharmonic
 
-from car_napari.inpainting import inpaint
+from car_napari.inpainting import _conditional, inpaint
 from car_napari.inpainting._conditional import (
+    BAND_WIDTH,
     LocalModels,
     conditional_mean,
     direction_offsets,
@@ -56,7 +58,9 @@ def _random_model(rng, offsets, C, mean):
                        mean[None, None], None, Sm[None, None])
 
 
-def test_conditional_mean_matches_the_dense_gaussian_conditional():
+@pytest.mark.parametrize("band_width", [BAND_WIDTH, -1], ids=["band", "superlu"])
+def test_conditional_mean_matches_the_dense_gaussian_conditional(band_width, monkeypatch):
+    monkeypatch.setattr(_conditional, "BAND_WIDTH", band_width)
     rng = np.random.default_rng(0)
     H, W, C = 9, 11, 2
     mean = np.array([0.5, -0.2])
@@ -73,6 +77,27 @@ def test_conditional_mean_matches_the_dense_gaussian_conditional():
         u = np.repeat(unknown.reshape(-1), C)
         x = mu[u] - np.linalg.solve(P[np.ix_(u, u)], P[np.ix_(u, ~u)] @ (y[~u] - mu[~u]))
         np.testing.assert_allclose(got, x.reshape(-1, C), rtol=1e-9, atol=1e-10)
+
+
+def test_band_cholesky_solves_a_banded_block_and_refuses_an_indefinite_one():
+    from car_napari.inpainting._conditional import _band_cholesky, _lower_bandwidth
+
+    rng = np.random.default_rng(1)
+    n, width, lo, hi = 40, 5, 7, 31
+    A = np.zeros((n, n))
+    for k in range(1, width + 1):
+        off = rng.normal(size=n - k) * (rng.random(n - k) < 0.7)  # some zeros in the band
+        A += np.diag(off, k) + np.diag(off, -k)
+    A += np.diag(np.abs(A).sum(axis=1) + 1.0)  # diagonally dominant: SPD
+    csr = sparse.csr_matrix(A)
+    right = rng.normal(size=(hi - lo, 3))
+    assert _lower_bandwidth(csr.indptr, csr.indices, lo, hi) == width
+    x = right.copy()
+    assert _band_cholesky(csr.indptr, csr.indices, csr.data, lo, hi, width, x)
+    np.testing.assert_allclose(x, np.linalg.solve(A[lo:hi, lo:hi], right), rtol=1e-12)
+    A[lo + 3, lo + 3] = -1.0
+    csr = sparse.csr_matrix(A)
+    assert not _band_cholesky(csr.indptr, csr.indices, csr.data, lo, hi, width, right.copy())
 
 
 def test_squared_laplacian_precision_is_biharmonic_inpainting():
