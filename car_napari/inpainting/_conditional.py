@@ -56,7 +56,6 @@ EDGE_POOL = 4  # pixels: the draws' variance ratio is averaged over the ring wit
 _FIT_RECORD_PIXELS = 1 << 16
 _ESTIMATE_TILES = 512  # tiles' models estimated between records
 _ASSEMBLE_ROWS = 1 << 15  # rows of the normal equations added between records
-_CSR_PIXELS = 1 << 14  # unknown pixels' entries of the sparse matrix between records
 SOLVE_UNKNOWNS = 1 << 14
 SOLVE_RECORD_SECONDS = 0.25
 _SOLVERS = 2
@@ -668,9 +667,10 @@ def _csr_kernel(Q, block_rows, pixels, index, slots, indptr, indices, data, coun
     ``slots`` (S, 2) offsets, a C x C block; pixel ``p``'s blocks are
     ``Q[block_rows[p]]``), the unknown pixels (their ``pixels``
     coordinates) in ``index`` order, blocks that are all zero left out; of
-    the pixels ``start`` to ``stop``. The counting pass keeps the slots of
-    each pixel's nonzero blocks (``found`` (n, S), ``found_n`` (n,)) for
-    the other. ``Q`` holds the slots from the centre
+    the pixels ``start`` to ``stop`` (whole groups: coupled with no other
+    pixel), numbered from ``start``. The counting pass keeps the slots of
+    each pixel's nonzero blocks (``found`` (stop - start, S), ``found_n``
+    (stop - start,)) for the other. ``Q`` holds the slots from the centre
     of ``slots`` on (see :func:`_assemble_kernel`); a slot before it is
     the transpose of the opposite slot's block of the column pixel."""
     S, C = slots.shape[0], Q.shape[2]
@@ -678,6 +678,7 @@ def _csr_kernel(Q, block_rows, pixels, index, slots, indptr, indices, data, coun
     H, W = index.shape
     for p in range(start, stop):
         row = block_rows[p]
+        lp = p - start
         if count_only:
             i, j = pixels[p, 0], pixels[p, 1]
             n = 0
@@ -701,28 +702,28 @@ def _csr_kernel(Q, block_rows, pixels, index, slots, indptr, indices, data, coun
                     if nonzero:
                         break
                 if nonzero:
-                    found[p, n] = s
+                    found[lp, n] = s
                     n += 1
-            found_n[p] = n
+            found_n[lp] = n
             for a in range(C):
-                indptr[p * C + a + 1] = n * C
+                indptr[lp * C + a + 1] = n * C
             continue
-        n = found_n[p]
+        n = found_n[lp]
         i, j = pixels[p, 0], pixels[p, 1]
         for a in range(C):
-            at = indptr[p * C + a]
+            at = indptr[lp * C + a]
             for t in range(n):
-                s = found[p, t]
+                s = found[lp, t]
                 q = index[i + slots[s, 0], j + slots[s, 1]]
                 if s >= centre:
                     for c in range(C):
-                        indices[at] = q * C + c
+                        indices[at] = (q - start) * C + c
                         data[at] = Q[row, s - centre, a, c]
                         at += 1
                 else:
                     r, u = block_rows[q], S - 1 - s - centre
                     for c in range(C):
-                        indices[at] = q * C + c
+                        indices[at] = (q - start) * C + c
                         data[at] = Q[r, u, c, a]
                         at += 1
 
@@ -731,9 +732,10 @@ class _System(NamedTuple):
     """The normal equations ``Q x = rhs`` of the unknown pixels, pixels in
     ``index`` order grouped by coupled component: ``groups`` the (start,
     stop) pixel ranges (``Q`` is block diagonal over them); ``z`` (n, probes,
-    d): draws of ``N(0, Q)``."""
+    d): draws of ``N(0, Q)``. ``Q`` is kept by blocks (``blocks``): each
+    batch of groups is solved from them (:func:`_solve_block`)."""
 
-    Q: sparse.csr_matrix
+    slots: np.ndarray  # (S, 2) the offsets q - p of the blocks, sorted
     rhs: np.ndarray
     z: np.ndarray
     groups: list
@@ -805,9 +807,7 @@ def _iter_assemble(frame, unknown, row_sets, tile, probes=0, seed=0, reuse=None)
     z = np.zeros((n_u, probes, C))
     frame = np.ascontiguousarray(frame, np.float64)
     parts = [(a, min(a + _ASSEMBLE_ROWS, len(rows))) for a in range(0, len(rows), _ASSEMBLE_ROWS)]
-    csr_parts = range(0, n_u, _CSR_PIXELS)
-    steps = (sum(2 if r[4] is not None else 1 for r in row_sets) * len(parts)
-             + 2 * len(csr_parts) + 1)
+    steps = sum(2 if r[4] is not None else 1 for r in row_sets) * len(parts) + 1
     done = 0
     for number, (offsets, coeffs, constant, extra, border) in enumerate(row_sets):
         coeffs = np.ascontiguousarray(coeffs, np.float64)
@@ -832,27 +832,7 @@ def _iter_assemble(frame, unknown, row_sets, tile, probes=0, seed=0, reuse=None)
                 done += 1
                 yield Progress("assembly", done / steps, "assembling")
     pixels = np.stack([ui, uj], axis=1).astype(np.int64)
-    indptr = np.zeros(n_u * C + 1, np.int64)
-    found = np.empty((n_u, len(slots)), np.uint8 if len(slots) <= 256 else np.int64)
-    found_n = np.empty(n_u, np.int64)
-    for count_only in (True, False):
-        if not count_only:
-            np.cumsum(indptr, out=indptr)
-            # 32-bit indices when they fit, as SciPy and SuperLU keep them (no conversion)
-            small = max(indptr[-1], n_u * C) < np.iinfo(np.int32).max
-            indices = np.empty(indptr[-1], np.int32 if small else np.int64)
-            data = np.empty(indptr[-1])
-        else:
-            indices, data = np.zeros(0, np.int64), np.zeros(0)
-        for a in csr_parts:
-            _csr_kernel(Q, block_rows, pixels, index, slots, indptr, indices, data, count_only,
-                        a, min(a + _CSR_PIXELS, n_u), found, found_n)
-            done += 1
-            yield Progress("assembly", done / steps, "assembling")
-    Qm = sparse.csr_matrix((data, indices, indptr.astype(indices.dtype)),
-                           shape=(n_u * C, n_u * C))
-    return _System(Qm, rhs, z, groups, pixels, Q[block_rows, 0], Q,
-                   block_rows, index)
+    return _System(slots, rhs, z, groups, pixels, Q[block_rows, 0], Q, block_rows, index)
 
 
 def _group_batches(groups, C):
@@ -872,34 +852,64 @@ def _group_batches(groups, C):
 
 
 @njit(cache=True, nogil=True)
-def _lower_bandwidth(indptr, indices, lo, hi):
-    """The largest ``r - c`` over the entries ``(r, c)`` of the CSR rows
-    ``lo:hi`` (the block ``[lo:hi, lo:hi]`` of a symmetric matrix: its
-    half-bandwidth)."""
-    width = 0
-    for r in range(lo, hi):
-        for at in range(indptr[r], indptr[r + 1]):
-            width = max(width, r - indices[at])
+def _block_column(Q, block_rows, pixels, index, slots, start, p, t):
+    """The column pixel (numbered from ``start``) of pixel ``p``'s ``t``-th
+    block from the centre of ``slots`` on (see :func:`_assemble_kernel`):
+    -1 where no unknown pixel lies or the block is all zero (left out, as
+    the sparse matrix leaves it out)."""
+    H, W = index.shape
+    s = (slots.shape[0] - 1) // 2 + t
+    qi, qj = pixels[p, 0] + slots[s, 0], pixels[p, 1] + slots[s, 1]
+    if qi < 0 or qi >= H or qj < 0 or qj >= W or index[qi, qj] < 0:
+        return -1
+    row = block_rows[p]
+    for b in range(Q.shape[2]):
+        for c in range(Q.shape[3]):
+            if Q[row, t, b, c] != 0.0:
+                return index[qi, qj] - start
+    return -1
+
+
+@njit(cache=True, nogil=True)
+def _block_bandwidth(Q, block_rows, pixels, index, slots, start, stop):
+    """The half-bandwidth (in unknowns, pixel-major) of ``Q`` over the pixels
+    ``start`` to ``stop`` (whole groups): the largest column less row of an
+    entry of its upper triangle, all-zero blocks left out."""
+    C = Q.shape[2]
+    width = C - 1  # the diagonal blocks
+    for p in range(start, stop):
+        for t in range(1, Q.shape[1]):
+            q = _block_column(Q, block_rows, pixels, index, slots, start, p, t)
+            if q >= 0:
+                width = max(width, (q - (p - start)) * C + C - 1)
     return width
 
 
 @njit(cache=True, nogil=True)
-def _band_cholesky(indptr, indices, data, lo, hi, width, right):
-    """Solve ``A x = right`` in place for the SPD block ``A = [lo:hi, lo:hi]``
-    of a symmetric CSR matrix of half-bandwidth ``width``, by the band
-    Cholesky factorisation ``A = L L^T``; returns False (``right`` partly
-    changed) if ``A`` is not numerically positive definite.
+def _band_cholesky(Q, block_rows, pixels, index, slots, start, stop, width, right):
+    """Solve ``Q x = right`` in place over the pixels ``start`` to ``stop``
+    (whole groups) for ``Q`` of half-bandwidth ``width``, by the band
+    Cholesky factorisation ``Q = L L^T``; returns False (``right`` partly
+    changed) if ``Q`` is not numerically positive definite there.
 
     ``L`` is kept by columns, ``band[j, t] = L[j + t, j]``: each update of
     a column by an earlier one is then a contiguous multiply-add (which the
-    compiler vectorises), not a dot product."""
-    n = hi - lo
+    compiler vectorises), not a dot product. The band is read straight from
+    the blocks from the centre on (the upper triangle of the pixel-major
+    rows: the columns of the lower one)."""
+    C = Q.shape[2]
+    n = (stop - start) * C
     band = np.zeros((n, width + 1))
-    for r in range(lo, hi):  # the upper triangle of row r: column r of the lower one
-        for at in range(indptr[r], indptr[r + 1]):
-            c = indices[at]
-            if c >= r:
-                band[r - lo, c - r] = data[at]
+    for p in range(start, stop):
+        u0 = (p - start) * C
+        row = block_rows[p]
+        for t in range(Q.shape[1]):
+            q = _block_column(Q, block_rows, pixels, index, slots, start, p, t)
+            if q < 0:
+                continue
+            for a in range(C):
+                for c in range(a if t == 0 else 0, C):  # the diagonal block's upper half
+                    band[u0 + a, q * C + c - u0 - a] = Q[row, t, a, c]
     for j in range(n):
         column = band[j]
         for k in range(max(0, j - width), j):
@@ -934,30 +944,49 @@ def _band_cholesky(indptr, indices, data, lo, hi, width, right):
     return True
 
 
-def _solve_block(Q, rhs, z, a, b, C):
-    """Solve ``Q[a:b] x = rhs[a:b]`` (pixel range) and ``Q x_s = z_s``.
+def _batch_csc(system, a, b, C):
+    """``Q`` over the pixels ``a`` to ``b`` (whole groups) as a sparse
+    matrix, the unknowns numbered from ``a``: its CSR arrays, which are its
+    CSC arrays (``Q`` is symmetric)."""
+    n = b - a
+    S = len(system.slots)
+    indptr = np.zeros(n * C + 1, np.int64)
+    found = np.empty((n, S), np.uint8 if S <= 256 else np.int64)
+    found_n = np.empty(n, np.int64)
+    args = (system.blocks, system.block_rows, system.pixels, system.index, system.slots)
+    _csr_kernel(*args, indptr, np.zeros(0, np.int64), np.zeros(0), True, a, b, found, found_n)
+    np.cumsum(indptr, out=indptr)
+    # 32-bit indices when they fit, as SciPy and SuperLU keep them (no conversion)
+    small = max(indptr[-1], n * C) < np.iinfo(np.int32).max
+    indices = np.empty(indptr[-1], np.int32 if small else np.int64)
+    data = np.empty(indptr[-1])
+    _csr_kernel(*args, indptr, indices, data, False, a, b, found, found_n)
+    return sparse.csc_matrix((data, indices, indptr.astype(indices.dtype)),
+                             shape=(n * C, n * C))
+
+
+def _solve_block(system, a, b, C):
+    """Solve ``Q x = rhs`` and ``Q x_s = z_s`` over the pixels ``a`` to
+    ``b`` (whole groups).
 
     A narrow band (a scratch: its pixels in raster order couple only with
     pixels a few rows away) is solved by a band Cholesky factorisation,
-    about three times faster than SuperLU there; any other by SuperLU."""
-    ip = Q.indptr
-    lo, hi = a * C, b * C
+    3-5 times faster than SuperLU there; any other by SuperLU."""
+    rhs, z = system.rhs, system.z
     right = rhs[a:b].reshape(-1, 1)
     if z.shape[1]:
         right = np.concatenate([right, z[a:b].transpose(0, 2, 1).reshape(-1, z.shape[1])],
                                axis=1)
+    args = (system.blocks, system.block_rows, system.pixels, system.index, system.slots, a, b)
     x = None
-    width = _lower_bandwidth(ip, Q.indices, lo, hi)
+    width = _block_bandwidth(*args)
     if width <= BAND_WIDTH:
         x = np.array(right, order="C")
-        if not _band_cholesky(ip, Q.indices, Q.data, lo, hi, width, x):
+        if not _band_cholesky(*args, width, x):
             x = None  # not positive definite in floating point: SuperLU pivots
     if x is None:
-        sub = sparse.csc_matrix((Q.data[ip[lo] : ip[hi]], Q.indices[ip[lo] : ip[hi]] - lo,
-                                 ip[lo : hi + 1] - ip[lo]), shape=(hi - lo, hi - lo))
-        # Q is symmetric: its CSR rows are the CSC columns of the same matrix
-        lu = splu(sub, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                  options=dict(SymmetricMode=True))
+        lu = splu(_batch_csc(system, a, b, C), permc_spec="MMD_AT_PLUS_A",
+                  diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
         x = lu.solve(right)
     values = x[:, 0].reshape(-1, C)
     draws = x[:, 1:].reshape(b - a, C, -1).transpose(0, 2, 1)
@@ -975,13 +1004,12 @@ def _iter_solve(system, C, message):
     batches = _group_batches(system.groups, C)
     if len(batches) == 1 and (batches[0][1] - batches[0][0]) * C < SOLVE_UNKNOWNS:
         a, b = batches[0]  # small: no thread
-        values[a:b], draws[a:b] = _solve_block(system.Q, system.rhs, system.z, a, b, C)
+        values[a:b], draws[a:b] = _solve_block(system, a, b, C)
         return values, draws
     pool = ThreadPoolExecutor(_SOLVERS)
     pending = {}
     try:
-        pending = {pool.submit(_solve_block, system.Q, system.rhs, system.z, a, b, C): (a, b)
-                   for a, b in batches}
+        pending = {pool.submit(_solve_block, system, a, b, C): (a, b) for a, b in batches}
         done_pixels = 0
         while pending:
             finished, _ = wait(pending, timeout=SOLVE_RECORD_SECONDS,

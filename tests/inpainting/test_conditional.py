@@ -5,7 +5,7 @@ least-squares fit."""
 
 import numpy as np
 import pytest
-from scipy import ndimage, sparse
+from scipy import ndimage
 from skimage import data as skdata
 from skimage.restoration import inpaint_biharmonic
 
@@ -79,25 +79,30 @@ def test_conditional_mean_matches_the_dense_gaussian_conditional(band_width, mon
         np.testing.assert_allclose(got, x.reshape(-1, C), rtol=1e-9, atol=1e-10)
 
 
-def test_band_cholesky_solves_a_banded_block_and_refuses_an_indefinite_one():
-    from car_napari.inpainting._conditional import _band_cholesky, _lower_bandwidth
+def test_band_cholesky_solves_a_group_and_refuses_an_indefinite_one():
+    """Two groups of a row of grey pixels, each a tridiagonal block: the
+    second solved alone against a dense solve; a negative pivot refused."""
+    from car_napari.inpainting._conditional import _band_cholesky, _block_bandwidth
 
     rng = np.random.default_rng(1)
-    n, width, lo, hi = 40, 5, 7, 31
-    A = np.zeros((n, n))
-    for k in range(1, width + 1):
-        off = rng.normal(size=n - k) * (rng.random(n - k) < 0.7)  # some zeros in the band
-        A += np.diag(off, k) + np.diag(off, -k)
-    A += np.diag(np.abs(A).sum(axis=1) + 1.0)  # diagonally dominant: SPD
-    csr = sparse.csr_matrix(A)
-    right = rng.normal(size=(hi - lo, 3))
-    assert _lower_bandwidth(csr.indptr, csr.indices, lo, hi) == width
+    n = 10
+    pixels = np.stack([np.zeros(n, np.int64), np.arange(n)], axis=1)
+    index = np.arange(n)[None, :]
+    slots = np.array([(0, -1), (0, 0), (0, 1)], np.int64)
+    blocks = np.zeros((n, 2, 1, 1))  # the centre and the next pixel (see _assemble_kernel)
+    blocks[:, 0, 0, 0] = 3.0 + rng.random(n)
+    blocks[:-1, 1, 0, 0] = rng.normal(size=n - 1)
+    blocks[4, 1] = 0.0  # pixels 0-4 and 5-9: two groups
+    A = np.diag(blocks[5:, 0, 0, 0]) + np.diag(blocks[5:-1, 1, 0, 0], 1)
+    A = A + np.triu(A, 1).T
+    args = (blocks, np.arange(n), pixels, index, slots, 5, n)
+    assert _block_bandwidth(*args) == 1
+    right = rng.normal(size=(5, 3))
     x = right.copy()
-    assert _band_cholesky(csr.indptr, csr.indices, csr.data, lo, hi, width, x)
-    np.testing.assert_allclose(x, np.linalg.solve(A[lo:hi, lo:hi], right), rtol=1e-12)
-    A[lo + 3, lo + 3] = -1.0
-    csr = sparse.csr_matrix(A)
-    assert not _band_cholesky(csr.indptr, csr.indices, csr.data, lo, hi, width, right.copy())
+    assert _band_cholesky(*args, 1, x)
+    np.testing.assert_allclose(x, np.linalg.solve(A, right), rtol=1e-12)
+    blocks[7, 0] = -1.0
+    assert not _band_cholesky(*args, 1, right.copy())
 
 
 def test_squared_laplacian_precision_is_biharmonic_inpainting():
