@@ -1079,7 +1079,8 @@ def _row_set(model, previous, where=None, taps=None):
     return offsets, coeffs, constant, extra, border
 
 
-def _row_sets(frame, models, previous):
+def _row_sets(models, previous):
+    """:func:`_row_set` of each of ``models``, the previous-frame term at every pixel."""
     return [_row_set(model, previous) for model in models]
 
 
@@ -1205,7 +1206,7 @@ def conditional_mean(frame, unknown, models, *, previous=None):
     order."""
     if isinstance(models, LocalModels):
         models = [models]
-    return stencil_solve(frame, unknown, _row_sets(frame, models, previous), models[0].tile)
+    return stencil_solve(frame, unknown, _row_sets(models, previous), models[0].tile)
 
 
 def _tiles_needed(unknown, offsets, tile):

@@ -196,7 +196,7 @@ def test_draws_have_the_conditional_covariance():
     base = causal_neighbourhood(2)
     models = [_random_model(rng, direction_offsets(base, d), C, np.zeros(C))
               for d in ("down", "up")]
-    _, draws, diagonal = drain(iter_stencil_solve(frame, unknown, _row_sets(frame, models, None),
+    _, draws, diagonal = drain(iter_stencil_solve(frame, unknown, _row_sets(models, None),
                                                   100, probes=20000))
     P = _dense_precision(models, H, W)
     u = np.repeat(unknown.reshape(-1), C)
