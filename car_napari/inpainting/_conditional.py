@@ -135,15 +135,17 @@ def _inside(shape, offsets):
             & (cols >= dj.max()) & (cols < W + dj.min()))
 
 
-def _iter_known_bands(frame, known, message, lo, hi):
-    """The known pixels of ``frame`` (H, W, d) by bands of rows: yields
-    ``(None, band values (n, d))`` per band and a record ``(Progress,
-    None)`` between them (no copy of all the known pixels at once)."""
+def _iter_fold_known_bands(frame, known, fold, total, message, lo, hi):
+    """``total = fold(total, values)`` over the known pixels of ``frame``
+    (H, W, d) by bands of rows (``values`` (n, d) a band's, in raster
+    order: no copy of all the known pixels at once), as a job: a record
+    after each band (fractions ``lo`` to ``hi``), then the last ``total``."""
     H, W = known.shape
     rows = max(1, _FIT_RECORD_PIXELS * 16 // max(W, 1))
     for r0 in range(0, H, rows):
-        yield None, frame[r0 : r0 + rows][known[r0 : r0 + rows]]
-        yield Progress("fit", lo + (hi - lo) * min(r0 + rows, H) / H, message), None
+        total = fold(total, frame[r0 : r0 + rows][known[r0 : r0 + rows]])
+        yield Progress("fit", lo + (hi - lo) * min(r0 + rows, H) / H, message)
+    return total
 
 
 @njit(cache=True, nogil=True)
@@ -197,12 +199,13 @@ def _iter_known_range(frame, known, message):
             _known_range_kernel(frame, known, r0, min(r0 + rows, H), lo, hi)
             yield Progress("fit", min(r0 + rows, H) / H, message)
         return lo, hi
-    for record, values in _iter_known_bands(frame, known, message, 0.0, 1.0):
-        if record is not None:
-            yield record
-        elif len(values):
-            lo, hi = np.minimum(lo, values.min(axis=0)), np.maximum(hi, values.max(axis=0))
-    return lo, hi
+
+    def widen(bounds, values):
+        if not len(values):
+            return bounds
+        return np.minimum(bounds[0], values.min(axis=0)), np.maximum(bounds[1], values.max(axis=0))
+
+    return (yield from _iter_fold_known_bands(frame, known, widen, (lo, hi), message, 0.0, 1.0))
 
 
 def _iter_known_variance(frame, known, message, fraction):
@@ -223,20 +226,13 @@ def _iter_known_variance(frame, known, message, fraction):
             squares += _known_sums_kernel(frame, known, r0, min(r0 + rows, H), mean, True)[0]
             yield Progress("fit", fraction, message)
         return squares / max(n, 1)
-    n, total = 0, np.zeros(C)
-    for record, values in _iter_known_bands(frame, known, message, fraction, fraction):
-        if record is not None:
-            yield record
-        else:
-            n += len(values)
-            total += values.sum(axis=0)
+    n, total = yield from _iter_fold_known_bands(
+        frame, known, lambda acc, values: (acc[0] + len(values), acc[1] + values.sum(axis=0)),
+        (0, np.zeros(C)), message, fraction, fraction)
     mean = total / max(n, 1)
-    squares = np.zeros(C)
-    for record, values in _iter_known_bands(frame, known, message, fraction, fraction):
-        if record is not None:
-            yield record
-        else:
-            squares += ((values - mean) ** 2).sum(axis=0)
+    squares = yield from _iter_fold_known_bands(
+        frame, known, lambda acc, values: acc + ((values - mean) ** 2).sum(axis=0),
+        np.zeros(C), message, fraction, fraction)
     return squares / max(n, 1)
 
 
