@@ -21,7 +21,9 @@ the mask are returned bit-identical.
 from __future__ import annotations
 
 import warnings
+from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -35,7 +37,8 @@ from ._layout import MAX_COLOURS, read_layout
 from ._motion import iter_estimate_motion, warp_frame
 
 __all__ = ["CONDITIONAL_HALO", "CONDITIONAL_ORDER", "DEFAULT_INTERLEAVE",
-           "EDGE_OUTLIER_LOGREL", "METHODS", "iter_inpaint_in_memory", "line_offsets"]
+           "EDGE_OUTLIER_LOGREL", "METHODS", "Tiling", "iter_inpaint_in_memory",
+           "line_offsets"]
 
 METHODS = ("conditional", "scans")
 # the conditional mean (method="conditional"): the hierarchical order of each
@@ -485,6 +488,17 @@ def _as_frame_records(job, fraction, message):
         yield Progress("frames", fraction, message)
 
 
+class Tiling(NamedTuple):
+    """How :func:`iter_inpaint_in_memory` fills a single frame larger than
+    ``side`` pixels a side: by the tiles of ``fill``
+    (:func:`._tiled.iter_inpaint_tiles`, passed in by
+    :func:`~car_napari.inpainting.iter_inpaint`, which imports both: no
+    import cycle), its default tile being ``side``."""
+
+    fill: Callable
+    side: int
+
+
 def _iter_by_tiles(layout, mask, iter_inpaint_tiles, **options):
     """A single frame filled by :func:`._tiled.iter_inpaint_tiles`, with the
     in-memory job's last record (the frame restored)."""
@@ -502,13 +516,11 @@ def _iter_by_tiles(layout, mask, iter_inpaint_tiles, **options):
 
 def iter_inpaint_in_memory(image, mask, *, temporal=True, neighbourhood=None, forgetting=0.9995,
                            interleave=DEFAULT_INTERLEAVE, halo="auto", channel_axis=-1,
-                           method="conditional", motion=True, by_tiles=None, tile_side=None):
+                           method="conditional", motion=True, by_tiles=None):
     """:func:`~car_napari.inpainting.iter_inpaint` of a frame or clip in
     memory (NumPy): the parameters, records and result documented there.
-    ``by_tiles``: :func:`._tiled.iter_inpaint_tiles` (passed in by
-    :func:`~car_napari.inpainting.iter_inpaint`, which imports both), by
-    which a single frame larger than ``tile_side`` (its default tile) a side
-    is filled (what defines it; :mod:`._tiled`); None (its tiles
+    ``by_tiles``: a :class:`Tiling`, by which a single frame larger than
+    its side is filled (what defines it; :mod:`._tiled`); None (its tiles
     themselves) fills the frame as one."""
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}; got {method!r}.")
@@ -544,9 +556,9 @@ def iter_inpaint_in_memory(image, mask, *, temporal=True, neighbourhood=None, fo
         warnings.warn("the mask is empty: nothing to restore, the input is returned "
                       "unchanged.", UserWarning, stacklevel=2)
     if by_tiles is not None and layout.single and any(damaged) \
-            and max(H, W) > tile_side:
+            and max(H, W) > by_tiles.side:
         return (yield from _iter_by_tiles(
-                layout, masks[0], by_tiles, temporal=temporal,
+                layout, masks[0], by_tiles.fill, temporal=temporal,
                 neighbourhood=neighbourhood, forgetting=forgetting, interleave=interleave,
                 halo=halo, method=method, motion=motion))
     out = np.array(clip, copy=True)

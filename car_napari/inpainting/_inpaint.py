@@ -11,7 +11,7 @@ from functools import partial
 from .._progress import drain
 from .._tiles import is_lazy
 from . import _tiled
-from ._filling import DEFAULT_INTERLEAVE, iter_inpaint_in_memory
+from ._filling import DEFAULT_INTERLEAVE, Tiling, iter_inpaint_in_memory
 from ._tiled import iter_inpaint_large
 
 __all__ = ["inpaint", "iter_inpaint"]
@@ -112,8 +112,8 @@ def iter_inpaint(image, mask, *, temporal=True, neighbourhood=None, forgetting=0
     if is_lazy(image) or is_lazy(mask):  # larger than memory: a frame or tile at a time
         job = iter_inpaint_large
     else:  # a large frame by the same tiles (what defines its fill)
-        job = partial(iter_inpaint_in_memory, by_tiles=_tiled.iter_inpaint_tiles,
-                      tile_side=_tiled.DEFAULT_TILE)
+        job = partial(iter_inpaint_in_memory,
+                      by_tiles=Tiling(_tiled.iter_inpaint_tiles, _tiled.DEFAULT_TILE))
     return (yield from job(image, mask, temporal=temporal, neighbourhood=neighbourhood,
                            forgetting=forgetting, interleave=interleave, halo=halo,
                            channel_axis=channel_axis, method=method, motion=motion))
