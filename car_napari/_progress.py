@@ -111,7 +111,7 @@ def drain(job, on_progress=None):
                 on_progress(record)
 
 
-def stage(job, start, stop, *, name=None, prefix=""):
+def stage(job, start, stop, *, name=None, prefix="", previews=True):
     """Run a job as one stage of another: its fractions mapped into a range.
 
     Use as ``result = yield from stage(iter_other(...), 0.1, 0.9)``.
@@ -126,6 +126,10 @@ def stage(job, start, stop, *, name=None, prefix=""):
         A stage name for the inner records (default: keep theirs).
     prefix : str, optional
         Put before each inner message (for example ``"subspace 2/4: "``).
+    previews : bool, optional
+        Keep the inner records' previews (default); False drops them (the
+        inner job's partial result is not the outer one's: a tile of a
+        frame).
 
     Yields
     ------
@@ -161,7 +165,7 @@ def stage(job, start, stop, *, name=None, prefix=""):
             record.stage if name is None else name,
             start + span * min(max(float(record.fraction), 0.0), 1.0),
             prefix + record.message,
-            record.preview,
+            record.preview if previews else None,
         )
 
 

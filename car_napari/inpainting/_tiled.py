@@ -25,7 +25,6 @@ global in space:
 from __future__ import annotations
 
 import warnings
-from dataclasses import replace
 
 import numpy as np
 
@@ -135,22 +134,12 @@ def iter_inpaint_tiles(image, mask, *, out=None, tile=None, tile_halo=None,
                 job = iter_inpaint_in_memory(part, part_mask, channel_axis=channel_axis,
                                              **options)
                 span = (k - 1) / len(tiles), k / len(tiles)
-                part = yield from _without_previews(
-                    stage(job, *span, name="tiles", prefix=f"{done}: "))
+                # a tile's frame is not the frame: no previews
+                part = yield from stage(job, *span, name="tiles", prefix=f"{done}: ",
+                                        previews=False)
         out[t.core] = part[t.inner]
         yield Progress("tiles", k / len(tiles), done)
     return out
-
-
-def _without_previews(job):
-    """The records of ``job`` without their previews (a tile's frame is not
-    the frame), then its result."""
-    while True:
-        try:
-            record = next(job)
-        except StopIteration as finished:
-            return finished.value
-        yield record if record.preview is None else replace(record, preview=None)
 
 
 def iter_inpaint_large(image, mask, *, out=None, tile=None, tile_halo=None,
