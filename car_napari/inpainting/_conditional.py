@@ -751,7 +751,8 @@ def _seed_state(seed):
 def _iter_assemble(frame, unknown, row_sets, tile, probes=0, seed=0, reuse=None):
     """The normal equations of the ``unknown`` pixels (a :class:`_System`),
     as a job: a record (stage ``"assembly"``) after each part of a set of
-    rows and of the sparse matrix.
+    rows. ``Q`` is kept by blocks; each batch's solve reads them
+    (:func:`_solve_block`).
 
     ``reuse``: the :class:`_System` of a superset of the unknown pixels
     under the same rows. ``Q`` between two pixels sums the rows that touch
@@ -1061,8 +1062,10 @@ def stencil_solve(frame, unknown, row_sets, tile):
     has no full row, or None. Returns the (n_unknown, d) values in
     ``np.nonzero(unknown)`` order: ``x = -(M^T M)^-1 M^T c``. The normal
     equations ``Q_UU = M^T M`` are assembled row by row (a compiled kernel)
-    and solved by a sparse LU factorisation (SuperLU) per batch of coupled
-    groups of unknown pixels (``Q_UU`` is block diagonal over them)."""
+    and solved per batch of coupled groups of unknown pixels (``Q_UU`` is
+    block diagonal over them): by a band Cholesky factorisation where the
+    batch's band is narrow (scratches), else by a sparse LU factorisation
+    (SuperLU)."""
     return drain(iter_stencil_solve(frame, unknown, row_sets, tile))[0]
 
 
