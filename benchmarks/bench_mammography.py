@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import os
 import time
 from pathlib import Path
 
@@ -51,7 +52,9 @@ from skimage import io
 from car_napari import mammography as mm
 from car_napari.mammography._images import _block_mean
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "mammograms" / "mini-mias"
+# the data next to the checkout, or where CAR_NAPARI_MINI_MIAS says (a worktree elsewhere)
+DATA = Path(os.environ.get("CAR_NAPARI_MINI_MIAS", Path(__file__).resolve().parents[1].parent
+                           / "shared" / "data" / "mammograms" / "mini-mias"))
 MASSES = ("CIRC", "SPIC", "MISC")
 
 

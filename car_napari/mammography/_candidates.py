@@ -12,7 +12,10 @@ pixels on the long side), by
   inside the candidate against a ring of breast around it, and how much of
   that ring belongs to other segments;
 * grey level: mean, contrast against the ring, spread;
-* size and shape: equivalent radius (on a 1024-pixel scale), compactness.
+* size and shape: equivalent radius (on a 1024-pixel scale), compactness;
+* model surprise: a grey CAR model fitted on the ring predicts the
+  candidate (:func:`_surprise`): how much worse than the ring itself, and
+  how much brighter than predicted.
 
 The score is a logistic model of those descriptors whose coefficients ship
 in ``roi_model.json`` (fitted by ``benchmarks/bench_froc.py``); plain NumPy.
@@ -38,6 +41,8 @@ DESCRIPTORS = (
     "log_radius", "log_radius_sq", "compactness",
     # CAR texture
     "param_contrast", "param_spread", "energy", "energy_contrast", "segment_edge",
+    # CAR model surprise: a CAR fitted on the candidate's ring predicts it
+    "surprise", "surprise_bias",
 )
 FAMILIES = {
     "grey": ("mean_grey", "grey_above_breast", "contrast", "contrast_z", "grey_std",
@@ -45,6 +50,7 @@ FAMILIES = {
     "shape": ("log_radius", "log_radius_sq", "compactness"),
     "texture": ("param_contrast", "param_spread", "energy", "energy_contrast",
                 "segment_edge"),
+    "surprise": ("surprise", "surprise_bias"),
 }
 # The CAR feature vector's layout per resolution level
 # (car_napari.segmentation.local_features with its defaults on a
@@ -139,14 +145,15 @@ def _generate(grey, labellings, breast, *, split, sigmas, delta, min_area):
     return out
 
 
-def _describe(grey, labellings, breast, texture, cands, *, f, side, work=None):
+def _describe(grey, labellings, breast, texture, cands, *, f, side, work=None, surprise=True):
     """Descriptors (:data:`DESCRIPTORS`) of ``cands`` (``(cc, i, slices,
     area, labelling)`` from :func:`_generate`) on the analysis grid.
 
     Returns the kept :class:`Candidate` list and the (n, len(DESCRIPTORS))
     float64 matrix; candidates not brighter than their ring, or with too
     small a ring, are dropped. ``texture`` (h, w, D) or None (its columns
-    are then 0). ``side``: the full-resolution long side (the radius is
+    are then 0); without ``surprise`` the surprise columns are 0 (a model
+    that does not use them skips the fits). ``side``: the full-resolution long side (the radius is
     measured on a 1024-pixel scale). With ``work``, a generator: yields
     Progress records now and then and returns the same.
     """
@@ -196,6 +203,7 @@ def _describe(grey, labellings, breast, texture, cands, *, f, side, work=None):
                      float(np.mean(seg[ring] != own))]
         else:
             desc += [0.0] * len(FAMILIES["texture"])
+        desc += _surprise(g, inside, ring) if surprise else [0.0, 0.0]
         rows.append(desc)
         kept.append(Candidate((r0, r1, c0, c1), inside, (cr + r0, ccol + c0)))
     X = np.asarray(rows, float).reshape(len(rows), len(DESCRIPTORS))
@@ -205,6 +213,70 @@ def _describe(grey, labellings, breast, texture, cands, *, f, side, work=None):
         col = X[:, DESCRIPTORS.index(src)]
         X[:, DESCRIPTORS.index(dst)] = _ranks(col)
     return kept, X
+
+
+# The surprise model: a grey 2DCAR of this hierarchical order (4 causal
+# neighbours), fixed a priori like the segmentation's neighbourhood.
+_SURPRISE_ORDER = 2
+
+
+def _surprise(g, inside, ring):
+    """How badly the CAR model of a candidate's surroundings predicts it.
+
+    A grey CAR model (:data:`_SURPRISE_ORDER`, the model core's Bayesian
+    estimate, centred on the ring's mean) is fitted on the ring pixels none of
+    whose neighbours is the candidate's; :func:`~car_napari.model.predict` then
+    gives the log predictive density (Student t) of every pixel of the crop
+    ``g``. A mass is where the surrounding tissue's texture model fails.
+
+    Returns
+    -------
+    list of float
+        ``[surprise, surprise_bias]``: the mean negative log predictive
+        density of the candidate less that of the ring (0: predicted as
+        well as the ring itself), and the candidate's mean prediction error
+        in units of the model's noise deviation (positive: brighter than
+        the surrounding texture predicts). Zeros when the ring is too small
+        to fit the model.
+    """
+    from ..model import CARModel, Context, causal_neighbourhood, predict
+    from ..model.statistics import estimate_parameters
+
+    offsets = causal_neighbourhood(_SURPRISE_ORDER)
+    eta = len(offsets)
+    if ring.sum() < 4 * (eta + 1):
+        return [0.0, 0.0]
+    mean = float(g[ring].mean())
+    y = g.astype(np.float64) - mean
+    h, w = y.shape
+    (up, down), (left, right) = Context.spatial(offsets, 1).reach
+    if h <= up + down or w <= left + right:
+        return [0.0, 0.0]
+    # rows [X_r, Y_r] of the ring pixels none of whose neighbours is the
+    # candidate's (the ring alone is too thin to hold whole neighbourhoods)
+    r0, r1, c0, c1 = up, h - down, left, w - right
+    use = ring[r0:r1, c0:c1].copy()
+    taps = []
+    for di, dj in offsets:
+        use &= ~inside[r0 - di : r1 - di, c0 - dj : c1 - dj]
+        taps.append(y[r0 - di : r1 - di, c0 - dj : c1 - dj])
+    if use.sum() < 4 * (eta + 1):
+        return [0.0, 0.0]
+    Z = np.stack(taps + [y[r0:r1, c0:c1]], axis=-1)[use]
+    var = float(Z[:, -1].var()) + 1e-12
+    # an almost uninformative prior on the scale of the ring's variance
+    est = estimate_parameters(Z.T @ Z, len(Z), eta, 1, np.full(eta + 1, 1e-6 * var))
+    model = CARModel(gamma=est.gamma, sigma=est.lam / est.beta, mean=np.array([mean]),
+                     offsets=np.asarray(offsets), lam=est.lam, vx=est.vx, beta=est.beta,
+                     n_pixels=len(Z), order=_SURPRISE_ORDER)
+    pred, logp = predict(model, g.astype(np.float64), channel_axis=None)
+    ok = np.isfinite(logp)
+    a, b = inside & ok, ring & ok
+    if not a.any() or not b.any():
+        return [0.0, 0.0]
+    sd = float(np.sqrt(model.sigma[0, 0]))
+    return [float(logp[b].mean() - logp[a].mean()),
+            float(np.mean(g[a] - pred[a])) / sd]
 
 
 def _ranks(values):

@@ -537,7 +537,8 @@ def _iter_rank(grey, segmentation, model, *, threshold, max_regions, min_area, s
                       delta=SPLIT_DELTA, min_area=max(4, min_area // (f * f)))
     yield Progress("regions", 0.2, f"describing {len(cands)} candidates")
     kept, X = yield from _describe(small, labs, breast, texture, cands, f=f, side=max(H, W),
-                                   work=(0.2, 0.6))
+                                   work=(0.2, 0.6),
+                                   surprise=bool(set(model.names) & set(FAMILIES["surprise"])))
     scores = model.score(X) if kept else np.zeros(0)
     if band is not None:
         ok = np.abs(X[:, DESCRIPTORS.index("mean_grey")] - band[0]) <= band[1]

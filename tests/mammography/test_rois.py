@@ -499,3 +499,28 @@ def test_merge_keeps_one_finding_per_place_best_first():
     assert found[0][1].shape == (8, 8) and found[0][3] == 1
     joined = _merge(cands, np.array([0.85, 0.9, 0.7]))
     assert joined[0][1].shape == (9, 9) and joined[0][1].sum() == 64 + 64 - 49
+
+
+def test_surprise_of_the_ring_model_on_like_and_unlike_candidates():
+    """The CAR model of the ring predicts a candidate of the ring's own
+    texture about as well as the ring (surprise near 0), a rougher one much
+    worse (surprise > 0), and a brighter one with a positive bias."""
+    from scipy import ndimage
+
+    from car_napari.mammography._candidates import _surprise
+
+    rng = np.random.default_rng(5)
+    h = w = 64
+    smooth = ndimage.gaussian_filter(rng.standard_normal((h, w)), 1.5)
+    yy, xx = np.mgrid[:h, :w]
+    inside = (yy - 32) ** 2 + (xx - 32) ** 2 <= 12**2
+    ring = ~inside & ((yy - 32) ** 2 + (xx - 32) ** 2 <= 20**2)
+    same = _surprise(0.5 + smooth, inside, ring)
+    rough = 0.5 + np.where(inside, 3 * smooth.std() * rng.standard_normal((h, w)), smooth)
+    other = _surprise(rough, inside, ring)
+    bright = _surprise(0.5 + smooth + np.where(inside, 4 * smooth.std(), 0.0), inside, ring)
+    assert abs(same[0]) < 0.5 < other[0]
+    assert bright[1] > 0.5 > abs(same[1])
+    # too small a ring to fit the model: zeros
+    assert _surprise(0.5 + smooth, inside, ring & (yy < 14)) == [0.0, 0.0]
+    assert _surprise(0.5 + smooth, inside, ring & (yy < 0)) == [0.0, 0.0]
