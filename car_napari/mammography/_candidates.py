@@ -15,7 +15,8 @@ pixels on the long side), by
 * size and shape: equivalent radius (on a 1024-pixel scale), compactness;
 * model surprise: a grey CAR model fitted on the ring predicts the
   candidate (:func:`_surprise`): how much worse than the ring itself, and
-  how much brighter than predicted.
+  how much brighter than predicted;
+* host: contrast against the rest of the candidate's segment.
 
 The score is a logistic model of those descriptors whose coefficients ship
 in ``roi_model.json`` (fitted by ``benchmarks/bench_froc.py``); plain NumPy.
@@ -43,6 +44,8 @@ DESCRIPTORS = (
     "param_contrast", "param_spread", "energy", "energy_contrast", "segment_edge",
     # CAR model surprise: a CAR fitted on the candidate's ring predicts it
     "surprise", "surprise_bias",
+    # contrast against the host segment (the rest of the candidate's segment)
+    "host_contrast", "host_contrast_z",
 )
 FAMILIES = {
     "grey": ("mean_grey", "grey_above_breast", "contrast", "contrast_z", "grey_std",
@@ -51,6 +54,7 @@ FAMILIES = {
     "texture": ("param_contrast", "param_spread", "energy", "energy_contrast",
                 "segment_edge"),
     "surprise": ("surprise", "surprise_bias"),
+    "host": ("host_contrast", "host_contrast_z"),
 }
 # The CAR feature vector's layout per resolution level
 # (car_napari.segmentation.local_features with its defaults on a
@@ -164,6 +168,13 @@ def _describe(grey, labellings, breast, texture, cands, *, f, side, work=None, s
     med = float(np.median(grey[breast])) if breast.any() else 0.0
     if texture is not None:
         params, energy = _texture_indices(texture.shape[2])
+    # per labelling: grey sum, sum of squares and count of every segment
+    # (the host statistics are those less the candidate's own pixels)
+    sums = []
+    for lab in labellings:
+        n_lab = int(lab.max()) + 1
+        sums.append([np.bincount(lab.ravel(), weights=w_, minlength=n_lab)
+                     for w_ in (grey.ravel(), grey.ravel() ** 2, None)])
     kept, rows = [], []
     for n, (cc, i, sl, a, li) in enumerate(cands):
         if work is not None and n % 64 == 63:
@@ -204,6 +215,7 @@ def _describe(grey, labellings, breast, texture, cands, *, f, side, work=None, s
         else:
             desc += [0.0] * len(FAMILIES["texture"])
         desc += _surprise(g, inside, ring) if surprise else [0.0, 0.0]
+        desc += _host(g, inside, labellings[li][r0:r1, c0:c1], sums[li])
         rows.append(desc)
         kept.append(Candidate((r0, r1, c0, c1), inside, (cr + r0, ccol + c0)))
     X = np.asarray(rows, float).reshape(len(rows), len(DESCRIPTORS))
@@ -213,6 +225,23 @@ def _describe(grey, labellings, breast, texture, cands, *, f, side, work=None, s
         col = X[:, DESCRIPTORS.index(src)]
         X[:, DESCRIPTORS.index(dst)] = _ranks(col)
     return kept, X
+
+
+def _host(g, inside, seg, sums):
+    """Contrast of a candidate against its host segment (the segment most of
+    it lies in, less the candidate's own pixels): ``[mean difference, that
+    over the host's grey deviation]``; zeros when the host is (almost) only
+    the candidate."""
+    own = int(np.bincount(seg[inside]).argmax())
+    mine = inside & (seg == own)
+    s1, s2, n = (t[own] for t in sums)
+    n -= mine.sum()
+    if n < 4:
+        return [0.0, 0.0]
+    mean = (s1 - g[mine].sum()) / n
+    var = max((s2 - (g[mine] ** 2).sum()) / n - mean**2, 0.0)
+    diff = float(g[inside].mean() - mean)
+    return [diff, diff / (np.sqrt(var) + 0.01)]
 
 
 # The surprise model: a grey 2DCAR of this hierarchical order (4 causal

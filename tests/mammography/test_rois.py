@@ -524,3 +524,24 @@ def test_surprise_of_the_ring_model_on_like_and_unlike_candidates():
     # too small a ring to fit the model: zeros
     assert _surprise(0.5 + smooth, inside, ring & (yy < 14)) == [0.0, 0.0]
     assert _surprise(0.5 + smooth, inside, ring & (yy < 0)) == [0.0, 0.0]
+
+
+def test_host_contrast_against_the_rest_of_the_segment():
+    """The host of a candidate is its segment less its own pixels: the
+    contrast and its z-score against NumPy on that set."""
+    from car_napari.mammography._candidates import _host
+
+    rng = np.random.default_rng(2)
+    grey = rng.random((40, 50))
+    seg = np.where(np.arange(50)[None, :] < 30, 1, 2).repeat(40, axis=0).astype(np.uint8)
+    inside = np.zeros_like(seg, bool)
+    inside[10:20, 5:15] = True
+    sums = [np.bincount(seg.ravel(), weights=w, minlength=3)
+            for w in (grey.ravel(), grey.ravel() ** 2, None)]
+    got = _host(grey, inside, seg, sums)
+    host = (seg == 1) & ~inside
+    diff = grey[inside].mean() - grey[host].mean()
+    assert got[0] == pytest.approx(diff)
+    assert got[1] == pytest.approx(diff / (grey[host].std() + 0.01))
+    # a candidate that is its whole segment has no host
+    assert _host(grey, seg == 2, seg, sums) == [0.0, 0.0]
