@@ -534,6 +534,29 @@ def _halo(**kw):
     return tile_halo(**kw)
 
 
+@pytest.mark.parametrize("image", [
+    np.dstack([GOOD[..., :3], np.full(GOOD.shape[:2], 1.0)]),  # RGBA, opaque: alpha is flat
+    np.full((40, 40), 0.5),
+], ids=["rgba", "constant"])
+def test_restore_tiled_refuses_a_flat_channel_allocating_little(image):
+    # the noise pass's histogram was dense, 2**20 bins per channel (8 MB each,
+    # ~75 MB with its cumulative sums for RGBA), allocated before the check
+    import tracemalloc
+
+    from car_napari.restoration import restore_tiled
+
+    with pytest.raises(ValueError, match="constant in channel"):
+        restore_tiled(image)  # compiles the kernels: not measured
+    tracemalloc.start()
+    try:
+        with pytest.raises(ValueError, match="constant in channel"):
+            restore_tiled(image)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 4e6
+
+
 def test_restore_tiled_takes_a_nested_list():
     from car_napari.restoration import restore_tiled
 

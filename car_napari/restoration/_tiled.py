@@ -193,41 +193,63 @@ def _bins(values):
     return (np.ascontiguousarray(values).view(np.uint64) >> _SHIFT).astype(np.int64)
 
 
+def _add_counts(keys, counts, bins):
+    """The sparse histogram ``(keys, counts)`` (sorted bins, their counts)
+    with ``bins`` added. Sparse, not the 2**20 bins a dense one holds per
+    channel (8 MB each, all allocated before a constant channel is found):
+    a tile's responses fill a few thousand bins."""
+    new, n = np.unique(bins, return_counts=True)
+    if keys.size == 0:
+        return new, n.astype(np.int64)
+    merged, where = np.unique(np.concatenate([keys, new]), return_inverse=True)
+    total = np.zeros(merged.size, np.int64)
+    np.add.at(total, where, np.concatenate([counts, n]))
+    return merged, total
+
+
 def _iter_statistics(image, channel_axis, want_noise, tile, span):
     """The global quantities: (Summary, noise or None), in two passes over
     the tiles, Progress records after each tile.
 
-    Pass 1: the sums of the mean, and a histogram of the |Laplacian|
-    responses by their float bits; pass 2: the squared deviations, and the
-    responses that fall in the two bins holding the middle ranks, whose
-    sorted values give the exact median (the responses are of the scaled
-    image; the in-memory estimate takes them of the centred one: the same
-    values but for rounding, the kernel's taps summing to 0)."""
+    Pass 1: the sums of the mean, the min and max (a constant channel is
+    refused there), and a sparse histogram of the |Laplacian| responses by
+    their float bits; pass 2: the squared deviations, and the responses
+    that fall in the two bins holding the middle ranks, whose sorted values
+    give the exact median (the responses are of the scaled image; the
+    in-memory estimate takes them of the centred one: the same values but
+    for rounding, the kernel's taps summing to 0)."""
     H, W = image.shape[:2]
     C = 1 if image.ndim == 2 else image.shape[2]
     tiles = tile_grid((H, W), tile, 1)
     lo, hi = span
     step = (hi - lo) / 2
     summary = SummaryPasses(C)
-    hist = np.zeros((C, 1 << (64 - _SHIFT)), np.int64)
+    empty = np.zeros(0, np.int64)
+    hist = [(empty, empty)] * C  # per channel: sorted bins, their counts
     for k, t in enumerate(tiles, start=1):
         data = _channel_last(read_tile(image, t), channel_axis)
         summary.first(data[t.inner].reshape(-1, C))
         if want_noise:
             r = _responses(data, t, H, W)
             for c in range(C):
-                hist[c] += np.bincount(_bins(r[:, c]), minlength=hist.shape[1])
+                hist[c] = _add_counts(*hist[c], _bins(r[:, c]))
         yield Progress("statistics", lo + step * k / len(tiles), f"mean: tile {k}/{len(tiles)}")
+    # the min and max are known: refuse a constant channel before a second pass
+    check_not_constant(None, summary=summary.result())
     n = (H - 2) * (W - 2)
+    median = want_noise and n > 0  # no interior pixel: no response (noise 0)
     low, high = (n - 1) // 2, n // 2
-    below = np.cumsum(hist, axis=1) - hist  # counts below each bin
-    bins = [(int(np.searchsorted(below[c] + hist[c], low, side="right")),
-             int(np.searchsorted(below[c] + hist[c], high, side="right"))) for c in range(C)]
+    bins, first = [], []
+    for keys, counts in hist if median else ():
+        upto = np.cumsum(counts)  # the counts up to and including each bin
+        i, j = np.searchsorted(upto, [low, high], side="right")
+        bins.append((keys[i], keys[j]))
+        first.append(int(upto[i] - counts[i]))  # rank of the first value kept
     picked = [[] for _ in range(C)]
     for k, t in enumerate(tiles, start=1):
         data = _channel_last(read_tile(image, t), channel_axis)
         summary.second(data[t.inner].reshape(-1, C))
-        if want_noise:
+        if median:
             r = _responses(data, t, H, W)
             for c in range(C):
                 b = _bins(r[:, c])
@@ -235,16 +257,14 @@ def _iter_statistics(image, channel_axis, want_noise, tile, span):
         yield Progress("statistics", lo + step * (1 + k / len(tiles)),
                        f"variance: tile {k}/{len(tiles)}")
     result = summary.result()
-    check_not_constant(None, summary=result)
     if not want_noise:
         return result, None
-    if n <= 0:
+    if not median:
         return result, np.zeros(C)
     medians = []
     for c in range(C):
         values = np.sort(np.concatenate(picked[c]))
-        first = below[c][bins[c][0]]  # rank of the first value kept
-        medians.append(0.5 * (values[low - first] + values[high - first]))
+        medians.append(0.5 * (values[low - first[c]] + values[high - first[c]]))
     return result, noise_from_medians(medians)
 
 
