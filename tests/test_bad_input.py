@@ -822,3 +822,31 @@ def test_inpaint_of_any_finite_magnitude_is_the_unit_fill_rescaled(scale, shift)
     tolerance = 1e-9 if shift == 0 else 1e-5
     np.testing.assert_allclose((got[mask] - shift) / scale, unit[mask], rtol=0,
                                atol=tolerance)
+
+
+@pytest.mark.parametrize("offsets, error, match", [
+    ([[0, -1]], ValueError, r"^offsets \[\(0, -1\)\] are not causal"),
+    ([[1.5, 0]], ValueError, r"^offsets must be integers"),
+    ([1, 2, 3], ValueError, r"^offsets must be a non-empty \(eta, 2\) array.*or an \(eta, 2\)"),
+    ([[1, 0], [1, 0]], ValueError, r"^offsets contain duplicates"),
+    ([[1e300, 0]], ValueError, r"^offsets must be at most"),  # was wrapped to int64's min
+    (np.array([[5, -2**63]]), ValueError, r"^offsets must be at most"),
+    ("x", ValueError, r"^offsets 'x'.*an order \(an int from 1 to 30\)"),
+    (0, ValueError, r"^offsets order must be between 1 and 30"),
+])
+@pytest.mark.parametrize("context", ["temporal", "multichannel"])
+def test_contexts_name_their_offsets(context, offsets, error, match):
+    from car_napari.restoration import multichannel_context
+    from car_napari.texture import temporal_context
+
+    call = {"temporal": lambda: temporal_context(offsets, 1),
+            "multichannel": lambda: multichannel_context(offsets, 2, 0)}[context]
+    with pytest.raises(error, match=match):
+        call()
+
+
+def test_neighbourhood_messages_still_name_the_neighbourhood():
+    from car_napari.model.neighbourhood import as_offsets
+
+    with pytest.raises(ValueError, match=r"^neighbourhood offsets \[\(0, -1\)\] are not"):
+        as_offsets([[0, -1]])

@@ -82,14 +82,18 @@ def causal_neighbourhood(order):
     return np.array([(di, dj) for sq, di, dj in cand if sq <= limit], dtype=np.int64)
 
 
-def as_offsets(neighbourhood):
+def as_offsets(neighbourhood, *, name="neighbourhood"):
     """Validate a neighbourhood given as an order or an offset array.
 
     Parameters
     ----------
     neighbourhood : int or (eta, 2) array_like of int
         An order (see :func:`causal_neighbourhood`) or explicit causal
-        offsets ``(di, dj)``, without duplicates.
+        offsets ``(di, dj)``, without duplicates, each at most
+        ``2**20`` pixels.
+    name : str, optional
+        The argument's name in the error messages (``'offsets'`` where a
+        function takes the neighbourhood under that name).
 
     Returns
     -------
@@ -102,7 +106,7 @@ def as_offsets(neighbourhood):
     ------
     ValueError
         If the order is out of range, or the offsets are not an (eta, 2)
-        integer array, not causal, or hold duplicates; for a string.
+        integer array, not causal, too far, or hold duplicates; for a string.
     TypeError
         If ``neighbourhood`` is not an int and cannot be read as an array,
         or the order is not an int.
@@ -115,46 +119,52 @@ def as_offsets(neighbourhood):
     >>> as_offsets([[1, 0], [0, 2]])[0].tolist()
     [[1, 0], [0, 2]]
     """
+    subject = name if name == "offsets" else f"{name} offsets"
+    allowed = (f"pass an order (an int from 1 to {MAX_ORDER}) or an (eta, 2) array of causal "
+               "offsets (di, dj)")
     if isinstance(neighbourhood, (int, np.integer)) and not isinstance(
         neighbourhood, (bool, np.bool_)
     ):
         try:
             return causal_neighbourhood(neighbourhood), int(neighbourhood)
-        except ValueError as exc:  # say which argument: the order came as a neighbourhood
-            raise ValueError(f"neighbourhood {exc}") from None
+        except ValueError as exc:  # say which argument: the order came under this name
+            raise ValueError(f"{name} {exc}") from None
     if isinstance(neighbourhood, str):
-        raise ValueError(
-            f"neighbourhood {neighbourhood!r} is not understood here; pass an order "
-            "(int) or an (eta, 2) array of causal offsets."
-        )
+        raise ValueError(f"{name} {neighbourhood!r} is not understood here; {allowed}.")
     try:
         offsets = np.asarray(neighbourhood)
     except Exception as exc:
-        raise TypeError(f"neighbourhood could not be read as offsets: {exc}") from exc
+        raise TypeError(f"{name} could not be read as offsets ({exc}); {allowed}.") from exc
     if offsets.ndim != 2 or offsets.shape[1] != 2 or offsets.shape[0] == 0:
         raise ValueError(
-            "neighbourhood offsets must be a non-empty (eta, 2) array of (di, dj); got "
-            f"shape {offsets.shape}."
+            f"{subject} must be a non-empty (eta, 2) array of (di, dj); got "
+            f"shape {offsets.shape} ({allowed})."
         )
     if offsets.dtype.kind not in "iu":
         if offsets.dtype.kind == "f" and np.all(np.isfinite(offsets)) and np.all(
             offsets == np.round(offsets)
         ):
-            offsets = offsets.astype(np.int64)
+            # bounded before the cast: 1e300 would wrap to a negative int64
+            offsets = np.clip(offsets, -2.0 * _MAX_REACH, 2.0 * _MAX_REACH).astype(np.int64)
         else:
-            raise ValueError(f"neighbourhood offsets must be integers; got {offsets.tolist()}.")
+            raise ValueError(f"{subject} must be integers; got {offsets.tolist()}.")
+    if offsets.dtype.kind == "u" and offsets.max() > _MAX_REACH:
+        offsets = np.minimum(offsets, 2 * _MAX_REACH)  # uint64 beyond int64: no wrap
     offsets = offsets.astype(np.int64)
     noncausal = [
         (int(di), int(dj)) for di, dj in offsets if not (di > 0 or (di == 0 and dj > 0))
     ]
     if noncausal:
         raise ValueError(
-            f"neighbourhood offsets {noncausal} are not causal: each (di, dj) needs di > 0, "
+            f"{subject} {noncausal} are not causal: each (di, dj) needs di > 0, "
             "or di == 0 and dj > 0 (the neighbour r - s must come before r in the raster "
             "scan)."
         )
+    if np.any((offsets > _MAX_REACH) | (offsets < -_MAX_REACH)):  # no abs(): int64 min
+        raise ValueError(f"{subject} must be at most {_MAX_REACH} pixels (an image "
+                         f"side); got {np.asarray(neighbourhood).tolist()}.")
     if len({(int(a), int(b)) for a, b in offsets}) != len(offsets):
-        raise ValueError(f"neighbourhood offsets contain duplicates: {offsets.tolist()}.")
+        raise ValueError(f"{subject} contain duplicates: {offsets.tolist()}.")
     return offsets, None
 
 

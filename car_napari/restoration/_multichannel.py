@@ -114,7 +114,7 @@ def multichannel_context(offsets, n_versions, reference, *, with_prediction=Fals
     >>> len(context.taps), context.targets.tolist()
     (8, [0])
     """
-    offsets, _ = as_offsets(offsets)
+    offsets, _ = as_offsets(offsets, name="offsets")
     n_versions = check_real(n_versions, "n_versions", low=1, high=MAX_VERSIONS, integer=True)
     reference = check_real(reference, f"reference (a version in 0..{n_versions - 1})", low=0,
                            high=n_versions - 1, integer=True)

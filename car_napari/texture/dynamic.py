@@ -156,7 +156,7 @@ def temporal_context(offsets, d):
     >>> context.n_regressors
     5
     """
-    offsets, _ = as_offsets(offsets)
+    offsets, _ = as_offsets(offsets, name="offsets")
     d = check_real(d, "d (the number of channels)", low=1, high=MAX_CHANNELS, integer=True)
     taps = [(di, dj, c) for di, dj in offsets for c in range(d)]
     taps += [(0, 0, d + c) for c in range(d)]
