@@ -8,7 +8,10 @@ descheduled: a job then runs 10 to 20 times slower than with one BLAS
 thread. So every job runs with BLAS limited (:func:`limited_blas`, entered
 by :func:`car_napari._progress.drain` and by the widgets' job runner); the
 job's own work runs in its one thread (the Numba kernels are serial and
-release the GIL, which keeps the napari viewer responsive).
+release the GIL, which keeps the napari viewer responsive), but for the
+kernels a job runs two at a time (the segmentation features' scans and
+smoothings, the mixture's E step halves) on the one pool of
+:func:`job_pool`, sized by ``CAR_NAPARI_JOB_THREADS`` (:func:`job_threads`).
 
 The limit is ``CAR_NAPARI_BLAS_THREADS`` when that is set (a number of
 threads, at most the CPUs this process may use; ``0`` or ``off``: no limit),
@@ -21,12 +24,13 @@ from __future__ import annotations
 import contextlib
 import os
 import threading
+from concurrent.futures import ThreadPoolExecutor
 
 from threadpoolctl import OpenBLASController, threadpool_limits
 
 from ._validation import check_real
 
-__all__ = ["blas_threads", "job_threads", "limited_blas", "usable_cpus"]
+__all__ = ["blas_threads", "job_pool", "job_threads", "limited_blas", "usable_cpus"]
 
 ENV = "CAR_NAPARI_BLAS_THREADS"
 JOB_ENV = "CAR_NAPARI_JOB_THREADS"
@@ -35,6 +39,8 @@ _lock = threading.Lock()
 _depth = 0  # the jobs inside limited_blas(), in every thread
 _limiter = None  # threadpoolctl's record of the limits before the outermost entry
 _limit = None  # the limit in force (None: none)
+_pools = {}  # job_threads() -> the shared pool of that size, made on first use
+_pools_lock = threading.Lock()
 
 
 def _release_blas_control():
@@ -133,6 +139,44 @@ def job_threads():
     if threads < 1:
         raise ValueError(f"{JOB_ENV} must be a positive number of threads; got {value!r}.")
     return min(threads, usable_cpus())
+
+
+def job_pool():
+    """The threads every job runs its side-by-side kernels on, shared.
+
+    One pool for the whole process (per size), made on first use and kept:
+    a job does not start and stop threads of its own, and two pools serving
+    one purpose would run twice :func:`job_threads` threads when a
+    segmentation's features and mixture overlap with another job's. How the
+    work is split does not depend on the pool (the callers' pairs and halves
+    are fixed), so the results are those of one thread, bit for bit.
+
+    Returns
+    -------
+    concurrent.futures.ThreadPoolExecutor or None
+        A pool of :func:`job_threads` threads; None where that is 1 (run the
+        kernels one after the other). Never shut it down; a task run on it
+        must not wait for another task of it.
+
+    Raises
+    ------
+    ValueError
+        ``CAR_NAPARI_JOB_THREADS`` is not a positive number.
+
+    Examples
+    --------
+    >>> pool = job_pool()
+    >>> pool is None or pool is job_pool()
+    True
+    """
+    threads = job_threads()
+    if threads < 2:
+        return None
+    with _pools_lock:
+        pool = _pools.get(threads)
+        if pool is None:
+            pool = _pools[threads] = ThreadPoolExecutor(threads, thread_name_prefix="car-job")
+    return pool
 
 
 @contextlib.contextmanager

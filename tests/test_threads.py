@@ -142,3 +142,17 @@ def test_segmentation_is_the_same_on_one_thread_and_two(monkeypatch):
         results[threads] = (local_features(image, levels=2), result.labels)
     np.testing.assert_array_equal(results["1"][0], results["2"][0])
     np.testing.assert_array_equal(results["1"][1], results["2"][1])
+
+
+def test_job_pool_is_one_shared_pool_sized_by_the_job_threads(monkeypatch):
+    # the features' scans and the mixture's E step share it (they had a pool each)
+    from car_napari import _threads
+    from car_napari.segmentation import _features, _mixture
+
+    monkeypatch.setenv("CAR_NAPARI_JOB_THREADS", "1")
+    assert _threads.job_pool() is None
+    if usable_cpus() >= 2:
+        monkeypatch.setenv("CAR_NAPARI_JOB_THREADS", "2")
+        pool = _threads.job_pool()
+        assert pool is _threads.job_pool() and pool._max_workers == 2
+    assert _features.job_pool is _threads.job_pool is _mixture.job_pool

@@ -20,13 +20,12 @@ from __future__ import annotations
 import math
 import threading
 import time
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
 from .._docstrings import shared_parameters
 from .._progress import Progress, drain, side_by_side, stage
-from .._threads import job_threads
+from .._threads import job_pool
 from .._validation import check_not_constant, check_real, check_seed, summarize
 from ..model.blocks import iter_channel_last_float, row_ranges
 from ..model.directions import DIRECTIONS, scan_view
@@ -601,101 +600,98 @@ def iter_local_features(
     level = data
     del data
     # the directional scans two at a time where two cores are there to take them
-    pool = ThreadPoolExecutor(2) if job_threads() >= 2 else None
-    try:
-        for m in range(levels):
-            label = f"level {m + 1}/{levels}"
-            hm, wm = level.shape[:2]
-            sig = smoothing if level_smoothing == "same" else smoothing / 2**m
-            msig = mean_smoothing if level_smoothing == "same" else mean_smoothing / 2**m
-            if decorrelate:
-                centred = yield from _iter_whiten_channels(level, work, f"{label}: decorrelating")
-            else:
-                centred = level.copy()
-            source_summary = summarize(centred)
-            rec = work.step(_NS_VALUE * hm * wm * d / 2, f"{label}: centring")
+    # shared by every job (side_by_side waits for its steps: none is left on it)
+    pool = job_pool()  # None: one thread
+    for m in range(levels):
+        label = f"level {m + 1}/{levels}"
+        hm, wm = level.shape[:2]
+        sig = smoothing if level_smoothing == "same" else smoothing / 2**m
+        msig = mean_smoothing if level_smoothing == "same" else mean_smoothing / 2**m
+        if decorrelate:
+            centred = yield from _iter_whiten_channels(level, work, f"{label}: decorrelating")
+        else:
+            centred = level.copy()
+        source_summary = summarize(centred)
+        rec = work.step(_NS_VALUE * hm * wm * d / 2, f"{label}: centring")
+        if rec:
+            yield rec
+        for start, stop in _long_blocks(hm * wm):
+            centred.reshape(-1, d)[start:stop] -= source_summary.mean
+            rec = work.step(_NS_VALUE * (stop - start) * d, f"{label}: centring")
             if rec:
                 yield rec
-            for start, stop in _long_blocks(hm * wm):
-                centred.reshape(-1, d)[start:stop] -= source_summary.mean
-                rec = work.step(_NS_VALUE * (stop - start) * d, f"{label}: centring")
-                if rec:
-                    yield rec
-            reduced = np.empty((hm, wm, len(DIRECTIONS) * components), np.float32)
-            err = np.zeros((hm, wm)) if energy else None
-            # the PCA samples drawn in the directions' order, whatever runs when
-            samples = [rng.choice(hm * wm, size=min(_SAMPLE, hm * wm), replace=False)
-                       for _ in DIRECTIONS]
-            # two directions side by side (their kernels release the GIL); the
-            # second adds its energy into a buffer of its own, added after it, so
-            # that the sum is the one of the directions in turn
-            spare = np.zeros((hm, wm)) if energy and pool is not None else None
-            for group in _direction_groups(pool):
-                jobs = [_iter_direction(
-                    centred, ctx, source_summary.var, forgetting=forgetting,
-                    direction=DIRECTIONS[k], lag=lag, clip=clip, components=components,
-                    pca_index=samples[k],
-                    reduced=reduced[..., k * components : (k + 1) * components],
-                    err=spare if (energy and place) else err, work=work,
-                    message=f"{label}: {DIRECTIONS[k]} scan") for place, k in enumerate(group)]
-                yield from side_by_side(jobs, pool)
-                if spare is not None and len(group) > 1:
-                    err += spare
-                    spare[...] = 0.0
-            del centred, spare
-            # (in this order, so that the least is alive at once)
-            current = level
-            if m + 1 < levels:
-                level = yield from _iter_pyramid_reduce(current, work, f"{label}: next level")
-            # the stacked directional parameters, smoothed, reduced by PCA
-            if sig > 0:  # the planes two at a time (ndimage releases the GIL)
-                jobs = [_iter_gaussian(reduced[..., c], sig, work, f"{label}: smoothing")
-                        for c in range(reduced.shape[2])]
-                side = 2 if pool is not None else 1
-                for k in range(0, len(jobs), side):
-                    yield from side_by_side(jobs[k : k + side], pool)
-            flat = reduced.reshape(hm * wm, -1)
-            idx = rng.choice(flat.shape[0], size=min(_SAMPLE, flat.shape[0]), replace=False)
-            mean, axes = _pca_fit(flat[idx].astype(np.float64), components + 1)
-            if m == 0:
-                result = buffer[h * w * (n_feats - per_level):].reshape(h, w, per_level)
-            else:
-                result = np.empty((hm, wm, per_level), np.float32)
-            out_flat = result.reshape(hm * wm, per_level)
-            for start, stop in _long_blocks(hm * wm):
-                out_flat[start:stop, : components + 1] = (flat[start:stop] - mean) @ axes
-                rec = work.step(_NS_VALUE * flat.shape[1] * (stop - start), f"{label}: reducing")
-                if rec:
-                    yield rec
-            del reduced, flat
-            # the local models' prediction-error energy (their Sigma, log scale)
-            # and the local mean spectrum: their smoothings two at a time
-            planes = [np.empty((hm, wm)) for _ in range(d)]
-            jobs = [_iter_gaussian(err, sig, work, f"{label}: energy")] \
-                if energy and sig > 0 else []
-            for c in range(d):
-                if msig > 0:
-                    jobs.append(_iter_gaussian(current[..., c], msig, work,
-                                               f"{label}: local mean", out=planes[c]))
-                else:
-                    planes[c][...] = current[..., c]
+        reduced = np.empty((hm, wm, len(DIRECTIONS) * components), np.float32)
+        err = np.zeros((hm, wm)) if energy else None
+        # the PCA samples drawn in the directions' order, whatever runs when
+        samples = [rng.choice(hm * wm, size=min(_SAMPLE, hm * wm), replace=False)
+                   for _ in DIRECTIONS]
+        # two directions side by side (their kernels release the GIL); the
+        # second adds its energy into a buffer of its own, added after it, so
+        # that the sum is the one of the directions in turn
+        spare = np.zeros((hm, wm)) if energy and pool is not None else None
+        for group in _direction_groups(pool):
+            jobs = [_iter_direction(
+                centred, ctx, source_summary.var, forgetting=forgetting,
+                direction=DIRECTIONS[k], lag=lag, clip=clip, components=components,
+                pca_index=samples[k],
+                reduced=reduced[..., k * components : (k + 1) * components],
+                err=spare if (energy and place) else err, work=work,
+                message=f"{label}: {DIRECTIONS[k]} scan") for place, k in enumerate(group)]
+            yield from side_by_side(jobs, pool)
+            if spare is not None and len(group) > 1:
+                err += spare
+                spare[...] = 0.0
+        del centred, spare
+        # (in this order, so that the least is alive at once)
+        current = level
+        if m + 1 < levels:
+            level = yield from _iter_pyramid_reduce(current, work, f"{label}: next level")
+        # the stacked directional parameters, smoothed, reduced by PCA
+        if sig > 0:  # the planes two at a time (ndimage releases the GIL)
+            jobs = [_iter_gaussian(reduced[..., c], sig, work, f"{label}: smoothing")
+                    for c in range(reduced.shape[2])]
             side = 2 if pool is not None else 1
             for k in range(0, len(jobs), side):
                 yield from side_by_side(jobs[k : k + side], pool)
-            if energy:
-                floor = 1e-6 * float(np.mean(source_summary.var))
-                for start, stop in row_ranges(hm, wm):
-                    result[start:stop, :, components + 1] = np.log(err[start:stop] + floor)
-                del err
-            for c in range(d):
-                result[..., per_level - d + c] = planes[c]
-            del planes, current
-            level_results.append(result)
-            if m + 1 < levels:
-                yield work.step(0.0, f"{label} done", force=True)
-    finally:
-        if pool is not None:
-            pool.shutdown(wait=False, cancel_futures=True)
+        flat = reduced.reshape(hm * wm, -1)
+        idx = rng.choice(flat.shape[0], size=min(_SAMPLE, flat.shape[0]), replace=False)
+        mean, axes = _pca_fit(flat[idx].astype(np.float64), components + 1)
+        if m == 0:
+            result = buffer[h * w * (n_feats - per_level):].reshape(h, w, per_level)
+        else:
+            result = np.empty((hm, wm, per_level), np.float32)
+        out_flat = result.reshape(hm * wm, per_level)
+        for start, stop in _long_blocks(hm * wm):
+            out_flat[start:stop, : components + 1] = (flat[start:stop] - mean) @ axes
+            rec = work.step(_NS_VALUE * flat.shape[1] * (stop - start), f"{label}: reducing")
+            if rec:
+                yield rec
+        del reduced, flat
+        # the local models' prediction-error energy (their Sigma, log scale)
+        # and the local mean spectrum: their smoothings two at a time
+        planes = [np.empty((hm, wm)) for _ in range(d)]
+        jobs = [_iter_gaussian(err, sig, work, f"{label}: energy")] \
+            if energy and sig > 0 else []
+        for c in range(d):
+            if msig > 0:
+                jobs.append(_iter_gaussian(current[..., c], msig, work,
+                                           f"{label}: local mean", out=planes[c]))
+            else:
+                planes[c][...] = current[..., c]
+        side = 2 if pool is not None else 1
+        for k in range(0, len(jobs), side):
+            yield from side_by_side(jobs[k : k + side], pool)
+        if energy:
+            floor = 1e-6 * float(np.mean(source_summary.var))
+            for start, stop in row_ranges(hm, wm):
+                result[start:stop, :, components + 1] = np.log(err[start:stop] + floor)
+            del err
+        for c in range(d):
+            result[..., per_level - d + c] = planes[c]
+        del planes, current
+        level_results.append(result)
+        if m + 1 < levels:
+            yield work.step(0.0, f"{label} done", force=True)
     theta = yield from _iter_assemble(buffer, level_results, (h, w), work)
     yield Progress("features", 1.0, f"level {levels}/{levels} done")
     return theta

@@ -11,6 +11,7 @@ import numpy as np
 from numba import njit
 
 from .._progress import Progress, drain
+from .._threads import job_pool
 
 __all__ = ["Mixture"]
 
@@ -103,7 +104,7 @@ def _expectations(X, mix):
     def run(half, part):
         return _e_step(X[half[0]:half[1]], means_t, inv_t, const, *part)
 
-    pool = _pool() if len(halves) > 1 else None
+    pool = job_pool() if len(halves) > 1 else None  # None: a job on one thread
     if pool is None:
         totals = [run(half, part) for half, part in zip(halves, parts, strict=True)]
     else:  # the two halves on two threads (the kernel releases the GIL), summed in order
@@ -115,21 +116,6 @@ def _expectations(X, mix):
 # an E step on more rows than this runs in two halves (on two threads where
 # a job has them), whose sums are added
 _SPLIT_ROWS = 1 << 14
-_POOL = []
-
-
-def _pool():
-    """Two threads shared by the E steps of every job (None where a job
-    runs on one thread: :func:`~car_napari._threads.job_threads`)."""
-    from .._threads import job_threads
-
-    if job_threads() < 2:
-        return None
-    if not _POOL:
-        from concurrent.futures import ThreadPoolExecutor
-
-        _POOL.append(ThreadPoolExecutor(2, thread_name_prefix="car-e-step"))
-    return _POOL[0]
 
 
 # a posterior below exp(-37) (< 2**-53 of the best's) is taken as 0: it
