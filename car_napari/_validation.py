@@ -320,6 +320,19 @@ def check_axis(axis, ndim, name="axis"):
     return int(axis)
 
 
+def check_channel_axis(channel_axis, name="channel_axis"):
+    """``channel_axis`` as None or an int (not a bool, float or NaN), checked
+    even where the data has no channel axis (a 2-D image ignores it): its
+    range against the data is the reader's check (:func:`check_axis`)."""
+    if channel_axis is None:
+        return None
+    if isinstance(channel_axis, (bool, np.bool_)) or not isinstance(channel_axis,
+                                                                    (int, np.integer)):
+        raise TypeError(f"{name} must be None (grey) or an integer, the axis of the "
+                        f"channels (e.g. -1); got {channel_axis!r}.")
+    return int(channel_axis)
+
+
 def check_flag(value, name):
     """``value`` as a bool (True, False or a numpy bool), or a TypeError naming it."""
     if not isinstance(value, (bool, np.bool_)):

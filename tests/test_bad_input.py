@@ -850,3 +850,37 @@ def test_neighbourhood_messages_still_name_the_neighbourhood():
 
     with pytest.raises(ValueError, match=r"^neighbourhood offsets \[\(0, -1\)\] are not"):
         as_offsets([[0, -1]])
+
+
+def _channel_axis_calls():
+    import car_napari as car
+    from car_napari import mammography, restoration, texture
+
+    img = np.random.default_rng(0).random((24, 24))
+    clip = np.stack([img, img[::-1]])
+    mask = np.zeros((24, 24), bool)
+    mask[5:7, 5:9] = True
+    return {
+        "restore_multichannel": lambda a: car.restore_multichannel(clip, channel_axis=a),
+        "sharpness": lambda a: restoration.sharpness(clip, channel_axis=a),
+        "restore_tiled": lambda a: restoration.restore_tiled(img, channel_axis=a),
+        "detect_scratches": lambda a: car.detect_scratches(img, channel_axis=a),
+        "inpaint": lambda a: car.inpaint(img, mask, channel_axis=a),
+        "rank": lambda a: car.rank(img, [img, img], channel_axis=a),
+        "cumulative_histograms": lambda a: texture.cumulative_histograms(clip, channel_axis=a),
+        "fit_dynamic_texture": lambda a: texture.DynamicTextureModel.fit(
+            np.stack([img, img * 0.9, img * 0.8]), channel_axis=a),
+        "TextureModel.fit": lambda a: texture.TextureModel.fit(
+            np.random.default_rng(0).random((64, 64)), channel_axis=a),
+        "detect_breast": lambda a: car.detect_breast(img, channel_axis=a),
+        "filter_regions": lambda a: mammography.filter_regions(
+            img, (img > 0.5).astype(np.int32) + 1, channel_axis=a),
+    }
+
+
+@pytest.mark.parametrize("name", sorted(_channel_axis_calls()))
+@pytest.mark.parametrize("axis", [np.nan, np.inf, -1.0, True])
+def test_channel_axis_checked_on_a_grey_image(name, axis):
+    # a 2-D image ignores its channel axis; a NaN one was accepted there
+    with pytest.raises(TypeError, match="channel_axis must be None"):
+        _channel_axis_calls()[name](axis)

@@ -18,7 +18,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .._validation import check_memory, check_real, check_shape
+from .._validation import check_channel_axis, check_memory, check_real, check_shape
 
 MAX_COLOURS = 4  # more entries on the channel axis of a 3-D array: a grey clip
 
@@ -57,6 +57,7 @@ class ClipLayout(NamedTuple):
 def read_layout(arr, channel_axis):
     """Read ``arr`` as a frame or clip by the module's rule; a clear
     ValueError when it is neither."""
+    check_channel_axis(channel_axis)
     if channel_axis is None:
         if arr.ndim not in (2, 3):
             raise ValueError(

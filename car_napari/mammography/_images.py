@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._progress import Progress
-from .._validation import as_channel_last_float
+from .._validation import as_channel_last_float, check_channel_axis
 
 # Pixels converted, averaged or upsampled between two records of a job, so
 # that a Cancel is seen soon on a 4096x4096 mammogram.
@@ -16,6 +16,7 @@ _STRIP = 1 << 20
 def _as_grey(image, channel_axis):
     """A colour export of a grey mammogram as its luminance in [0, 1]; a grey
     image (2-D, or ``channel_axis=None``) unchanged."""
+    check_channel_axis(channel_axis)
     arr = np.asarray(image)
     if channel_axis is None or arr.ndim != 3:
         return image  # grey, or not an image at all: _grey01 says why

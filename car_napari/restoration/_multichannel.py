@@ -19,6 +19,7 @@ import numpy as np
 from .._progress import Progress, drain, stage
 from .._validation import (
     channel_last_shape,
+    check_channel_axis,
     check_not_constant,
     check_real,
     scale_exponent,
@@ -149,6 +150,7 @@ def _check_axis(axis, ndim, shape):
 def _stack_layout(stack, *, axis, channel_axis):
     """(the stack with its versions first, position of the channel axis in
     one version's layout or None for grey), with clear errors."""
+    check_channel_axis(channel_axis)
     if isinstance(stack, (list, tuple)):
         shapes = {np.shape(v) for v in stack}
         if len(shapes) > 1:

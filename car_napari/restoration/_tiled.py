@@ -41,6 +41,7 @@ from .._validation import (
     MAX_SIDE,
     SummaryPasses,
     as_channel_last_float,
+    check_channel_axis,
     check_not_constant,
     check_real,
     check_size,
@@ -125,6 +126,7 @@ def _check(image, neighbourhood, estimator, window, directions, kappa, noise, ch
     kappa = check_kappa(kappa)
     tile = check_real(tile, "tile (a positive number of pixels)", low=1, high=MAX_SIDE,
                       integer=True)
+    channel_axis = check_channel_axis(channel_axis)  # a 2-D image ignores it: checked
     shape = tuple(int(s) for s in np.shape(image))
     if len(shape) == 2:
         C = 1

@@ -39,6 +39,7 @@ from .._progress import Progress, drain, stage
 from .._validation import (
     as_channel_last_float,
     check_axis,
+    check_channel_axis,
     check_flag,
     check_memory,
     check_not_constant,
@@ -107,6 +108,7 @@ def _iter_float_image(image, channel_axis):
     errors come before the first record, with the same messages; a
     non-finite value is reported as the whole-image check reports it.
     """
+    check_channel_axis(channel_axis)  # a 2-D image ignores it: checked still
     plane = _plane_shape(image, channel_axis)
     arr = np.asarray(image) if plane is not None else None
     if arr is None or arr.size == 0 or arr.dtype == object or arr.dtype.kind not in "biuf":

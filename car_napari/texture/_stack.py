@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import as_channel_last_float
+from .._validation import as_channel_last_float, check_channel_axis
 
 
 def as_stack(stack, channel_axis, *, name="stack", item="image", minimum=1, what=None):
@@ -20,6 +20,7 @@ def as_stack(stack, channel_axis, *, name="stack", item="image", minimum=1, what
     Every image is converted like a single image (integers scaled to [0, 1],
     NaN refused), named ``"{item} {i}"`` in the messages.
     """
+    check_channel_axis(channel_axis)
     if stack is None:
         raise TypeError(f"{name} is None: pass an (n, H, W) or (n, H, W, C) array.")
     arr = np.asarray(stack)

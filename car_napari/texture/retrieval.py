@@ -44,6 +44,7 @@ from .._validation import (
     Summary,
     as_channel_last_float,
     channel_last_view,
+    check_channel_axis,
     check_not_constant,
     check_size,
 )
@@ -378,6 +379,7 @@ def texture_features(image, *, levels=3, neighbourhood=2, channel_axis=-1):
 def _describe(item, name, *, levels, offsets, channel_axis):
     """(features or None, image data or None, n_channels or None) for one
     query/gallery entry: 1-D is a feature vector, 2-D or 3-D an image."""
+    check_channel_axis(channel_axis)
     try:
         arr = np.asarray(item)
     except Exception as exc:
