@@ -16,6 +16,8 @@ The flow follows scikit-image's convention (``skimage.registration``): a
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 
@@ -42,8 +44,18 @@ ROBUST = 0.15  # scale of the Cauchy weights of the residuals (frames normalised
 
 
 def _grey(frame):
-    """The channel mean of an (H, W, C) float frame, as float32."""
-    return frame.mean(axis=2, dtype=np.float64).astype(np.float32)
+    """The channel mean of an (H, W, C) float frame, as float32: scaled by a
+    power of two where its values are huge (the flow normalises each frame
+    to unit variance anyway, but 1e120 is inf in float32 and 1e20 squared
+    too, which made the flow NaN)."""
+    grey = frame.mean(axis=2, dtype=np.float64)
+    top = float(np.max(np.abs(grey)))
+    if top > _HUGE:
+        grey = grey * 2.0 ** -math.frexp(top)[1]
+    return grey.astype(np.float32)
+
+
+_HUGE = 2.0**40  # a float32 frame's squares stay finite (< 2**128) below it
 
 
 def _normalised(grey, weight):
