@@ -3,7 +3,7 @@ against OpenCV and scikit-image.
 
     PYTHONPATH=. nice -n 5 python benchmarks/bench_inpainting.py [--part REPORT]
         [--frames N] [--skip-speed] [--skip-clip] [--variants]
-    PYTHONPATH=. nice -n 10 python benchmarks/bench_inpainting.py --tune-halo=H:R:B,...
+    PYTHONPATH=. nice -n 10 python benchmarks/bench_inpainting.py --tune-halo=H:R:B[:P[:U]],...
         [--part REPORT] [--frames N]    # the conditional fill's edge test alone
     PYTHONPATH=. nice -n 10 python benchmarks/bench_inpainting.py --speed-only
     PYTHONPATH=. nice -n 10 python benchmarks/bench_inpainting.py --records
@@ -39,7 +39,8 @@ The benchmark prints both parts (``--part`` picks one).
 Speed: a 640x480 RGB frame with 2 % of its pixels masked (vertical lines),
 wall and CPU seconds. ``--records``: the longest stretch between two
 Progress records of the conditional fill on the first real scan (800x1164).
-``--tune-halo``: the edge test's threshold, rings and least blend, on
+``--tune-halo``: the edge test's threshold, rings, least blend, least
+pooled blend and unblending fraction, on
 TUNING (or ``--part REPORT``) only, (a) and (b) for ours alone.
 
 Baselines, same masks, same run: ``cv2.inpaint`` Telea and Navier-Stokes
@@ -354,16 +355,19 @@ def tune_halo(frames, configs, part="TUNING"):
             cases.append((kind, image, damaged, mask, mask))
     for _, damaged, truth, mask, top in _real_scans():
         cases.append(("real", truth, damaged, mask, mask & (top if part == "TUNING" else ~top)))
-    for halo, rings, blend in configs:
+    for halo, rings, blend, region, unblend in configs:
         _filling.CONDITIONAL_RINGS, _filling.CONDITIONAL_BLEND = rings, blend
+        _filling.CONDITIONAL_REGION_BLEND, _filling.CONDITIONAL_UNBLEND = region, unblend
         t0 = time.perf_counter()
         for kind, truth, damaged, mask, scored in cases:
             out = inpaint(damaged, mask, method="conditional", halo=halo)
-            table.setdefault((halo, rings, blend, kind), []).append(
+            table.setdefault((halo, rings, blend, region, unblend, kind), []).append(
                 masked_psnr(truth, out, scored))
-        line = ", ".join(f"{kind} {np.mean(table[(halo, rings, blend, kind)]):.2f}"
+        config = (halo, rings, blend, region, unblend)
+        line = ", ".join(f"{kind} {np.mean(table[(*config, kind)]):.2f}"
                          for kind in ("hard", "soft", "real"))
-        print(f"[{part}] halo {halo} rings {rings} blend {blend}: {line} "
+        print(f"[{part}] halo {halo} rings {rings} blend {blend} pooled {region} "
+              f"unblend {unblend}: {line} "
               f"({time.perf_counter() - t0:.0f} s)", flush=True)
 
 
@@ -379,9 +383,11 @@ def main():
     ap.add_argument("--speed-only", action="store_true", help="only the speed case")
     ap.add_argument("--records", action="store_true",
                     help="only the longest stretch between Progress records on a real scan")
-    ap.add_argument("--tune-halo", default=None, metavar="H:R:B,...",
+    ap.add_argument("--tune-halo", default=None, metavar="H:R:B[:P[:U]],...",
                     help="only the conditional fill's edge test on TUNING, for each "
-                         "halo:rings:blend (halo 'None' for off)")
+                         "halo:rings:blend[:pooled blend[:unblend]] (halo 'None' for off, "
+                         "pooled -inf for no pooled test, unblend 'None': join the "
+                         "unknowns)")
     args = ap.parse_args()
     if args.records:
         bench_records("conditional")
@@ -390,8 +396,16 @@ def main():
         bench_speed()
         return
     if args.tune_halo:
-        configs = [(None if h == "None" else float(h), int(r), float(b)) for h, r, b in
-                   (c.split(":") for c in args.tune_halo.split(","))]
+        from car_napari.inpainting import _filling
+
+        configs = []
+        for config in args.tune_halo.split(","):
+            h, r, b, *rest = config.split(":") + [None, None]
+            p, u = rest[:2]
+            configs.append((None if h == "None" else float(h), int(r), float(b),
+                            _filling.CONDITIONAL_REGION_BLEND if p is None else float(p),
+                            _filling.CONDITIONAL_UNBLEND if u is None
+                            else None if u == "None" else float(u)))
         tune_halo(args.frames, configs, "REPORT" if args.part == "REPORT" else "TUNING")
         return
     parts = PARTS if args.part == "both" else (args.part,)

@@ -32,7 +32,7 @@ from .._progress import Progress, stage
 from .._validation import check_real
 from ..model.neighbourhood import Context, causal_neighbourhood
 from ..model.recursive import RecursiveScan, default_prior
-from ._conditional import iter_fill_conditional
+from ._conditional import HALO_REGION_BLEND, iter_fill_conditional
 from ._layout import MAX_COLOURS, read_layout
 from ._motion import iter_estimate_motion, warp_frame
 
@@ -45,9 +45,19 @@ METHODS = ("conditional", "scans")
 # local model and the halo threshold (a log density ratio, as for the scans).
 # Both chosen on the benchmark's TUNING part only (benchmarks/bench_inpainting.py).
 CONDITIONAL_ORDER = 3
-CONDITIONAL_HALO = -4.0  # TUNING: -4 (1 ring) soft +5.0 dB, hard -1.1 dB, real -1.5 dB vs off
+# TUNING (bench_inpainting.py --tune-halo, hard / soft / real, dB): off 30.03
+# / 19.14 / 19.98; biharmonic 29.24 / 18.09 / 19.68, Telea 26.90 / 21.20 /
+# 19.60. -4 joining the unknowns 28.95 / 24.43 / 18.46; with the pooled blend
+# 29.95 / 24.22 / 18.58. The hand restorations of the real scans continue
+# from the fringe (on their top halves biharmonic and Navier-Stokes lose
+# 0.8-1.3 dB against them when the ring joins the mask), so a ring pixel
+# called damaged is unblended by half: 29.97 / 22.01 / 19.86 (0.4: 21.41 /
+# 19.99; 0.6: 22.61 / 19.68; the largest least margin over the baselines).
+CONDITIONAL_HALO = -4.0
 CONDITIONAL_RINGS = 1  # rings of known pixels round the damage the edge test reaches
 CONDITIONAL_BLEND = 0.1  # the least blend towards the damage it calls damage
+CONDITIONAL_REGION_BLEND = HALO_REGION_BLEND  # ... and pooled over the ring nearby
+CONDITIONAL_UNBLEND = 0.5  # such a pixel stays known, less half its estimated blend
 
 DEFAULT_INTERLEAVE = 2.0  # pixels: decay length of each side's weight
 # A known pixel bordering the damage is treated as damaged by a scan when its
@@ -586,7 +596,9 @@ def iter_inpaint_in_memory(image, mask, *, temporal=True, neighbourhood=None, fo
                     frame, frame_mask, order=int(neighbourhood),
                     previous=context,
                     halo=None if halo is None else float(halo), halo_rings=CONDITIONAL_RINGS,
-                    halo_blend=CONDITIONAL_BLEND, message=message)
+                    halo_blend=CONDITIONAL_BLEND,
+                    halo_region_blend=CONDITIONAL_REGION_BLEND,
+                    halo_unblend=CONDITIONAL_UNBLEND, message=message)
             else:
                 fill = _iter_fill_frame(frame, frame_mask, context,
                                         offsets, float(forgetting), float(interleave), 1e-6,

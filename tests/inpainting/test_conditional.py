@@ -160,11 +160,14 @@ def test_conditional_fill_beats_the_scans_on_a_texture_and_keeps_known_pixels():
                                            mask)
 
 
-def test_edge_test_recovers_soft_edges_and_leaves_hard_ones():
+def test_edge_test_recovers_soft_edges_and_leaves_hard_ones(monkeypatch):
     """A blotch with a one-pixel fringe (a 50 % blend) outside its mask: the
-    edge test finds the fringe (its blend estimate is 0.47-0.52; measured
-    1.1 -> 16.7 dB at halo=-12); on the same blotch without a fringe it
-    changes nothing (17.85 dB both)."""
+    edge test finds the fringe (its blend estimate is 0.47-0.52). Unblended
+    fully, or joining the unknowns, the fill goes from 1.1 to 16.7-17.0 dB
+    at halo=-12; unblended by half (the default) to 5.6 dB. On the same
+    blotch without a fringe it changes nothing (17.85 dB)."""
+    from car_napari.inpainting import _filling
+
     image = skdata.astronaut()[100:228, 100:228]
     mask = np.zeros(image.shape[:2], bool)
     mask[80:100, 60:100] = True
@@ -173,13 +176,16 @@ def test_edge_test_recovers_soft_edges_and_leaves_hard_ones():
     hard[mask] = 250
     soft = hard.copy()
     soft[fringe] = (0.5 * image[fringe] + 0.5 * 250).astype(np.uint8)
-    on, off = (inpaint(soft, mask, halo=-12.0, method="conditional"),
-               inpaint(soft, mask, halo=None, method="conditional"))
-    np.testing.assert_array_equal(on[~mask], soft[~mask])
-    assert _psnr(image, on, mask) > _psnr(image, off, mask) + 5.0
-    for halo in ("auto", -12.0):
-        assert _psnr(image, inpaint(hard, mask, halo=halo, method="conditional"), mask) >= _psnr(
-            image, inpaint(hard, mask, halo=None, method="conditional"), mask) - 0.05
+    off = _psnr(image, inpaint(soft, mask, halo=None, method="conditional"), mask)
+    for unblend, gain in ((_filling.CONDITIONAL_UNBLEND, 4.0), (1.0, 15.0), (None, 15.0)):
+        monkeypatch.setattr(_filling, "CONDITIONAL_UNBLEND", unblend)
+        on = inpaint(soft, mask, halo=-12.0, method="conditional")
+        np.testing.assert_array_equal(on[~mask], soft[~mask])
+        assert _psnr(image, on, mask) > off + gain
+        for halo in ("auto", -12.0):
+            assert _psnr(image, inpaint(hard, mask, halo=halo, method="conditional"),
+                         mask) >= _psnr(image, inpaint(hard, mask, halo=None,
+                                                        method="conditional"), mask) - 0.05
 
 
 def test_draws_have_the_conditional_covariance():
@@ -263,3 +269,76 @@ def test_conditional_fill_yields_often_and_stops_when_closed():
             break
     job.close()
     assert job.gi_frame is None
+
+
+def test_edge_statistics_match_a_pixel_by_pixel_computation():
+    """The edge test's blend, its chi-square and the blend pooled over the
+    ring nearby, against plain loops over the ring pixels."""
+    from car_napari.inpainting._conditional import EDGE_POOL, edge_statistics
+
+    rng = np.random.default_rng(5)
+    H, W, C, probes, region = 24, 26, 3, 4, 3
+    frame, trial = rng.normal(size=(2, H, W, C))
+    damage = np.zeros((H, W), bool)
+    damage[0:6, 4:9] = damage[12:20, 14:16] = True
+    ring = ndimage.binary_dilation(damage) & ~damage
+    bi, bj = np.nonzero(ring)
+    n = len(bi)
+    draws = rng.normal(size=(n, probes, C))
+    roots = rng.normal(size=(n, C, C))
+    diagonal = roots @ roots.transpose(0, 2, 1) + C * np.eye(C)
+    alpha, chi2, pooled, blend_d = edge_statistics(frame, trial, damage, ring, draws, diagonal,
+                                          region=region)
+
+    kappa = [np.trace(diagonal[k] @ draws[k].T @ draws[k] / probes) / C for k in range(n)]
+
+    def near(k, radius):
+        return [m for m in range(n) if abs(bi[m] - bi[k]) <= radius
+                and abs(bj[m] - bj[k]) <= radius]
+
+    proj, dqd = np.zeros(n), np.zeros(n)
+    for k, (i, j) in enumerate(zip(bi, bj, strict=True)):
+        inside = [(i + a, j + b) for a, b in ((0, 1), (1, 0), (0, -1), (-1, 0))
+                  if 0 <= i + a < H and 0 <= j + b < W and damage[i + a, j + b]]
+        D = np.mean([frame[p] - trial[p] for p in inside], axis=0)
+        e = frame[i, j] - trial[i, j]
+        S_inv = diagonal[k] / np.mean([kappa[m] for m in near(k, EDGE_POOL)])
+        proj[k], dqd[k] = D @ S_inv @ e, D @ S_inv @ D
+        np.testing.assert_allclose(blend_d[k], D, rtol=1e-12)
+    np.testing.assert_allclose(alpha, proj / dqd, rtol=1e-9)
+    np.testing.assert_allclose(chi2, proj**2 / dqd, rtol=1e-9)
+    want = [sum(proj[near(k, region)]) / sum(dqd[near(k, region)]) for k in range(n)]
+    np.testing.assert_allclose(pooled, want, rtol=1e-9, atol=1e-12)
+
+
+def test_pooled_blend_leaves_a_lone_scene_edge_alone():
+    """A hard-edged bright blotch with a small bright detail of the scene on
+    its border (two pixels, a blend of 0.3 towards the blotch, far outside
+    the noise): without the pooled blend the edge test calls them damaged;
+    with it (0.3 pooled over ~17 ring pixels), none."""
+    from car_napari._progress import drain
+    from car_napari.inpainting._conditional import iter_fill_conditional
+
+    rng = np.random.default_rng(2)
+    frame = rng.normal(0.5, 0.02, size=(96, 96, 1))
+    mask = np.zeros((96, 96), bool)
+    mask[30:60, 20:60] = True
+    frame[mask] = 1.0
+    frame[44:46, 60] = 0.65  # the scene's detail, right of the blotch
+    calls = {}
+    original = _conditional.iter_edge_statistics
+
+    def spy(*args, **options):
+        out = yield from original(*args, **options)
+        calls["stats"] = out
+        return out
+
+    _conditional.iter_edge_statistics = spy
+    try:
+        for region_blend, want_flagged in ((-np.inf, True), (0.05, False)):
+            drain(iter_fill_conditional(frame, mask, halo=-4.0, halo_region_blend=region_blend))
+            alpha, chi2, pooled, _ = calls["stats"]
+            bad = (alpha > 0.1) & (-0.5 * chi2 < -4.0) & (pooled > region_blend)
+            assert bad.any() == want_flagged
+    finally:
+        _conditional.iter_edge_statistics = original
