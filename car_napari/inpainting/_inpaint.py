@@ -179,9 +179,10 @@ def inpaint(image, mask, *, temporal=True, neighbourhood=None, forgetting=0.9995
         drawn at its core. A log density ratio: ``"scans"`` tests each
         pixel's predictive density relative to its peak as a model reaches
         it; ``"conditional"`` tests the blend of the pixel towards the
-        damage (half its chi-square statistic; docs/inpainting.md). 'auto'
-        (the default): :data:`CONDITIONAL_HALO` or ``EDGE_OUTLIER_LOGREL``
-        (-12); None disables the test.
+        damage (half its chi-square statistic, with the blend pooled over
+        the ring nearby; such a pixel is used less half its estimated blend;
+        docs/inpainting.md). 'auto' (the default): :data:`CONDITIONAL_HALO`
+        or ``EDGE_OUTLIER_LOGREL`` (-12); None disables the test.
     channel_axis : int or None, optional
         The colour axis (default -1, the last); None forces grey.
     method : {'conditional', 'scans'}, optional
