@@ -52,7 +52,8 @@ CONDITIONAL_ORDER = 3
 # from the fringe (on their top halves biharmonic and Navier-Stokes lose
 # 0.8-1.3 dB against them when the ring joins the mask), so a ring pixel
 # called damaged is unblended by half: 29.97 / 22.01 / 19.86 (0.4: 21.41 /
-# 19.99; 0.6: 22.61 / 19.68; the largest least margin over the baselines).
+# 19.99; 0.6: 22.61 / 19.68): the largest least margin over issue 13's bounds
+# (the best baseline of each kind, less 0.1 dB on the real scans).
 CONDITIONAL_HALO = -4.0
 CONDITIONAL_RINGS = 1  # rings of known pixels round the damage the edge test reaches
 CONDITIONAL_BLEND = 0.1  # the least blend towards the damage it calls damage
