@@ -57,6 +57,7 @@ EDGE_POOL = 4  # pixels: the draws' variance ratio is averaged over the ring wit
 # soft-edged ones from 44-65 % to 43-64 %.
 EDGE_REGION = 8
 HALO_REGION_BLEND = 0.05
+HALO_UNBLEND = 0.5  # a pixel called damaged stays known, less half its blend (see _filling)
 # The work between records: the statistics of the fit by bands of blocks of
 # about _FIT_RECORD_PIXELS pixels; the solves by batches of coupled groups of
 # about SOLVE_UNKNOWNS unknowns, run in _SOLVERS threads, a record every
@@ -1100,8 +1101,8 @@ def edge_statistics(frame, trial, damage, ring, draws, diagonal, region=EDGE_REG
 def iter_edge_statistics(frame, trial, damage, ring, draws, diagonal,
                          region=EDGE_REGION):
     """The edge test's statistics of the ``ring`` pixels (known, bordering
-    the ``damage``): ``(alpha, chi2, pooled)`` per ring pixel in ``np.nonzero(ring)``
-    order, as a job (a record between its passes over the frame).
+    the ``damage``): ``(alpha, chi2, pooled, D)`` per ring pixel in
+    ``np.nonzero(ring)`` order, as a job (a record between its passes over the frame).
 
     ``trial`` is the frame with the damage and the ring both replaced by
     their conditional mean given the rest, so that neither sees the other.
@@ -1249,7 +1250,7 @@ def direction_offsets(offsets, direction):
 def iter_fill_conditional(frame, mask, *, order=3, directions=DIRECTIONS, previous=None,
                           tile=DEFAULT_TILE, margin=DEFAULT_MARGIN, halo=None, halo_rings=1,
                           halo_blend=HALO_BLEND, halo_region_blend=HALO_REGION_BLEND,
-                          halo_unblend=None, probes=EDGE_PROBES, fill_range="known",
+                          halo_unblend=HALO_UNBLEND, probes=EDGE_PROBES, fill_range="known",
                           message="frame"):
     """Conditional-mean fill of ``mask`` in the (H, W, d) float ``frame``, as
     a job: Progress records (stage ``"frames"``), then the (n_missing, d)

@@ -32,7 +32,7 @@ from .._progress import Progress, stage
 from .._validation import check_real
 from ..model.neighbourhood import Context, causal_neighbourhood
 from ..model.recursive import RecursiveScan, default_prior
-from ._conditional import HALO_REGION_BLEND, iter_fill_conditional
+from ._conditional import HALO_REGION_BLEND, HALO_UNBLEND, iter_fill_conditional
 from ._layout import MAX_COLOURS, read_layout
 from ._motion import iter_estimate_motion, warp_frame
 
@@ -58,7 +58,7 @@ CONDITIONAL_HALO = -4.0
 CONDITIONAL_RINGS = 1  # rings of known pixels round the damage the edge test reaches
 CONDITIONAL_BLEND = 0.1  # the least blend towards the damage it calls damage
 CONDITIONAL_REGION_BLEND = HALO_REGION_BLEND  # ... and pooled over the ring nearby
-CONDITIONAL_UNBLEND = 0.5  # such a pixel stays known, less half its estimated blend
+CONDITIONAL_UNBLEND = HALO_UNBLEND  # such a pixel stays known, less half its blend
 
 DEFAULT_INTERLEAVE = 2.0  # pixels: decay length of each side's weight
 # A known pixel bordering the damage is treated as damaged by a scan when its

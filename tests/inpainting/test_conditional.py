@@ -287,8 +287,8 @@ def test_edge_statistics_match_a_pixel_by_pixel_computation():
     draws = rng.normal(size=(n, probes, C))
     roots = rng.normal(size=(n, C, C))
     diagonal = roots @ roots.transpose(0, 2, 1) + C * np.eye(C)
-    alpha, chi2, pooled, blend_d = edge_statistics(frame, trial, damage, ring, draws, diagonal,
-                                          region=region)
+    alpha, chi2, pooled, blend_d = edge_statistics(frame, trial, damage, ring, draws,
+                                                   diagonal, region=region)
 
     kappa = [np.trace(diagonal[k] @ draws[k].T @ draws[k] / probes) / C for k in range(n)]
 
@@ -311,7 +311,7 @@ def test_edge_statistics_match_a_pixel_by_pixel_computation():
     np.testing.assert_allclose(pooled, want, rtol=1e-9, atol=1e-12)
 
 
-def test_pooled_blend_leaves_a_lone_scene_edge_alone():
+def test_pooled_blend_leaves_a_lone_scene_edge_alone(monkeypatch):
     """A hard-edged bright blotch with a small bright detail of the scene on
     its border (two pixels, a blend of 0.3 towards the blotch, far outside
     the noise): without the pooled blend the edge test calls them damaged;
@@ -329,16 +329,12 @@ def test_pooled_blend_leaves_a_lone_scene_edge_alone():
     original = _conditional.iter_edge_statistics
 
     def spy(*args, **options):
-        out = yield from original(*args, **options)
-        calls["stats"] = out
-        return out
+        calls["stats"] = yield from original(*args, **options)
+        return calls["stats"]
 
-    _conditional.iter_edge_statistics = spy
-    try:
-        for region_blend, want_flagged in ((-np.inf, True), (0.05, False)):
-            drain(iter_fill_conditional(frame, mask, halo=-4.0, halo_region_blend=region_blend))
-            alpha, chi2, pooled, _ = calls["stats"]
-            bad = (alpha > 0.1) & (-0.5 * chi2 < -4.0) & (pooled > region_blend)
-            assert bad.any() == want_flagged
-    finally:
-        _conditional.iter_edge_statistics = original
+    monkeypatch.setattr(_conditional, "iter_edge_statistics", spy)
+    for region_blend, want_flagged in ((-np.inf, True), (0.05, False)):
+        drain(iter_fill_conditional(frame, mask, halo=-4.0, halo_region_blend=region_blend))
+        alpha, chi2, pooled, _ = calls["stats"]
+        bad = (alpha > 0.1) & (-0.5 * chi2 < -4.0) & (pooled > region_blend)
+        assert bad.any() == want_flagged
