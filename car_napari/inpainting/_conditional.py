@@ -1093,6 +1093,16 @@ def _row_sets(models, previous):
     return [_row_set(model, previous) for model in models]
 
 
+class EdgeStatistics(NamedTuple):
+    """The edge test's statistics, one row per ring pixel (in
+    ``np.nonzero(ring)`` order): see :func:`iter_edge_statistics`."""
+
+    alpha: np.ndarray  # (n_ring,) the blend towards the damage
+    chi2: np.ndarray  # (n_ring,) its generalised-likelihood statistic
+    pooled: np.ndarray  # (n_ring,) the blend of the ring within ``region`` pixels together
+    deviation: np.ndarray  # (n_ring, d) D: the damage's deviation from its prediction
+
+
 def edge_statistics(frame, trial, damage, ring, draws, diagonal, region=EDGE_REGION):
     """:func:`iter_edge_statistics` run to its end."""
     return drain(iter_edge_statistics(frame, trial, damage, ring, draws, diagonal, region))
@@ -1101,8 +1111,9 @@ def edge_statistics(frame, trial, damage, ring, draws, diagonal, region=EDGE_REG
 def iter_edge_statistics(frame, trial, damage, ring, draws, diagonal,
                          region=EDGE_REGION):
     """The edge test's statistics of the ``ring`` pixels (known, bordering
-    the ``damage``): ``(alpha, chi2, pooled, D)`` per ring pixel in
-    ``np.nonzero(ring)`` order, as a job (a record between its passes over the frame).
+    the ``damage``): an :class:`EdgeStatistics` ``(alpha, chi2, pooled, D)``
+    per ring pixel in ``np.nonzero(ring)`` order, as a job (a record between
+    its passes over the ring's bounding box).
 
     ``trial`` is the frame with the damage and the ring both replaced by
     their conditional mean given the rest, so that neither sees the other.
@@ -1125,6 +1136,8 @@ def iter_edge_statistics(frame, trial, damage, ring, draws, diagonal,
     (``sum D^T S^-1 e / sum D^T S^-1 D`` over them); ``D`` (n_ring, d)."""
     H, W, C = frame.shape
     bi, bj = np.nonzero(ring)
+    if not len(bi):
+        return EdgeStatistics(np.zeros(0), np.zeros(0), np.zeros(0), np.zeros((0, C)))
     count = np.zeros(len(bi))
     total = np.zeros((len(bi), C))
     for di, dj in ((0, 1), (1, 0), (0, -1), (-1, 0)):
@@ -1136,25 +1149,32 @@ def iter_edge_statistics(frame, trial, damage, ring, draws, diagonal,
     e = frame[bi, bj] - trial[bi, bj]
     sample = np.einsum("nsa,nsb->nab", draws, draws) / max(draws.shape[1], 1)
     kappa = np.einsum("nab,nba->n", diagonal, sample) / C
-    spread = np.zeros((H, W))
+    # The sums over the ring are filtered on its bounding box only: outside it
+    # they are 0, as the filters' constant padding is (a thin scratch's box
+    # is a sliver of the frame).
+    top, left = bi.min(), bj.min()
+    box = (slice(top, bi.max() + 1), slice(left, bj.max() + 1))
+    bi, bj = bi - top, bj - left  # within the box
+    box_shape = ring[box].shape
+    spread = np.zeros(box_shape)
     spread[bi, bj] = kappa
     size = 2 * EDGE_POOL + 1
     yield Progress("frames", 0.0, "edge test")
     pooled = ndimage.uniform_filter(spread, size, mode="constant")[bi, bj]
     del spread
     yield Progress("frames", 0.0, "edge test")
-    pooled /= np.maximum(ndimage.uniform_filter(ring.astype(float), size, mode="constant")[bi, bj],
-                         1e-12)
+    pooled /= np.maximum(ndimage.uniform_filter(ring[box].astype(float), size,
+                                                mode="constant")[bi, bj], 1e-12)
     QD = np.einsum("nab,nb->na", diagonal, D) / pooled[:, None]  # S^-1 D
     dqd = np.maximum((QD * D).sum(axis=1), 1e-300)
     proj = (QD * e).sum(axis=1)
     yield Progress("frames", 0.0, "edge test")
     size = 2 * region + 1
-    sums = np.zeros((2, H, W))
+    sums = np.zeros((2, *box_shape))
     sums[0, bi, bj] = proj
     sums[1, bi, bj] = dqd
     sums = ndimage.uniform_filter(sums, (1, size, size), mode="constant")[:, bi, bj]
-    return proj / dqd, proj**2 / dqd, sums[0] / np.maximum(sums[1], 1e-300), D
+    return EdgeStatistics(proj / dqd, proj**2 / dqd, sums[0] / np.maximum(sums[1], 1e-300), D)
 
 
 def model_rows(models):
@@ -1322,12 +1342,13 @@ def iter_fill_conditional(frame, mask, *, order=3, directions=DIRECTIONS, previo
         trial[both] = values
         on_ring = ring[both]
         yield Progress("frames", (2 + ring_number) / steps, f"{message}, edge test")
-        alpha, chi2, pooled, D = yield from stage(
+        edge = yield from stage(
             iter_edge_statistics(frame, trial, damage, ring, draws[on_ring], diagonal[on_ring]),
             (2 + ring_number) / steps, (2 + ring_number) / steps, name="frames",
             prefix=f"{message}, ")
         del trial
-        bad = (alpha > halo_blend) & (-0.5 * chi2 < halo) & (pooled > halo_region_blend)
+        bad = (edge.alpha > halo_blend) & (-0.5 * edge.chi2 < halo) \
+            & (edge.pooled > halo_region_blend)
         yield Progress("frames", (2 + ring_number) / steps, f"{message}, edge test")
         if not bad.any():
             break
@@ -1336,7 +1357,8 @@ def iter_fill_conditional(frame, mask, *, order=3, directions=DIRECTIONS, previo
         if halo_unblend is not None:
             if known is frame:
                 known = frame.copy()
-            known[bi[bad], bj[bad]] -= halo_unblend * alpha[bad, None] * D[bad]
+            known[bi[bad], bj[bad]] -= halo_unblend * edge.alpha[bad, None] \
+                * edge.deviation[bad]
     unknown = damage if halo_unblend is None else mask
     values, _, _, _ = yield from stage(
         _iter_stencil_system(known, unknown, row_sets, tile, message=message, reuse=tested),

@@ -309,6 +309,8 @@ def test_edge_statistics_match_a_pixel_by_pixel_computation():
     np.testing.assert_allclose(chi2, proj**2 / dqd, rtol=1e-9)
     want = [sum(proj[near(k, region)]) / sum(dqd[near(k, region)]) for k in range(n)]
     np.testing.assert_allclose(pooled, want, rtol=1e-9, atol=1e-12)
+    none = edge_statistics(frame, trial, damage, np.zeros_like(ring), draws[:0], diagonal[:0])
+    assert [a.shape for a in none] == [(0,), (0,), (0,), (0, C)]
 
 
 def test_pooled_blend_leaves_a_lone_scene_edge_alone(monkeypatch):
@@ -335,6 +337,6 @@ def test_pooled_blend_leaves_a_lone_scene_edge_alone(monkeypatch):
     monkeypatch.setattr(_conditional, "iter_edge_statistics", spy)
     for region_blend, want_flagged in ((-np.inf, True), (0.05, False)):
         drain(iter_fill_conditional(frame, mask, halo=-4.0, halo_region_blend=region_blend))
-        alpha, chi2, pooled, _ = calls["stats"]
-        bad = (alpha > 0.1) & (-0.5 * chi2 < -4.0) & (pooled > region_blend)
+        edge = calls["stats"]
+        bad = (edge.alpha > 0.1) & (-0.5 * edge.chi2 < -4.0) & (edge.pooled > region_blend)
         assert bad.any() == want_flagged
