@@ -356,8 +356,7 @@ def tune_halo(frames, configs, part="TUNING"):
     for _, damaged, truth, mask, top in _real_scans():
         cases.append(("real", truth, damaged, mask, mask & (top if part == "TUNING" else ~top)))
     for halo, rings, blend, region, unblend in configs:
-        _filling.CONDITIONAL_RINGS, _filling.CONDITIONAL_BLEND = rings, blend
-        _filling.CONDITIONAL_REGION_BLEND, _filling.CONDITIONAL_UNBLEND = region, unblend
+        _filling.CONDITIONAL_EDGE_TEST = _filling.EdgeTest(rings, blend, region, unblend)
         t0 = time.perf_counter()
         for kind, truth, damaged, mask, scored in cases:
             out = inpaint(damaged, mask, method="conditional", halo=halo)
@@ -403,8 +402,8 @@ def main():
             h, r, b, *rest = config.split(":") + [None, None]
             p, u = rest[:2]
             configs.append((None if h == "None" else float(h), int(r), float(b),
-                            _filling.CONDITIONAL_REGION_BLEND if p is None else float(p),
-                            _filling.CONDITIONAL_UNBLEND if u is None
+                            _filling.EdgeTest.region_blend if p is None else float(p),
+                            _filling.EdgeTest.unblend if u is None
                             else None if u == "None" else float(u)))
         tune_halo(args.frames, configs, "REPORT" if args.part == "REPORT" else "TUNING")
         return

@@ -23,6 +23,7 @@ from __future__ import annotations
 import warnings
 from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
+from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
@@ -55,10 +56,20 @@ CONDITIONAL_ORDER = 3
 # 19.99; 0.6: 22.61 / 19.68): the largest least margin over issue 13's bounds
 # (the best baseline of each kind, less 0.1 dB on the real scans).
 CONDITIONAL_HALO = -4.0
-CONDITIONAL_RINGS = 1  # rings of known pixels round the damage the edge test reaches
-CONDITIONAL_BLEND = 0.1  # the least blend towards the damage it calls damage
-CONDITIONAL_REGION_BLEND = HALO_REGION_BLEND  # ... and pooled over the ring nearby
-CONDITIONAL_UNBLEND = HALO_UNBLEND  # such a pixel stays known, less half its blend
+
+
+@dataclass(frozen=True)
+class EdgeTest:
+    """The conditional fill's edge test beyond its ``halo`` threshold (the
+    ``halo_*`` options of :func:`~car_napari.inpainting._conditional.iter_fill_conditional`)."""
+
+    rings: int = 1  # rings of known pixels round the damage the edge test reaches
+    blend: float = 0.1  # the least blend towards the damage it calls damage
+    region_blend: float = HALO_REGION_BLEND  # ... and pooled over the ring nearby
+    unblend: float | None = HALO_UNBLEND  # such a pixel stays known, less half its blend
+
+
+CONDITIONAL_EDGE_TEST = EdgeTest()  # read at each call: a benchmark may swap it
 
 DEFAULT_INTERLEAVE = 2.0  # pixels: decay length of each side's weight
 # A known pixel bordering the damage is treated as damaged by a scan when its
@@ -574,6 +585,7 @@ def iter_inpaint_in_memory(image, mask, *, temporal=True, neighbourhood=None, fo
                 halo=halo, method=method, motion=motion))
     out = np.array(clip, copy=True)
     units = _working_units(clip)
+    edge_test = CONDITIONAL_EDGE_TEST
     work = np.cumsum([1.0 if d else _CLEAN_FRAME_WORK for d in damaged])
     work /= work[-1]
     previous = None
@@ -596,10 +608,9 @@ def iter_inpaint_in_memory(image, mask, *, temporal=True, neighbourhood=None, fo
                 fill = iter_fill_conditional(
                     frame, frame_mask, order=int(neighbourhood),
                     previous=context,
-                    halo=None if halo is None else float(halo), halo_rings=CONDITIONAL_RINGS,
-                    halo_blend=CONDITIONAL_BLEND,
-                    halo_region_blend=CONDITIONAL_REGION_BLEND,
-                    halo_unblend=CONDITIONAL_UNBLEND, message=message)
+                    halo=None if halo is None else float(halo), halo_rings=edge_test.rings,
+                    halo_blend=edge_test.blend, halo_region_blend=edge_test.region_blend,
+                    halo_unblend=edge_test.unblend, message=message)
             else:
                 fill = _iter_fill_frame(frame, frame_mask, context,
                                         offsets, float(forgetting), float(interleave), 1e-6,

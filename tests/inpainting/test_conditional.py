@@ -177,8 +177,8 @@ def test_edge_test_recovers_soft_edges_and_leaves_hard_ones(monkeypatch):
     soft = hard.copy()
     soft[fringe] = (0.5 * image[fringe] + 0.5 * 250).astype(np.uint8)
     off = _psnr(image, inpaint(soft, mask, halo=None, method="conditional"), mask)
-    for unblend, gain in ((_filling.CONDITIONAL_UNBLEND, 4.0), (1.0, 15.0), (None, 15.0)):
-        monkeypatch.setattr(_filling, "CONDITIONAL_UNBLEND", unblend)
+    for unblend, gain in ((_filling.EdgeTest.unblend, 4.0), (1.0, 15.0), (None, 15.0)):
+        monkeypatch.setattr(_filling, "CONDITIONAL_EDGE_TEST", _filling.EdgeTest(unblend=unblend))
         on = inpaint(soft, mask, halo=-12.0, method="conditional")
         np.testing.assert_array_equal(on[~mask], soft[~mask])
         assert _psnr(image, on, mask) > off + gain
