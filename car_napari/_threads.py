@@ -17,12 +17,18 @@ The limit is ``CAR_NAPARI_BLAS_THREADS`` when that is set (a number of
 threads, at most the CPUs this process may use; ``0`` or ``off``: no limit),
 else one thread. No code of car-napari sets Numba's thread count: its
 kernels are serial (no ``parallel=True``), so Numba starts no thread pool.
+
+A widget's job runs below the viewer (:func:`lower_thread_priority`): on
+Linux its worker thread, and the threads it starts, run at a nice value
+``CAR_NAPARI_WORKER_NICE`` (default 5) above the viewer's, so that the
+viewer's thread is not made to wait for a core while it draws a result.
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
+import sys
 import threading
 from concurrent.futures import ThreadPoolExecutor
 
@@ -30,10 +36,13 @@ from threadpoolctl import OpenBLASController, threadpool_limits
 
 from ._validation import check_real
 
-__all__ = ["blas_threads", "job_pool", "job_threads", "limited_blas", "usable_cpus"]
+__all__ = ["blas_threads", "job_pool", "job_threads", "limited_blas", "lower_thread_priority",
+           "usable_cpus", "worker_nice"]
 
 ENV = "CAR_NAPARI_BLAS_THREADS"
 JOB_ENV = "CAR_NAPARI_JOB_THREADS"
+NICE_ENV = "CAR_NAPARI_WORKER_NICE"
+DEFAULT_WORKER_NICE = 5  # Linux's scheduler weight 1024 against 335: about 3 to 1
 
 _lock = threading.Lock()
 _depth = 0  # the jobs inside limited_blas(), in every thread
@@ -139,6 +148,84 @@ def job_threads():
     if threads < 1:
         raise ValueError(f"{JOB_ENV} must be a positive number of threads; got {value!r}.")
     return min(threads, usable_cpus())
+
+
+def worker_nice():
+    """How far below the viewer a widget's job runs.
+
+    Returns
+    -------
+    int
+        ``CAR_NAPARI_WORKER_NICE`` when set (0 to 19; 0: at the viewer's
+        priority), else :data:`DEFAULT_WORKER_NICE`.
+
+    Raises
+    ------
+    ValueError
+        ``CAR_NAPARI_WORKER_NICE`` is not a whole number from 0 to 19.
+
+    Examples
+    --------
+    >>> 0 <= worker_nice() <= 19
+    True
+    """
+    value = os.environ.get(NICE_ENV, "").strip()
+    if not value:
+        return DEFAULT_WORKER_NICE
+    try:
+        nice = int(value)
+    except ValueError:
+        nice = -1
+    if not 0 <= nice <= 19:
+        raise ValueError(f"{NICE_ENV} must be a whole number from 0 to 19; got {value!r}.")
+    return nice
+
+
+def lower_thread_priority(nice=None):
+    """Run the calling thread below the process's main thread (the viewer's).
+
+    On Linux a thread has its own nice value, and the threads it starts
+    inherit it: a widget's worker calls this once, so that it and the pools
+    it starts (:func:`job_pool` when it is made there, a solver's threads)
+    take the cores only when the viewer's thread leaves them. An
+    unprivileged process cannot raise a priority again, so a thread is only
+    ever lowered (never above its present nice value). Elsewhere it does
+    nothing.
+
+    Parameters
+    ----------
+    nice : int, optional
+        The nice increment over the main thread's (0 to 19); default
+        :func:`worker_nice`.
+
+    Returns
+    -------
+    int or None
+        The calling thread's nice value now; None where threads have no
+        nice value of their own (not Linux) or the system refused.
+
+    Examples
+    --------
+    >>> import threading
+    >>> seen = []
+    >>> worker = threading.Thread(target=lambda: seen.append(lower_thread_priority(3)))
+    >>> worker.start(); worker.join()
+    >>> seen[0] is None or seen[0] >= os.getpriority(os.PRIO_PROCESS, 0)
+    True
+    """
+    nice = worker_nice() if nice is None else check_real(nice, "nice", low=0, high=19,
+                                                          integer=True)
+    if not sys.platform.startswith("linux"):
+        return None
+    thread = threading.get_native_id()
+    try:
+        current = os.getpriority(os.PRIO_PROCESS, thread)
+        wanted = min(19, os.getpriority(os.PRIO_PROCESS, os.getpid()) + int(nice))
+        if wanted > current:
+            os.setpriority(os.PRIO_PROCESS, thread, wanted)
+        return os.getpriority(os.PRIO_PROCESS, thread)
+    except OSError:
+        return None
 
 
 def job_pool():

@@ -2,6 +2,7 @@
 once), the limits found before come back, and ``CAR_NAPARI_BLAS_THREADS`` overrides."""
 
 import os
+import sys
 import threading
 
 import numpy as np
@@ -10,7 +11,14 @@ from threadpoolctl import threadpool_info, threadpool_limits
 
 import car_napari as car
 from car_napari._progress import Progress, drain
-from car_napari._threads import blas_threads, job_threads, limited_blas, usable_cpus
+from car_napari._threads import (
+    blas_threads,
+    job_threads,
+    limited_blas,
+    lower_thread_priority,
+    usable_cpus,
+    worker_nice,
+)
 
 
 def _blas():
@@ -156,3 +164,44 @@ def test_job_pool_is_one_shared_pool_sized_by_the_job_threads(monkeypatch):
         pool = _threads.job_pool()
         assert pool is _threads.job_pool() and pool._max_workers == 2
     assert _features.job_pool is _threads.job_pool is _mixture.job_pool
+
+
+def _nice():
+    return os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="per-thread nice is Linux's")
+def test_a_lowered_thread_and_the_threads_it_starts_run_below_the_main_thread():
+    main = os.getpriority(os.PRIO_PROCESS, os.getpid())
+    seen = {}
+
+    def child():
+        seen["child"] = _nice()
+
+    def worker():
+        seen["returned"] = lower_thread_priority(3)
+        seen["again"] = lower_thread_priority(1)  # never raised again: stays at +3
+        seen["worker"] = _nice()
+        started = threading.Thread(target=child)
+        started.start()
+        started.join()
+
+    thread = threading.Thread(target=worker)
+    thread.start()
+    thread.join()
+    want = min(19, main + 3)
+    assert seen == {"returned": want, "again": want, "worker": want, "child": want}
+    assert os.getpriority(os.PRIO_PROCESS, os.getpid()) == main  # the main thread as it was
+
+
+def test_worker_nice_default_and_environment(monkeypatch):
+    monkeypatch.delenv("CAR_NAPARI_WORKER_NICE", raising=False)
+    assert worker_nice() == 5
+    monkeypatch.setenv("CAR_NAPARI_WORKER_NICE", "0")
+    assert worker_nice() == 0
+    for bad in ("-1", "20", "low"):
+        monkeypatch.setenv("CAR_NAPARI_WORKER_NICE", bad)
+        with pytest.raises(ValueError, match="CAR_NAPARI_WORKER_NICE"):
+            worker_nice()
+    with pytest.raises(ValueError, match="nice"):
+        lower_thread_priority(25)

@@ -28,7 +28,7 @@ from napari.qt.threading import create_worker
 from qtpy.QtCore import Qt, QTimer
 
 from .._progress import Progress
-from .._threads import limited_blas
+from .._threads import limited_blas, lower_thread_priority
 
 STATUS_INTERVAL = 0.05  # s: the progress bar and status line, at most 20 times a second
 PREVIEW_INTERVAL = 0.15  # s from the end of one preview (a layer update) to the next
@@ -40,8 +40,10 @@ class _Failed(Exception):
 
 
 def _run(job, cancelled):
-    """The worker's generator: ``job``'s records, with BLAS limited, until
-    ``cancelled()``; the job is closed in the worker thread when it stops."""
+    """The worker's generator: ``job``'s records, with BLAS limited and the
+    thread below the viewer's priority, until ``cancelled()``; the job is
+    closed in the worker thread when it stops."""
+    lower_thread_priority()
     with limited_blas():
         try:
             while not cancelled():  # once cancelled, the worker hands nothing over

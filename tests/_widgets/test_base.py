@@ -2,6 +2,8 @@
 second, the buttons and the viewer come back at once), throttled previews, the status line
 and messages in the widget's terms."""
 
+import os
+import sys
 import threading
 import time
 
@@ -10,6 +12,7 @@ import pytest
 from magicgui.widgets import SpinBox
 
 from car_napari._progress import Progress
+from car_napari._threads import worker_nice
 from car_napari._widgets._base import JobWidget, guarded
 from car_napari._widgets._jobs import PREVIEW_INTERVAL
 from car_napari._widgets._layers import RunRecord, layer_array
@@ -71,6 +74,8 @@ def _ticks(image, n, dt, log):
             if k == 1:
                 log["blas"] = {lib["num_threads"] for lib in threadpool_info()
                                if lib["user_api"] == "blas"}
+                if sys.platform.startswith("linux"):
+                    log["nice"] = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
             yield Progress("ticks", k / n, f"tick {k}/{n}", np.full(image.shape, float(k)))
         return np.full(image.shape, -1.0)
     finally:
@@ -141,6 +146,10 @@ def test_cancel_ends_the_worker_within_a_second(ticks, qtbot):
     assert [lay.name for lay in viewer.layers] == ["img"] and w._status.value == "cancelled"
     # the job ran with BLAS limited to one thread, and the limit is lifted
     assert w.log["blas"] == {1}
+    if sys.platform.startswith("linux"):  # ... and below the viewer's thread
+        viewer_nice = os.getpriority(os.PRIO_PROCESS, os.getpid())
+        assert w.log["nice"] == min(19, viewer_nice + worker_nice())
+        assert os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) == viewer_nice
     assert job._runner.gi_frame is None  # the worker's generator is closed
 
 
