@@ -30,8 +30,8 @@ and the widget docked, so that its memory peak is its own. In that process:
 
 With ``--complete`` the job runs to its end instead (default size 1024) and
 the table gives its seconds; the segmentation's "show K" / "min probability"
-sliders and the restoration's kappa slider are then moved a few times and the
-longest pause of those re-cuts is reported.
+sliders, the restoration's kappa slider and the mammogram's "marks per image"
+are then moved a few times and the longest pause of those re-cuts is reported.
 
 Columns: longest pause, the main thread's CPU time within it ("its CPU": about
 what the pause would be on an idle machine; the wall-clock pause grows with
@@ -457,6 +457,9 @@ def recut(case, widget):
     if case.key in ("restoration", "burst") and getattr(widget, "result", None) is not None:
         for value in (0.2, 0.5, 0.8, 0.1):
             moves.append(lambda value=value: setattr(widget._kappa, "value", value))
+    if case.key == "mammogram" and getattr(widget, "_found", None) is not None:
+        for value in (0.25, 4.0, 12.0, 1.0):
+            moves.append(lambda value=value: setattr(widget._marks, "value", value))
     return moves
 
 

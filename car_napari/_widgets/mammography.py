@@ -40,8 +40,12 @@ SHOWN_COLUMNS = (
 
 # Outlines are simplified to within this many pixels of the region's contour:
 # napari draws a polygon of a few hundred vertices at once, one of the
-# thousands of a large region's staircase contour in seconds.
+# thousands of a large region's staircase contour in seconds. They are shown
+# as closed paths, not polygons: napari triangulates a polygon's face (in
+# Python, ~17 ms for one outline) even when it is transparent.
 OUTLINE_TOLERANCE = 1.0
+OUTLINE_STYLE = dict(edge_color="yellow", edge_width=2)
+OUTLINE_TEXT = {"string": "{score:.2f}", "color": "yellow", "size": 10, "anchor": "upper_left"}
 
 
 def _with_outlines(job):
@@ -53,7 +57,17 @@ def _with_outlines(job):
     labels, table = rois
     n = int(labels.max(initial=0))
     small = labels.astype(np.uint8 if n < 2**8 else np.uint16 if n < 2**16 else labels.dtype)
-    return MammogramROIs(small, table), region_outlines(labels, tolerance=OUTLINE_TOLERANCE)
+    closed = [np.vstack([ring, ring[:1]])
+              for ring in region_outlines(labels, tolerance=OUTLINE_TOLERANCE)]
+    return MammogramROIs(small, table), closed
+
+
+def _set_outlines(layer, outlines, features):
+    """The outlines layer's polygons and their features replaced in place."""
+    layer.data = []
+    if len(outlines):
+        layer.add(outlines, shape_type="path", **OUTLINE_STYLE)
+    layer.features = features
 
 
 def _marks_tooltip():
@@ -125,34 +139,44 @@ class MammogramWidget(JobWidget):
         """The operating point moved: re-cut the last result (no new job)."""
         if self._found is None or (self._job is not None and not self._job.done):
             return  # a running job shows the current value when it is done
-        for _step in self._show_marks():
+        for _step in self._show_marks(recut=True):
             pass
         self.record.commit()
 
-    def _show_marks(self):
+    def _show_marks(self, recut=False):
         """Show the marks of the current operating point (a generator: the
-        viewer draws the labels before the outlines are added)."""
+        viewer draws the labels before the outlines are added). A new result
+        replaces the layers of an older one; a ``recut`` of the same result
+        writes into its layers where they are still there (napari takes
+        about 0.3 s to remove and add a labels and a shapes layer, a few
+        tens of ms to change their data)."""
         (labels, table), outlines = self._found
         name, geometry = self._found_for
         threshold = score_threshold(float(self._marks.value))
         cut_labels, cut = select_marks(MammogramROIs(labels, table), threshold=threshold)
         m = len(cut["label"])
-        self.record.replace(f"{name} ROI labels",
-                            lambda layer_name: self._viewer.add_labels(
-                                cut_labels, name=layer_name, opacity=0.4, **geometry))
+        labels_name, outlines_name = f"{name} ROI labels", f"{name} ROI outlines"
+        layers = self._viewer.layers
+
+        def add_labels(data, layer_name):
+            return self._viewer.add_labels(data, name=layer_name, opacity=0.4, **geometry)
+
+        if recut:
+            self.record.put(labels_name, cut_labels, add_labels)
+        else:
+            self.record.replace(labels_name, lambda layer_name: add_labels(cut_labels, layer_name))
         yield
-        if m:
+        if recut and outlines_name in layers:  # in place: emptied when no region is marked
+            _set_outlines(layers[outlines_name], outlines[:m], cut)
+        elif m:
             self.record.replace(
-                f"{name} ROI outlines",
+                outlines_name,
                 lambda layer_name: self._viewer.add_shapes(
-                    outlines[:m], shape_type="polygon", name=layer_name, edge_color="yellow",
-                    face_color="transparent", edge_width=2, features=cut,
-                    text={"string": "{score:.2f}", "color": "yellow", "size": 10,
-                          "anchor": "upper_left"},
-                    **geometry),
+                    outlines[:m], shape_type="path", name=layer_name, features=cut,
+                    text=OUTLINE_TEXT, **OUTLINE_STYLE, **geometry),
             )
         else:
-            self.record.remove(f"{name} ROI outlines")
+            self.record.remove(outlines_name)
         yield
         self.table = cut
         self._fill_table(cut)

@@ -208,10 +208,14 @@ def test_moving_the_operating_point_changes_the_marks_without_recomputing(
         assert labels.max(initial=0) == n
         assert np.all(w.table["score"] >= score_threshold(rate))
         assert w._table.rowCount() == n
-        if n:
-            assert len(viewer.layers["mdb001 ROI outlines"].data) == n
-        else:
-            assert "mdb001 ROI outlines" not in viewer.layers
+        outlines = viewer.layers["mdb001 ROI outlines"] if "mdb001 ROI outlines" in \
+            viewer.layers else None  # a re-cut to no marks empties the layer
+        assert (0 if outlines is None else len(outlines.data)) == n
+        if n:  # each outline in its style, labelled with its region's score
+            assert list(outlines.features["score"]) == list(w.table["score"])
+            assert list(outlines.text.values) == [f"{v:.2f}" for v in w.table["score"]]
+            assert set(outlines.shape_type) == {"path"} and set(outlines.edge_width) == {2}
+            assert all(np.array_equal(o[0], o[-1]) for o in outlines.data)  # closed
         seen.append(n)
     assert seen == sorted(seen) and seen[-1] > seen[0]
     assert calls == {"detect": 1, "segment": 1}  # no job ran again
