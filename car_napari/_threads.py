@@ -189,8 +189,9 @@ def lower_thread_priority(nice=None):
     it starts (:func:`job_pool` when it is made there, a solver's threads)
     take the cores only when the viewer's thread leaves them. An
     unprivileged process cannot raise a priority again, so a thread is only
-    ever lowered (never above its present nice value). Elsewhere it does
-    nothing.
+    ever lowered: its nice value never decreases, and a thread of napari's
+    worker pool stays lowered for the later workers it runs (background work
+    all). Elsewhere it does nothing.
 
     Parameters
     ----------

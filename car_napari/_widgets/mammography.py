@@ -63,7 +63,7 @@ def _with_outlines(job):
 
 
 def _set_outlines(layer, outlines, features):
-    """The outlines layer's polygons and their features replaced in place."""
+    """The outlines layer's shapes (closed paths) and their features replaced in place."""
     layer.data = []
     if len(outlines):
         layer.add(outlines, shape_type="path", **OUTLINE_STYLE)
