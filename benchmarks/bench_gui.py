@@ -69,9 +69,11 @@ Inputs, made once from real data and cached in ``--cache`` (``.npy``):
   Labels layer.
 
 Before the table, one more fresh process measures napari's own floor with
-no plugin docked: the longest pause when a layer like a large image's preview
-(1000x1000 RGB float32 at scale 4) is added over the input, and when it is
-removed (napari 0.9 runs a full ``gc.collect()`` on every removal). Any
+no plugin docked: the longest pause when a layer is added over the input
+(one like a large image's preview, 1000x1000 RGB float32 at scale 4; a
+16x16 image, to show that the cost is not the data's; a Labels layer of the
+input's size), and when it is removed (napari 0.9 runs a full
+``gc.collect()`` on every removal). Any
 widget that shows a result in a new layer, or undoes one on Cancel, meets
 these pauses; they are printed below the table.
 
@@ -606,33 +608,43 @@ def child(args):
 
 def floor_child(args):
     """napari's own cost, no plugin docked: the longest event-loop pause when
-    a layer like a preview (1000x1000 RGB float32 at scale 4) is added over
-    the large input, and when it is removed (napari runs a full
-    ``gc.collect()`` on every removal). Printed as ``RESULT`` JSON."""
+    a layer is added over the large input, and when it is removed (napari
+    runs a full ``gc.collect()`` on every removal). The layers: one like a
+    preview (1000x1000 RGB float32 at scale 4), a 16x16 image (what adding
+    costs whatever the size) and a Labels layer of the input's size (a
+    mask, regions). Printed as ``RESULT`` JSON."""
     import napari
+    from qtpy.QtCore import QTimer
 
     viewer = napari.Viewer(show=True)
-    viewer.add_image(np.load(Path(args.inputs) / "mosaic.npy"), name="mosaic", rgb=True)
+    mosaic = np.load(Path(args.inputs) / "mosaic.npy")
+    viewer.add_image(mosaic, name="mosaic", rgb=True)
     settle()
     out = {"key": "floor", "title": "napari itself: add / remove a layer"}
-    add, remove = [], []
-    for _ in range(4):
-        data = np.random.default_rng(0).random((1000, 1000, 3), np.float32)
-        for action, pauses in ((lambda data=data: viewer.add_image(
-                                    data, name="preview", rgb=True, scale=(4, 4),
-                                    contrast_limits=(0.0, 1.0)), add),
-                               (lambda: viewer.layers.remove("preview"), remove)):
-            from qtpy.QtCore import QTimer
-
-            monitor = EventLoopMonitor()
-            monitor.start()
-            run_until(lambda: False, 0.1)
-            QTimer.singleShot(0, action)
-            run_until(lambda: False, 0.5)
-            monitor.stop()
-            pauses.append(monitor.longest_ms())
-    out["add_ms"] = [round(p, 1) for p in add[1:]]  # the first add compiles shaders
-    out["remove_ms"] = [round(p, 1) for p in remove[1:]]
+    rng = np.random.default_rng(0)
+    preview = rng.random((1000, 1000, 3), np.float32)  # made before, not timed
+    tiny = rng.random((16, 16), np.float32)
+    labels = (rng.random(mosaic.shape[:2]) < 0.001).astype(np.uint8)
+    layers = {
+        "add_ms": lambda: viewer.add_image(preview, name="added", rgb=True, scale=(4, 4),
+                                           contrast_limits=(0.0, 1.0)),
+        "add_tiny_ms": lambda: viewer.add_image(tiny, name="added"),
+        "add_labels_ms": lambda: viewer.add_labels(labels, name="added"),
+    }
+    remove = []
+    for key, add in layers.items():
+        pauses = out[key] = []
+        for _ in range(4):
+            for action, into in ((add, pauses), (lambda: viewer.layers.remove("added"), remove)):
+                monitor = EventLoopMonitor()
+                monitor.start()
+                run_until(lambda: False, 0.1)
+                QTimer.singleShot(0, action)
+                run_until(lambda: False, 0.5)
+                monitor.stop()
+                into.append(round(monitor.longest_ms(), 1))
+        del pauses[0]  # the first add of a kind compiles its shaders
+    out["remove_ms"] = remove
     print("RESULT " + json.dumps(out), flush=True)
     os._exit(0)
 
@@ -778,10 +790,13 @@ def main(argv=None):
           f"x{1024 * max(1, round(size / 1000))} grey), {mode}, {os.cpu_count()} cores\n")
     print(table(results, args))
     if "add_ms" in floor:
-        print(f"\nnapari's own floor in the same run (no plugin docked; a 1000x1000 RGB float32 "
-              f"layer over the input): longest pause adding a layer "
-              f"{min(floor['add_ms']):.0f}-{max(floor['add_ms']):.0f} ms, removing it "
-              f"{min(floor['remove_ms']):.0f}-{max(floor['remove_ms']):.0f} ms.")
+        def span(key):
+            return f"{min(floor[key]):.0f}-{max(floor[key]):.0f} ms"
+
+        print(f"\nnapari's own floor in the same run (no plugin docked; over the input): longest "
+              f"pause adding a 1000x1000 RGB float32 layer {span('add_ms')}, a 16x16 image "
+              f"{span('add_tiny_ms')}, a {size}x{size} Labels layer {span('add_labels_ms')}; "
+              f"removing one {span('remove_ms')}.")
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=1))
     return 0
