@@ -20,8 +20,9 @@ kernels are serial (no ``parallel=True``), so Numba starts no thread pool.
 
 A widget's job runs below the viewer (:func:`lower_thread_priority`): on
 Linux its worker thread, and the threads it starts, run at a nice value
-``CAR_NAPARI_WORKER_NICE`` (default 5) above the viewer's, so that the
-viewer's thread is not made to wait for a core while it draws a result.
+``CAR_NAPARI_WORKER_NICE`` (default 5) above the viewer's, so that when
+they and the viewer's thread want the same core, the scheduler gives the
+viewer about three times the job's share.
 """
 
 from __future__ import annotations
@@ -185,13 +186,15 @@ def lower_thread_priority(nice=None):
     """Run the calling thread below the process's main thread (the viewer's).
 
     On Linux a thread has its own nice value, and the threads it starts
-    inherit it: a widget's worker calls this once, so that it and the pools
-    it starts (:func:`job_pool` when it is made there, a solver's threads)
-    take the cores only when the viewer's thread leaves them. An
+    inherit it: a widget's worker calls this once, so that it and the
+    threads it starts (a solver's, and :func:`job_pool`'s when it grows the
+    pool) get a smaller share of a core the viewer's thread also wants (about
+    a third of the viewer's, at nice +5; not a strict priority). An
     unprivileged process cannot raise a priority again, so a thread is only
-    ever lowered: its nice value never decreases, and a thread of napari's
-    worker pool stays lowered for the later workers it runs (background work
-    all). Elsewhere it does nothing.
+    ever lowered: a thread of napari's worker pool stays lowered for the
+    later workers it runs, and :func:`job_pool`'s threads keep the nice value
+    of the thread that started them, whoever submits to them later.
+    Elsewhere it does nothing.
 
     Parameters
     ----------
@@ -214,10 +217,10 @@ def lower_thread_priority(nice=None):
     >>> seen[0] is None or seen[0] >= os.getpriority(os.PRIO_PROCESS, 0)
     True
     """
+    if not sys.platform.startswith("linux"):  # no per-thread nice: the setting is moot
+        return None
     nice = worker_nice() if nice is None else check_real(nice, "nice", low=0, high=19,
                                                           integer=True)
-    if not sys.platform.startswith("linux"):
-        return None
     thread = threading.get_native_id()
     try:
         current = os.getpriority(os.PRIO_PROCESS, thread)
