@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 from magicgui.widgets import FloatSpinBox
+from napari.layers import Labels, Shapes
 from napari.utils.notifications import show_info
 from qtpy.QtCore import Qt
 from qtpy.QtWidgets import QHeaderView, QTableWidget, QTableWidgetItem
@@ -41,8 +42,8 @@ SHOWN_COLUMNS = (
 # Outlines are simplified to within this many pixels of the region's contour:
 # napari draws a polygon of a few hundred vertices at once, one of the
 # thousands of a large region's staircase contour in seconds. They are shown
-# as closed paths, not polygons: napari triangulates a polygon's face (in
-# Python, ~17 ms for one outline) even when it is transparent.
+# as paths (region_outlines closes them), not polygons: napari triangulates a
+# polygon's face (in Python, ~17 ms for one outline) even when it is transparent.
 OUTLINE_TOLERANCE = 1.0
 OUTLINE_STYLE = dict(edge_color="yellow", edge_width=2)
 OUTLINE_TEXT = {"string": "{score:.2f}", "color": "yellow", "size": 10, "anchor": "upper_left"}
@@ -57,13 +58,12 @@ def _with_outlines(job):
     labels, table = rois
     n = int(labels.max(initial=0))
     small = labels.astype(np.uint8 if n < 2**8 else np.uint16 if n < 2**16 else labels.dtype)
-    closed = [np.vstack([ring, ring[:1]])
-              for ring in region_outlines(labels, tolerance=OUTLINE_TOLERANCE)]
-    return MammogramROIs(small, table), closed
+    return MammogramROIs(small, table), region_outlines(labels, tolerance=OUTLINE_TOLERANCE)
 
 
 def _set_outlines(layer, outlines, features):
-    """The outlines layer's shapes (closed paths) and their features replaced in place."""
+    """The outlines layer's paths and their features replaced in place (not
+    recorded for undo: a re-cut is committed at once)."""
     layer.data = []
     if len(outlines):
         layer.add(outlines, shape_type="path", **OUTLINE_STYLE)
@@ -131,9 +131,14 @@ class MammogramWidget(JobWidget):
         return self.run(_with_outlines(job), done=self._show)
 
     def _show(self, result):
+        previous = self._found, getattr(self, "_found_for", None)
         self._found = result
         self._found_for = (self._name, self._geometry)
-        yield from self._show_marks()
+        try:
+            yield from self._show_marks()
+        except BaseException:  # a Cancel or an error in between: the layers are put back,
+            self._found, self._found_for = previous  # and what the control re-cuts with them
+            raise
 
     def _on_marks(self, *_):
         """The operating point moved: re-cut the last result (no new job)."""
@@ -161,12 +166,15 @@ class MammogramWidget(JobWidget):
         def add_labels(data, layer_name):
             return self._viewer.add_labels(data, name=layer_name, opacity=0.4, **geometry)
 
-        if recut:
+        def ours(layer_name, kind):  # a re-cut writes into its own kinds of layer only
+            return recut and layer_name in layers and isinstance(layers[layer_name], kind)
+
+        if ours(labels_name, Labels):
             self.record.put(labels_name, cut_labels, add_labels)
         else:
             self.record.replace(labels_name, lambda layer_name: add_labels(cut_labels, layer_name))
         yield
-        if recut and outlines_name in layers:  # in place: emptied when no region is marked
+        if ours(outlines_name, Shapes):  # in place: emptied when no region is marked
             _set_outlines(layers[outlines_name], outlines[:m], cut)
         elif m:
             self.record.replace(

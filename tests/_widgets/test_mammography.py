@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from napari.layers import Shapes
 
 from car_napari._widgets.mammography import MammogramWidget
 from car_napari.io.sample_data import mammogram
@@ -215,11 +216,44 @@ def test_moving_the_operating_point_changes_the_marks_without_recomputing(
             assert list(outlines.features["score"]) == list(w.table["score"])
             assert list(outlines.text.values) == [f"{v:.2f}" for v in w.table["score"]]
             assert set(outlines.shape_type) == {"path"} and set(outlines.edge_width) == {2}
-            assert all(np.array_equal(o[0], o[-1]) for o in outlines.data)  # closed
+            assert all(np.array_equal(o[0], o[-1]) for o in outlines.data)  # closed rings
         seen.append(n)
     assert seen == sorted(seen) and seen[-1] > seen[0]
     assert calls == {"detect": 1, "segment": 1}  # no job ran again
     assert w._job is job
-    # back down: fewer marks again, the same regions as before
+    # back down: fewer marks again, the same regions as before, in the same layers
+    outlines = viewer.layers["mdb001 ROI outlines"]
     w._marks.value = 1.0
     assert len(w.table["label"]) == seen[1]
+    w._marks.value = 0.25
+    assert len(w.table["label"]) == seen[0]
+    assert viewer.layers["mdb001 ROI outlines"] is outlines and len(outlines.data) == seen[0]
+    # a layer of another kind under the outlines' name is replaced, not written into
+    viewer.layers.remove(outlines)
+    viewer.add_points(np.zeros((1, 2)), name="mdb001 ROI outlines")
+    w._marks.value = 12.0
+    assert isinstance(viewer.layers["mdb001 ROI outlines"], Shapes)
+    assert len(viewer.layers["mdb001 ROI outlines"].data) == seen[-1]
+
+
+def test_a_result_cancelled_while_shown_is_not_re_cut_later(widget):
+    """A Cancel between the result's display steps puts the layers back, and
+    the "marks per image" control keeps re-cutting the result shown before
+    (none here): the cancelled one never reaches the old layers."""
+    from car_napari.mammography import MammogramROIs
+
+    viewer, w = widget
+    w._image.value = viewer.add_image(np.zeros((64, 64), np.uint8), name="mdb001")
+    w._name, w._geometry = "mdb001", {}
+    labels = np.zeros((64, 64), np.uint8)
+    labels[10:20, 10:20] = 1
+    table = {"label": np.array([1]), "score": np.array([1.0])}
+    steps = w._show((MammogramROIs(labels, table), [np.array([[10.0, 10], [19, 19], [10, 10]])]))
+    next(steps)  # the labels layer is shown, the outlines are next
+    assert "mdb001 ROI labels" in viewer.layers
+    steps.close()  # a Cancel here
+    w.record.undo()
+    assert [layer.name for layer in viewer.layers] == ["mdb001"]
+    assert w._found is None
+    w._marks.value = 3.0  # nothing to re-cut: no layer comes back
+    assert [layer.name for layer in viewer.layers] == ["mdb001"]
