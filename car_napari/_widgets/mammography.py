@@ -101,6 +101,7 @@ class MammogramWidget(JobWidget):
         super().__init__(napari_viewer, image_label="mammogram")
         self.table = None  # the marks' table (dict of columns)
         self._found = None  # (every finding's MammogramROIs, their outlines)
+        self._found_for = None  # (the image layer's name, its scale and translate)
         self._marks = FloatSpinBox(
             value=DEFAULT_MARKS_PER_IMAGE, min=0.25, max=12.0, step=0.25,
             label="marks per image", tooltip=_marks_tooltip())
@@ -131,7 +132,7 @@ class MammogramWidget(JobWidget):
         return self.run(_with_outlines(job), done=self._show)
 
     def _show(self, result):
-        previous = self._found, getattr(self, "_found_for", None)
+        previous = self._found, self._found_for
         self._found = result
         self._found_for = (self._name, self._geometry)
         try:

@@ -33,7 +33,7 @@ from .._progress import Progress, stage
 from .._validation import check_real
 from ..model.neighbourhood import Context, causal_neighbourhood
 from ..model.recursive import RecursiveScan, default_prior
-from ._conditional import HALO_REGION_BLEND, HALO_UNBLEND, iter_fill_conditional
+from ._conditional import HALO_BLEND, HALO_REGION_BLEND, HALO_UNBLEND, iter_fill_conditional
 from ._layout import MAX_COLOURS, read_layout
 from ._motion import iter_estimate_motion, warp_frame
 
@@ -64,7 +64,7 @@ class EdgeTest:
     ``halo_*`` options of :func:`~car_napari.inpainting._conditional.iter_fill_conditional`)."""
 
     rings: int = 1  # rings of known pixels round the damage the edge test reaches
-    blend: float = 0.1  # the least blend towards the damage it calls damage
+    blend: float = HALO_BLEND  # the least blend towards the damage it calls damage
     region_blend: float = HALO_REGION_BLEND  # ... and pooled over the ring nearby
     unblend: float | None = HALO_UNBLEND  # such a pixel stays known, less half its blend
 
