@@ -31,7 +31,31 @@ def _as_grey(image, channel_axis):
         )
     from skimage.color import rgb2gray
 
+    _warn_if_colour(arr[..., :3])
     return rgb2gray(arr[..., :3])
+
+
+# A grey mammogram exported as RGB has (nearly) equal channels; channels that
+# differ by more than this fraction of the image's range on average are a
+# colour picture, not a mammogram.
+_COLOUR_SPREAD = 0.02
+
+
+def _warn_if_colour(rgb):
+    """Warn when an RGB image is not a grey image in three equal channels."""
+    step = max(1, int(np.sqrt(rgb.shape[0] * rgb.shape[1] / 65536)))
+    sample = np.asarray(rgb[::step, ::step], np.float64)
+    span = float(sample.max() - sample.min())
+    if span <= 0:
+        return
+    spread = float(np.mean(sample.max(axis=-1) - sample.min(axis=-1))) / span
+    if spread > _COLOUR_SPREAD:
+        import warnings
+
+        warnings.warn(
+            f"the image is in colour (its channels differ by {spread:.0%} of its range on "
+            "average), not a grey mammogram; its luminance is used. Regions found on a "
+            "colour picture mean nothing.", UserWarning, stacklevel=4)
 
 
 # A mammogram whose every value lies within this many grey levels of an
@@ -63,6 +87,36 @@ def _snap(data, r0=0, r1=None):
     part /= 255.0
 
 
+# Digital mammograms store 12 bits in a 16-bit container: a uint16 image
+# whose maximum is at most this is read as 12-bit (0..4095 -> [0, 1]), so that
+# it gives the regions of the same image scaled; a DICOM's BitsStored is
+# honoured by the reader (car_napari.io).
+_TWELVE_BIT_MAX = 4095
+
+
+def bit_depth(image):
+    """The bit depth an integer mammogram is read with: 8 for uint8, 12 for a
+    wider unsigned image whose maximum is at most 4,095, else the dtype's
+    width; None for float and bool images (their values are kept)."""
+    arr = np.asarray(image)
+    if arr.dtype.kind != "u" or arr.dtype.itemsize < 2:
+        return 8 if arr.dtype == np.uint8 else (
+            arr.dtype.itemsize * 8 if arr.dtype.kind == "i" else None)
+    if arr.size and int(arr.max()) <= _TWELVE_BIT_MAX:
+        return 12
+    return arr.dtype.itemsize * 8
+
+
+def _to_float(part, depth, name):
+    """``as_channel_last_float`` of a grey (part of an) image, a 12-bit one
+    scaled by 4095 (exactly ``part / 4095``)."""
+    if depth == 12:
+        part = np.asarray(part)
+        out = part.astype(np.float64) / float(_TWELVE_BIT_MAX)
+        return as_channel_last_float(out, channel_axis=None, name=name, copy=False)[..., 0]
+    return as_channel_last_float(part, channel_axis=None, name=name)[..., 0]
+
+
 def _exact(arr):
     """True for dtypes whose values are already on the 8-bit grid or need no snap."""
     return arr.dtype in (np.uint8, np.bool_)
@@ -72,7 +126,9 @@ def _grey01(image, name="image"):
     """(H, W) float64 grey image scaled like img_as_float (an 8-bit image
     carried in floats is read as the 8-bit image, :data:`_SNAP_LEVELS`);
     clear errors."""
-    data = as_channel_last_float(image, channel_axis=None, name=name)[..., 0]
+    arr = np.asarray(image) if isinstance(image, np.ndarray) else image
+    depth = bit_depth(arr) if isinstance(arr, np.ndarray) and arr.ndim == 2 else None
+    data = _to_float(image, depth, name)
     _check_contrast(data, name)
     if not _exact(np.asarray(image)) and _off_grid(data) <= _SNAP_LEVELS:
         _snap(data)
@@ -95,11 +151,12 @@ def _iter_grey(image, channel_axis, name="mammogram"):
     H, W = arr.shape[:2]
     rows = max(1, _STRIP // W)
     out = np.empty((H, W))
+    depth = None if colour else bit_depth(arr)
     for r0 in range(0, H, rows):
         part = arr[r0 : r0 + rows]
         try:
             part = _as_grey(part, -1 if colour else None)
-            out[r0 : r0 + rows] = as_channel_last_float(part, channel_axis=None, name=name)[..., 0]
+            out[r0 : r0 + rows] = _to_float(part, depth, name)
         except (ValueError, TypeError):
             return _grey01(_as_grey(image, channel_axis), name=name)  # the whole image's error
         r1 = min(r0 + rows, H)
