@@ -46,6 +46,8 @@ DESCRIPTORS = (
     "surprise", "surprise_bias",
     # contrast against the host segment (the rest of the candidate's segment)
     "host_contrast", "host_contrast_z",
+    # where in the breast: film edges and the pectoral corner are not masses
+    "border_distance", "skin_distance", "chest_distance", "height", "corner",
 )
 FAMILIES = {
     "grey": ("mean_grey", "grey_above_breast", "contrast", "contrast_z", "grey_std",
@@ -55,6 +57,7 @@ FAMILIES = {
                 "segment_edge"),
     "surprise": ("surprise", "surprise_bias"),
     "host": ("host_contrast", "host_contrast_z"),
+    "location": ("border_distance", "skin_distance", "chest_distance", "height", "corner"),
 }
 # The CAR feature vector's layout per resolution level
 # (car_napari.segmentation.local_features with its defaults on a
@@ -175,6 +178,7 @@ def _describe(grey, labellings, breast, texture, cands, *, f, side, work=None, s
         n_lab = int(lab.max()) + 1
         sums.append([np.bincount(lab.ravel(), weights=w_, minlength=n_lab)
                      for w_ in (grey.ravel(), grey.ravel() ** 2, None)])
+    where = _Location(breast)
     kept, rows = [], []
     for n, (cc, i, sl, a, li) in enumerate(cands):
         if work is not None and n % 64 == 63:
@@ -216,6 +220,7 @@ def _describe(grey, labellings, breast, texture, cands, *, f, side, work=None, s
             desc += [0.0] * len(FAMILIES["texture"])
         desc += _surprise(g, inside, ring) if surprise else [0.0, 0.0]
         desc += _host(g, inside, labellings[li][r0:r1, c0:c1], sums[li])
+        desc += where(cr + r0, ccol + c0)
         rows.append(desc)
         kept.append(Candidate((r0, r1, c0, c1), inside, (cr + r0, ccol + c0)))
     X = np.asarray(rows, float).reshape(len(rows), len(DESCRIPTORS))
@@ -225,6 +230,40 @@ def _describe(grey, labellings, breast, texture, cands, *, f, side, work=None, s
         col = X[:, DESCRIPTORS.index(src)]
         X[:, DESCRIPTORS.index(dst)] = _ranks(col)
     return kept, X
+
+
+class _Location:
+    """Where a point lies in the image and in its breast (the ``location``
+    descriptors): the distance to the nearest image border over the long side
+    (film edges and scanner strips lie there), the distance to the skin line
+    over the breast's equivalent radius, the distance from the chest wall
+    and from the breast's top as fractions of its width and height, and
+    closeness to the top chest-wall corner (the pectoral muscle of MLO views),
+    ``max(0, 1 - hypot(chest, height))``."""
+
+    def __init__(self, breast):
+        from scipy import ndimage
+
+        from ._breast import chest_wall_side
+
+        self.shape = breast.shape
+        self.inside = ndimage.distance_transform_edt(np.pad(breast, 1))[1:-1, 1:-1]
+        self.radius = max(np.sqrt(breast.sum() / np.pi), 1.0)
+        rows = np.flatnonzero(breast.any(axis=1))
+        cols = np.flatnonzero(breast.any(axis=0))
+        self.top, self.height = (rows[0], max(rows[-1] - rows[0], 1)) if rows.size else (0, 1)
+        left, right = (cols[0], cols[-1]) if cols.size else (0, self.shape[1] - 1)
+        self.wall = left if chest_wall_side(breast) == "left" else right
+        self.width = max(right - left, 1)
+
+    def __call__(self, r, c):
+        h, w = self.shape
+        border = min(r, c, h - 1 - r, w - 1 - c) / max(h, w)
+        ri, ci = min(max(int(round(r)), 0), h - 1), min(max(int(round(c)), 0), w - 1)
+        chest = abs(c - self.wall) / self.width
+        height = (r - self.top) / self.height
+        return [border, self.inside[ri, ci] / self.radius, chest, height,
+                max(0.0, 1.0 - float(np.hypot(chest, height)))]
 
 
 def _host(g, inside, seg, sums):
@@ -409,36 +448,67 @@ def _visible(findings, shape):
 
 
 class RoiModel:
-    """The logistic scoring model of candidates and its operating points.
+    """The scoring model of candidates and its operating points.
 
     Parameters
     ----------
     spec : dict
-        The parsed ``roi_model.json``: ``descriptors`` (the names used),
-        ``mean``, ``scale`` (standardisation), ``coef``, ``intercept``, and
-        ``operating_points`` (rows of ``marks_per_image``, ``threshold``...).
+        The parsed ``roi_model.json``: ``descriptors`` (the names used) and
+        ``operating_points`` (rows of ``marks_per_image``, ``threshold``...),
+        and either a logistic model (``mean``, ``scale``: standardisation;
+        ``coef``, ``intercept``) or, with ``"kind": "trees"``, gradient-boosted
+        trees (``baseline`` and ``trees``: per tree the node arrays
+        ``feature``, ``threshold``, ``left``, ``right``, ``leaf``, ``value``;
+        a sample goes left where its descriptor is at most the threshold; the
+        score is the logistic of the baseline plus the leaves' values).
     """
 
     def __init__(self, spec):
         self.spec = spec
+        self.kind = spec.get("kind", "logistic")
         self.names = tuple(spec["descriptors"])
         unknown = set(self.names) - set(DESCRIPTORS)
         if unknown:
             raise ValueError(f"ROI model uses unknown descriptors {sorted(unknown)}.")
         self.columns = [DESCRIPTORS.index(n) for n in self.names]
-        self.mean = np.asarray(spec["mean"], float)
-        self.scale = np.asarray(spec["scale"], float)
-        self.coef = np.asarray(spec["coef"], float)
-        self.intercept = float(spec["intercept"])
+        if self.kind == "trees":
+            self.baseline = float(spec["baseline"])
+            self.trees = [{k: np.asarray(t[k], float if k in ("threshold", "value") else int)
+                           for k in ("feature", "threshold", "left", "right", "leaf", "value")}
+                          for t in spec["trees"]]
+            for t in self.trees:
+                t["leaf"] = t["leaf"].astype(bool)
+        else:
+            self.mean = np.asarray(spec["mean"], float)
+            self.scale = np.asarray(spec["scale"], float)
+            self.coef = np.asarray(spec["coef"], float)
+            self.intercept = float(spec["intercept"])
         points = sorted(spec.get("operating_points", []), key=lambda p: p["marks_per_image"])
         self.rates = np.array([p["marks_per_image"] for p in points], float)
         self.thresholds = np.array([p["threshold"] for p in points], float)
 
+    def raw(self, X):
+        """The model's log-odds of descriptor rows ``X`` (n, len(DESCRIPTORS))."""
+        X = np.asarray(X, float).reshape(-1, len(DESCRIPTORS))[:, self.columns]
+        if self.kind != "trees":
+            return ((X - self.mean) / self.scale) @ self.coef + self.intercept
+        out = np.full(len(X), self.baseline)
+        rows = np.arange(len(X))
+        for t in self.trees:
+            node = np.zeros(len(X), int)
+            while True:
+                inner = ~t["leaf"][node]
+                if not inner.any():
+                    break
+                at = node[inner]
+                go_left = X[rows[inner], t["feature"][at]] <= t["threshold"][at]
+                node[inner] = np.where(go_left, t["left"][at], t["right"][at])
+            out += t["value"][node]
+        return out
+
     def score(self, X):
         """Scores in (0, 1) of descriptor rows ``X`` (n, len(DESCRIPTORS))."""
-        X = np.asarray(X, float).reshape(-1, len(DESCRIPTORS))
-        z = (X[:, self.columns] - self.mean) / self.scale
-        return 1.0 / (1.0 + np.exp(-(z @ self.coef + self.intercept)))
+        return 1.0 / (1.0 + np.exp(-self.raw(X)))
 
     def threshold(self, marks_per_image):
         """The score threshold of an operating point: on the model's training
