@@ -24,6 +24,7 @@ from ._regions import (
     MammogramROIs,
     filter_regions,
     region_outlines,
+    roi_overlay,
 )
 from ._rois import (
     DEFAULT_MARKS_PER_IMAGE,
@@ -32,14 +33,16 @@ from ._rois import (
     detect_mammogram_rois,
     iter_detect_mammogram_rois,
     iter_segment_breast,
+    operating_point,
     score_threshold,
     segment_breast,
     select_marks,
 )
 
 # The shipped model's operating points (benchmarks/bench_froc.py): per
-# ``marks_per_image`` (false marks per image on mini-MIAS), the score
-# threshold and the cross-validated sensitivity there.
+# ``marks_per_image`` (false marks per image, cross-validated by patient on
+# CBIS-DDSM films), the score threshold and the cross-validated sensitivity
+# there, with the no-CAR control's (operating_point reads one).
 OPERATING_POINTS = tuple(dict(p) for p in _shipped_model().spec["operating_points"])
 
 __all__ = [
@@ -59,7 +62,9 @@ __all__ = [
     "filter_regions",
     "iter_detect_mammogram_rois",
     "iter_segment_breast",
+    "operating_point",
     "region_outlines",
+    "roi_overlay",
     "score_threshold",
     "segment_breast",
     "select_marks",

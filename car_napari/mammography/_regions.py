@@ -459,3 +459,76 @@ def region_outlines(labels, *, tolerance=0.0):
             contour = approximate_polygon(contour, tolerance)
         outlines.append(contour + np.array([sl[0].start - 1, sl[1].start - 1]))
     return outlines
+
+
+# Outline colours of the overlay, best region first (RGB): yellow, orange,
+# magenta, cyan, then green for the rest.
+_OVERLAY_COLOURS = ((255, 255, 0), (255, 140, 0), (255, 0, 255), (0, 255, 255), (0, 255, 0))
+
+
+def roi_overlay(image, labels, *, width=None, channel_axis=-1):
+    """The mammogram in grey with each region's outline drawn in colour, as an
+    8-bit RGB image a person can open (a label image looks black in an image
+    viewer).
+
+    Parameters
+    ----------
+    image : (H, W) array_like
+        The mammogram (any numeric dtype; read as :func:`detect_mammogram_rois`
+        reads it: 12-bit in a 16-bit container scaled by 4095); an RGB(A)
+        export of one, with ``channel_axis``, is shown as its luminance.
+    labels : (H, W) array_like of int
+        Regions 1..n best first (:func:`detect_mammogram_rois`'s labels).
+    width : int, optional
+        Outline width in pixels; default about 1/400 of the long side, at
+        least 1.
+    channel_axis : int or None, optional
+        The colour axis of an RGB(A) export; a 2-D image is grey.
+
+    Returns
+    -------
+    (H, W, 3) ndarray of uint8
+        Region 1 in yellow, 2 orange, 3 magenta, 4 cyan, the rest green.
+
+    Raises
+    ------
+    ValueError
+        If ``labels`` is not the image's (H, W), or the image is constant.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from car_napari.mammography import roi_overlay
+    >>> image = np.linspace(0, 1, 64 * 64).reshape(64, 64)
+    >>> labels = np.zeros((64, 64), np.int32)
+    >>> labels[20:40, 20:40] = 1
+    >>> rgb = roi_overlay(image, labels, width=1)
+    >>> rgb.shape, rgb.dtype, rgb[20, 30].tolist(), rgb[30, 30, 0] == rgb[30, 30, 2]
+    ((64, 64, 3), dtype('uint8'), [255, 255, 0], True)
+    """
+    from scipy import ndimage
+
+    grey = _grey01(_as_grey(image, channel_axis), name="mammogram")
+    labels = np.asarray(labels)
+    if labels.shape != grey.shape or labels.dtype.kind not in "biu":
+        raise ValueError(f"labels must be an integer (H, W) image like the mammogram "
+                         f"{grey.shape}; got {labels.dtype} {labels.shape}.")
+    if width is None:
+        width = max(1, round(max(grey.shape) / 400))
+    width = int(check_real(width, "width (pixels)", low=1, high=1000, integer=True))
+    lo, hi = float(grey.min()), float(grey.max())
+    rgb = np.repeat(np.round(255.0 * (grey - lo) / (hi - lo)).astype(np.uint8)[..., None], 3, 2)
+    # a region's edge: its pixels with a 4-neighbour outside it, grown inwards to ``width``
+    edge = np.zeros(labels.shape, np.int64)
+    for i, sl in enumerate(ndimage.find_objects(labels), start=1):
+        if sl is None:
+            continue
+        grow = [slice(max(0, s.start - 1), s.stop + 1) for s in sl]
+        inside = labels[tuple(grow)] == i
+        ring = inside & ~ndimage.binary_erosion(inside, iterations=width, border_value=0)
+        target = edge[tuple(grow)]
+        target[ring & (target == 0)] = i
+    for i, colour in enumerate(_OVERLAY_COLOURS, start=1):
+        last = i == len(_OVERLAY_COLOURS)
+        rgb[(edge >= i) if last else (edge == i)] = colour
+    return rgb

@@ -55,6 +55,7 @@ __all__ = [
     "detect_mammogram_rois",
     "iter_detect_mammogram_rois",
     "iter_segment_breast",
+    "operating_point",
     "score_threshold",
     "segment_breast",
     "select_marks",
@@ -665,6 +666,46 @@ def score_threshold(marks_per_image=DEFAULT_MARKS_PER_IMAGE):
     check_real(marks_per_image, "marks_per_image (false marks per image)", low=0.0,
                low_open=True, high=100.0)
     return shipped_model().threshold(marks_per_image)
+
+
+def operating_point(marks_per_image=DEFAULT_MARKS_PER_IMAGE):
+    """What the shipped model's cross-validation says of an operating point.
+
+    Parameters
+    ----------
+    marks_per_image : float, optional
+        False marks per image on average (on the model's cross-validated
+        training films).
+
+    Returns
+    -------
+    dict
+        ``marks_per_image``; ``threshold`` (the score threshold);
+        ``sensitivity`` (the share of masses found there, strict rule: a
+        mark's centroid inside the mass's box), ``interval`` (its 95 %
+        bootstrap interval over patients, or None) and ``control`` (the no-CAR
+        control's sensitivity at the same rate), each read from
+        :data:`OPERATING_POINTS` at the nearest tabled rate at or below
+        ``marks_per_image`` (the first row below the table).
+
+    Examples
+    --------
+    >>> from car_napari.mammography import operating_point
+    >>> point = operating_point(1.0)
+    >>> sorted(point)
+    ['control', 'interval', 'marks_per_image', 'sensitivity', 'threshold']
+    """
+    check_real(marks_per_image, "marks_per_image (false marks per image)", low=0.0,
+               low_open=True, high=100.0)
+    model = shipped_model()
+    points = sorted(model.spec.get("operating_points", []), key=lambda p: p["marks_per_image"])
+    below = [p for p in points if p["marks_per_image"] <= marks_per_image + 1e-9]
+    row = below[-1] if below else (points[0] if points else {})
+    return {"marks_per_image": float(marks_per_image),
+            "threshold": model.threshold(marks_per_image),
+            "sensitivity": row.get("cv_sensitivity_strict"),
+            "interval": row.get("cv_interval_strict"),
+            "control": row.get("control_cv_sensitivity_strict")}
 
 
 @shared_parameters(_ROI_PARAMETERS)

@@ -257,3 +257,16 @@ def test_a_result_cancelled_while_shown_is_not_re_cut_later(widget):
     assert w._found is None
     w._marks.value = 3.0  # nothing to re-cut: no layer comes back
     assert [layer.name for layer in viewer.layers] == ["mdb001"]
+
+
+def test_the_control_shows_its_cross_validated_sensitivity(widget):
+    """Beside "marks per image": the share of masses the shipped model found
+    there in cross-validation, and the no-CAR control's."""
+    from car_napari.mammography import operating_point
+
+    _viewer, w = widget
+    for rate in (0.5, 1.0, 3.0):
+        w._marks.value = rate
+        point = operating_point(rate)
+        assert f"finds {point['sensitivity']:.0%}" in w._expected.value
+        assert f"without the CAR model {point['control']:.0%}" in w._expected.value

@@ -103,11 +103,17 @@ def test_mammo_writes_labels_and_one_table(tmp_path, capsys):
     assert "black.png: failed" in err and "constant" in err
     labels = io.imread(out / "mdb001_rois.png")
     assert labels.shape == small.shape and labels.max() >= 1
+    # the overlay a person opens: the mammogram in grey, region 1 outlined in yellow
+    overlay = io.imread(out / "mdb001_overlay.png")
+    assert overlay.shape == (*small.shape, 3) and overlay.dtype == np.uint8
+    assert np.all(overlay[labels == 0][:, 0] == overlay[labels == 0][:, 2])
+    assert (np.all(overlay == (255, 255, 0), axis=-1) & (labels == 1)).any()
     with open(out / "rois.csv") as fh:
         rows = list(csv.DictReader(fh))
-    assert set(rows[0]) == {"image", *TABLE_COLUMNS}
+    assert set(rows[0]) == {"image", "bit_depth", *TABLE_COLUMNS}
     png = [r for r in rows if r["image"] == "mdb001.png"]
     assert len(png) == labels.max()
+    assert {r["bit_depth"] for r in png} == {"8-bit"}
     assert {r["image"] for r in rows} == {"mdb001.png", "mdb001.dcm"}
     assert main(["mammo", str(src / "black.png"), "-o", str(out)]) == 2
 
