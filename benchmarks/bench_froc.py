@@ -1,131 +1,175 @@
-"""Mammogram ROIs on mini-MIAS: cross-validated FROC (issue 17), run by hand.
+"""Mammogram ROIs: cross-validated FROC on CBIS-DDSM films and mini-MIAS (issue 31).
 
-    PYTHONPATH=. nice -n 10 python benchmarks/bench_froc.py [--prepare-only]
-        [--cache DIR] [--nested] [--png docs/froc_mammography.png] [--write-model]
+    PYTHONPATH=. nice -n 5 python benchmarks/bench_froc.py [--data cbis,mias]
+        [--jobs 2] [--prepare-only] [--cache DIR] [--png docs/froc_mammography.png]
+        [--write-model] [--limit N] [--boot 1000]
 
-(``CAR_NAPARI_MINI_MIAS``: the data folder, when the checkout is not next to
+(``CAR_NAPARI_MAMMOGRAMS``: the data folder, when the checkout is not next to
 ``shared/``.)
 
-1. Segments every breast of ``../shared/data/mammograms/mini-mias`` once
-   (the package's pipeline: ``segment_breast`` at work side 512, the merge
-   history's 8, 10 and 12 segment states, with the CAR features kept) and
-   caches, per image, the labellings and the CAR features on the analysis
-   grid (``--cache``, .npz): re-runs only redo the cheap part.
-2. Candidates and their descriptors (``car_napari.mammography._candidates``)
-   for the CAR pipeline, for the no-CAR control (the breast as one
-   segment, the same bright-region cutting, grey and shape descriptors only:
-   nothing of the CAR model) and for both pooled (the CAR segments plus the
-   breast as one more segment, so the CAR can only add candidates). Every
-   candidate also carries the CAR "surprise" (a grey CAR model fitted on its
-   ring predicts it: ``_candidates._surprise``) and its contrast against
-   its host segment (``_candidates._host``).
-3. 5-fold cross-validation by image (fold = md5 of the name mod 5): a
-   logistic regression (scikit-learn, C=1, balanced classes; positives: the
-   candidates whose centroid lies within a mass radius, at least 10 px) is
-   fitted on 4 folds and scores the 5th; findings are merged from the
-   scored candidates exactly as the package does. No constant is chosen on
-   the images it is scored on. The variants of the table were declared
-   before they were measured. ``--nested``: also the whole procedure with
-   the candidate set, the descriptor families and C (0.01, 0.1, 1) chosen
-   inside each outer training part by an inner CV over its 4 folds
-   (``nested_choices``: 33 choices).
-4. FROC (sensitivity against false regions per image over all thresholds),
-   strict rule (a region's centroid within the mass radius, at least 10 px)
-   and lenient rule (or the mass centre inside the region), for the CAR
-   pipeline, the no-CAR control and a difference-of-Gaussians blob baseline
-   (``skimage.feature.blob_dog``, blobs in the breast ranked by their
-   normalised DoG response). Writes the plot (``--png``) and prints the
-   table at 1, 2 and 3 false regions per image.
-5. ``--write-model``: fits the model on all images and writes
-   ``car_napari/mammography/roi_model.json`` (coefficients, standardisation,
-   the operating points: score threshold per false marks per image on all
-   images, with the cross-validated sensitivity there).
-
-Masses: classes CIRC, SPIC, MISC of ``ground_truth.csv`` (13 findings in 12
-images); every other region is a false one (also on CALC, ARCH, ASYM
-images).
+1. **Segmentation, cached.** Every breast is segmented once with the
+   package's pipeline (``_iter_segment_grey``: breast detection, work side
+   512, the merge history's 8, 10 and 12 segment states, the CAR features
+   kept); the labellings and the CAR features on the analysis grid are
+   cached per image (``--cache``, .npz), in ``--jobs`` single-threaded
+   processes.
+2. **Candidates and descriptors, cached** (keyed by the descriptor code's
+   md5): the CAR pipeline's (the components of the CAR segments and of
+   their locally bright parts, every descriptor family) and the **no-CAR
+   control**'s (the breast as one segment, the same bright-part cutting; the
+   grey, shape and location descriptors only: nothing the CAR model
+   computes).
+3. **5-fold cross-validation by patient** (fold = md5 of the patient id mod
+   5; CBIS-DDSM: the file name's first field, whose CC and MLO views show the
+   same masses; mini-MIAS: the image pair ``2k-1, 2k``). A logistic
+   regression (scikit-learn, C=1, each mass's positives weigh 1 in all, the
+   negatives together as much as the positives; positives: candidates whose
+   centroid hits a mass by the strict rule) is fitted on 4 folds and scores
+   the 5th; findings are merged from the scored candidates exactly as the
+   package does. The variants are declared below, before any was measured;
+   C and the families are fixed a priori, so nothing is chosen on the
+   scored images.
+4. **FROC** over all thresholds. Strict rule: a mark's centroid inside the
+   mass's box (CBIS-DDSM) or within its radius, at least 10 px (mini-MIAS);
+   lenient: or the box's centre / the circle's centre inside the mark's
+   region. Sensitivity at 0.5, 1, 2 and 3 false marks per image with 95 %
+   bootstrap intervals over patients (``--boot`` resamples), and the
+   paired interval of the difference CAR - control. Baseline in the same
+   run: difference-of-Gaussians blobs in the breast (``skimage.feature``),
+   ranked by their normalised response.
+5. ``--write-model``: the CAR variant fitted on all CBIS-DDSM images goes
+   to ``car_napari/mammography/roi_model.json`` with its provenance; its
+   operating points are the cross-validated ones (the threshold where the
+   pooled cross-validated scores make that many false marks per image, and
+   the sensitivity and interval there, CAR and control).
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
 import datetime
 import hashlib
 import json
 import os
+import pickle
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
-from bench_mammography import load_truth
 from skimage import io
 
 from car_napari._progress import drain
 from car_napari.mammography import _candidates as C
 from car_napari.mammography._images import _block_mean, _grey01
-from car_napari.mammography._regions import (
-    _ANALYSIS_SIDE,
-    SPLIT_DELTA,
-    SPLIT_SIGMAS,
-)
+from car_napari.mammography._regions import _ANALYSIS_SIDE, SPLIT_DELTA, SPLIT_SIGMAS
 from car_napari.mammography._rois import DEFAULT_POOL_SEGMENTS, _iter_segment_grey
 
-# the data next to the checkout, or where CAR_NAPARI_MINI_MIAS says (a worktree elsewhere)
-DATA = Path(os.environ.get("CAR_NAPARI_MINI_MIAS", Path(__file__).resolve().parents[1].parent
-                           / "shared" / "data" / "mammograms" / "mini-mias"))
-MASSES = ("CIRC", "SPIC", "MISC")
+ROOT = Path(os.environ.get("CAR_NAPARI_MAMMOGRAMS", Path(__file__).resolve().parents[1].parent
+                           / "shared" / "data" / "mammograms"))
 FOLDS = 5
-RATES = (1.0, 2.0, 3.0)
-MODES = ("car", "pooled", "control")
-SHIPPED = "CAR: grey + shape"
-NESTED = "CAR, chosen inside each training part (nested CV)"
-# the regularisations the nested CV chooses among (inverse strength)
-CS = (0.01, 0.1, 1.0)
+RATES = (0.5, 1.0, 2.0, 3.0)
 MIN_RADIUS = 10.0
+MIAS_MASSES = ("CIRC", "SPIC", "MISC")
+
+# The variants, declared before any was measured: (candidates, families).
+# "CAR" is the shipped pipeline; the control has nothing of the CAR model.
+# Each is scored by a logistic regression or gradient-boosted trees, chosen
+# inside every training part (:func:`choose_scorer`).
+NON_CAR = ("grey", "shape", "location")
+VARIANTS = {
+    "CAR: all descriptors": ("car", NON_CAR + ("texture", "surprise", "host")),
+    "CAR segments, no CAR descriptors": ("car", NON_CAR),
+    "control (no CAR)": ("control", NON_CAR),
+}
+SCORERS = ("logistic", "trees")
+SHIPPED = "CAR: all descriptors"
+CONTROL = "control (no CAR)"
 
 
-_FOLDS = {}
+# --- data ---------------------------------------------------------------------
 
 
-def _hash(name):
-    return int(hashlib.md5(name.encode()).hexdigest(), 16)
+class Dataset:
+    """Names, patients, masses and pixels of one annotated set. A mass is
+    ``("box", x, y, w, h)`` or ``("circle", row, col, radius)`` in pixels."""
+
+    def __init__(self, key, folder, suffix, masses, patient):
+        self.key, self.folder, self.suffix = key, folder, suffix
+        self.masses, self.patient = masses, patient
+        self.names = sorted(masses)
+
+    def read(self, name):
+        return io.imread(self.folder / f"{name}{self.suffix}")
 
 
-def make_folds(names, masses):
-    """Fixed folds, stratified: the mass images in the order of the md5 of
-    their names dealt round-robin into the 5 folds, then the others the same
-    way (so every fold has 2 or 3 mass images)."""
-    _FOLDS.clear()
-    k = 0
-    for group in ([n for n in names if masses[n]], [n for n in names if not masses[n]]):
-        for n in sorted(group, key=_hash):
-            _FOLDS[n] = k % FOLDS
-            k += 1
+def cbis():
+    folder = ROOT / "cbis-ddsm-masses"
+    masses = {p.stem: [] for p in folder.glob("*.jpg")}
+    with open(folder / "boxes.csv") as fh:
+        for r in csv.DictReader(fh):
+            masses[Path(r["file"]).stem].append(
+                ("box", float(r["x"]), float(r["y"]), float(r["w"]), float(r["h"])))
+    return Dataset("cbis", folder, ".jpg", masses, lambda n: n.split("_")[0])
 
 
-def fold_of(name):
-    return _FOLDS[name]
+def mias():
+    folder = ROOT / "mini-mias"
+    with open(folder / "ground_truth.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    masses = {r["refnum"]: [] for r in rows}
+    for r in rows:
+        if r["class"] in MIAS_MASSES and r["col"]:
+            masses[r["refnum"]].append(("circle", int(r["row"]), int(r["col"]),
+                                        int(r["radius"])))
+    # mini-MIAS numbers the two breasts of a woman 2k-1 and 2k
+    return Dataset("mias", folder, ".png", masses, lambda n: str((int(n[3:]) + 1) // 2))
 
 
-def read(name):
-    return io.imread(DATA / f"{name}.png")
+DATASETS = {"cbis": cbis, "mias": mias}
 
 
-def analysis_grid(grey_full):
-    H, W = grey_full.shape
-    f = max(1, round(max(H, W) / _ANALYSIS_SIDE))
-    return f, _block_mean(grey_full, f)
+def _hash(text):
+    return int(hashlib.md5(text.encode()).hexdigest(), 16)
 
 
-def segmentation(name, cache):
-    """Cached: small labellings (P, h, w) uint8, texture grid (h, w, D) float16,
-    seconds of the segmentation."""
-    path = cache / f"{name}.npz"
+def fold_of(ds, name):
+    return _hash(ds.patient(name)) % FOLDS
+
+
+def hits(mass, r, c):
+    """Strict rule: the point (full-resolution row, col) hits the mass."""
+    if mass[0] == "box":
+        _, x, y, w, h = mass
+        return x <= c <= x + w and y <= r <= y + h
+    _, R, Cc, rad = mass
+    return np.hypot(r - R, c - Cc) <= max(rad, MIN_RADIUS)
+
+
+def centre(mass):
+    if mass[0] == "box":
+        _, x, y, w, h = mass
+        return y + h / 2, x + w / 2
+    return mass[1], mass[2]
+
+
+# --- cached segmentation and candidates ----------------------------------------
+
+
+def analysis_grid(grey):
+    f = max(1, round(max(grey.shape) / _ANALYSIS_SIDE))
+    return f, _block_mean(grey, f)
+
+
+def segmentation(ds, name, cache):
+    """Cached: labellings on the analysis grid (P, h, w) uint8, the CAR
+    texture grid (h, w, D), seconds of the segmentation."""
+    path = cache / ds.key / f"{name}.npz"
     if path.exists():
         z = np.load(path)
         return z["labellings"], z["texture"].astype(np.float32), float(z["seconds"])
-    grey = _grey01(read(name))
+    grey = _grey01(ds.read(name))
     t = time.perf_counter()
     seg = drain(_iter_segment_grey(grey, breast=None, n_segments=None, levels=3,
                                    neighbourhood=2, n_init=16, work_side=512, seed=0,
@@ -140,154 +184,143 @@ def segmentation(name, cache):
     return labs, tex, seconds
 
 
-def candidates(name, cache, mode):
-    """(Candidate list, descriptor matrix, f) of one image, ``mode`` "car",
-    "control" or "pooled" (the CAR segments' candidates and the control's
-    together) (cached as a pickle next to the segmentation, keyed by the
-    descriptor code's version)."""
-    import pickle
+def _descriptor_key():
+    """The cache key of the candidates: the code that makes and describes them."""
+    import inspect
 
-    key = hashlib.md5(Path(C.__file__).read_bytes()).hexdigest()[:8]
-    path = cache / f"{name}_{mode}_{key}.pkl"
+    parts = [inspect.getsource(f) for f in (C._generate, C._describe, C._surprise, C._host,
+                                            C._Location, C._texture_grid, C._ranks)]
+    return hashlib.md5("".join(parts + list(C.DESCRIPTORS)).encode()).hexdigest()[:8]
+
+
+def candidates(ds, name, cache, mode):
+    """(kept candidates, descriptor matrix, f, seconds) of one image for
+    ``mode`` "car" or "control", cached next to the segmentation."""
+    path = cache / ds.key / f"{name}_{mode}_{_descriptor_key()}.pkl"
     if path.exists():
         with open(path, "rb") as fh:
             return pickle.load(fh)
-    out = _candidates(name, cache, mode)
-    with open(path, "wb") as fh:
-        pickle.dump(out, fh)
-    return out
-
-
-def _candidates(name, cache, mode):
-    grey = _grey01(read(name))
+    t = time.perf_counter()
+    grey = _grey01(ds.read(name))
     f, small = analysis_grid(grey)
-    labs, tex, _ = segmentation(name, cache)
+    labs, tex, _ = segmentation(ds, name, cache)
     breast = labs[0] > 0
     if mode == "control":
         labs, tex = breast[None].astype(np.uint8), None
-    elif mode == "pooled":
-        # the breast as one more "segment": the control's candidates join in
-        labs = np.concatenate([labs, breast[None].astype(np.uint8)])
     H, W = grey.shape
     min_area = max(16, H * W // 4000)
     cands = C._generate(small, list(labs), breast, split=True,
                         sigmas=[s / f for s in SPLIT_SIGMAS], delta=SPLIT_DELTA,
                         min_area=max(4, min_area // (f * f)))
-    kept, X = drain(C._describe(small, list(labs), breast, tex, cands, f=f, side=max(H, W)))
-    return kept, X, f
+    kept, X = drain(C._describe(small, list(labs), breast, tex, cands, f=f, side=max(H, W),
+                                surprise=mode == "car"))
+    out = (kept, X, f, time.perf_counter() - t)
+    with open(path, "wb") as fh:
+        pickle.dump(out, fh)
+    return out
 
 
-def labels_for(kept, f, findings):
-    """Strict positives: the mass (index in ``findings``) whose max(r, 10)
-    holds the candidate's centroid (full res), -1 for none."""
+def _prepare_one(job):
+    key, name, cache = job
+    ds = DATASETS[key]()
+    segmentation(ds, name, cache)
+    for mode in ("car", "control"):
+        candidates(ds, name, cache, mode)
+    dog(ds, name, cache)
+    return name
+
+
+def _single_threaded():
+    for var in ("CAR_NAPARI_JOB_THREADS", "NUMBA_NUM_THREADS", "OMP_NUM_THREADS",
+                "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ[var] = "1"
+
+
+def prepare(ds, cache, jobs, names):
+    """Segment and describe every image (``jobs`` single-threaded processes)."""
+    (cache / ds.key).mkdir(parents=True, exist_ok=True)
+    todo = [(ds.key, n, cache) for n in names]
+    t0 = time.perf_counter()
+    if jobs > 1:
+        import multiprocessing as mp
+
+        with mp.get_context("spawn").Pool(jobs, initializer=_single_threaded) as pool:
+            for i, _ in enumerate(pool.imap_unordered(_prepare_one, todo, chunksize=4)):
+                print(f"\r{ds.key}: prepared {i + 1}/{len(todo)}", end="", file=sys.stderr,
+                      flush=True)
+    else:
+        for i, job in enumerate(todo):
+            _prepare_one(job)
+            print(f"\r{ds.key}: prepared {i + 1}/{len(todo)}", end="", file=sys.stderr,
+                  flush=True)
+    print(f" ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
+
+
+# --- the difference-of-Gaussians baseline ----------------------------------------
+
+
+def dog(ds, name, cache):
+    """Cached DoG blobs in the breast: (score, row, col, mask, (r0, c0)) on a
+    grid of block ``4 * side / 1024``."""
+    path = cache / ds.key / f"{name}_dog.pkl"
+    if path.exists():
+        with open(path, "rb") as fh:
+            return pickle.load(fh)
+    from scipy import ndimage
+    from skimage.feature import blob_dog
+
+    from car_napari.mammography import detect_breast
+
+    grey = _grey01(ds.read(name))
+    breast = detect_breast(grey)
+    factor = max(1, round(4 * max(grey.shape) / 1024))
+    small = _block_mean(grey, factor)
+    marks, dogs = [], {}
+    for r, c, s in blob_dog(small, min_sigma=2, max_sigma=24, threshold=0.005):
+        R, Cc = int(r) * factor + factor // 2, int(c) * factor + factor // 2
+        if not breast[min(R, breast.shape[0] - 1), min(Cc, breast.shape[1] - 1)]:
+            continue
+        if s not in dogs:  # blob sigmas come from a few scales
+            dogs[s] = s * (ndimage.gaussian_filter(small, s)
+                           - ndimage.gaussian_filter(small, 1.6 * s))
+        rad = np.sqrt(2) * s
+        yy, xx = np.ogrid[-int(rad) - 1 : int(rad) + 2, -int(rad) - 1 : int(rad) + 2]
+        marks.append((float(dogs[s][int(r), int(c)]), float(R), float(Cc),
+                      yy**2 + xx**2 <= rad**2, (int(r) - int(rad) - 1, int(c) - int(rad) - 1),
+                      factor))
+    with open(path, "wb") as fh:
+        pickle.dump(marks, fh)
+    return marks
+
+
+# --- scoring, findings, FROC ----------------------------------------------------
+
+
+def positives(kept, f, masses):
+    """Per candidate: the index of the mass its centroid hits (strict), -1 none."""
     y = np.full(len(kept), -1)
     for k, c in enumerate(kept):
         r, col = (c.centroid[0] + 0.5) * f - 0.5, (c.centroid[1] + 0.5) * f - 0.5
-        for j, (R, Cc, rad) in enumerate(findings):
-            if np.hypot(r - R, col - Cc) <= max(rad, MIN_RADIUS):
+        for j, m in enumerate(masses):
+            if hits(m, r, col):
                 y[k] = j
                 break
     return y
 
 
-def training_set(d, names, cols):
-    """X, y (bool), mass groups (-1: negative) of the images ``names``."""
-    X = np.vstack([d[n][1] for n in names])[:, cols]
-    ids = [np.where(d[n][3] >= 0, 100 * i + d[n][3], -1) for i, n in enumerate(names)]
-    groups = np.concatenate(ids)
-    return X, groups >= 0, groups
+def columns(families):
+    return [C.DESCRIPTORS.index(x) for fam in families for x in C.FAMILIES[fam]]
 
 
-def marks_of(findings_merged, f):
-    """(score, centroid row, col (full res), mask, box) per merged finding."""
-    out = []
-    for score, mask, (r0, _r1, c0, _c1), _best in findings_merged:
-        rr, cc = np.nonzero(mask)
-        out.append((score, (rr.mean() + r0 + 0.5) * f - 0.5, (cc.mean() + c0 + 0.5) * f - 0.5,
-                    mask, (r0, c0)))
-    return out
-
-
-def match(marks, masses, f, lenient):
-    """Per mark: index of the first mass it hits (or -1)."""
-    hit = []
-    for _s, r, c, mask, (r0, c0) in marks:
-        j = -1
-        for k, (R, Cc, rad) in enumerate(masses):
-            if np.hypot(r - R, c - Cc) <= max(rad, MIN_RADIUS):
-                j = k
-                break
-            if lenient:
-                a, b = R // f - r0, Cc // f - c0
-                if 0 <= a < mask.shape[0] and 0 <= b < mask.shape[1] and mask[a, b]:
-                    j = k
-                    break
-        hit.append(j)
-    return hit
-
-
-def froc(per_image, n_masses, n_images):
-    """per_image: list of (scores, hit mass ids (per mark, -1 = false), image
-    id). Returns arrays (false per image, sensitivity, threshold) over all
-    thresholds, best first."""
-    rows = [(s, h, i) for scores, hits, i in per_image for s, h in zip(scores, hits, strict=True)]
-    rows.sort(key=lambda t: -t[0])
-    seen, fp = set(), 0
-    fpi, sens, thr = [0.0], [0.0], [np.inf]
-    for s, h, i in rows:
-        if h < 0:
-            fp += 1
-        else:
-            seen.add((i, h))
-        fpi.append(fp / n_images)
-        sens.append(len(seen) / n_masses)
-        thr.append(s)
-    return np.array(fpi), np.array(sens), np.array(thr)
-
-
-def found_at(res, rate):
-    """Names of the masses found (strict) at the best threshold with at most
-    ``rate`` false regions per image."""
-    names = sorted(res)
-    marks = sorted(((s, h, n) for n in names for s, h in zip(res[n][0], res[n][1],
-                                                             strict=True)), key=lambda t: -t[0])
-    fp, seen, best = 0, set(), set()
-    for _s, h, n in marks:
-        if h < 0:
-            fp += 1
-            if fp > rate * len(names) + 1e-9:
-                break
-        else:
-            seen.add(f"{n}#{h}")
-        best = set(seen)
-    return sorted(best)
-
-
-def at_rate(curve, rate):
-    """Best sensitivity with at most ``rate`` false regions per image, and
-    the masses found there."""
-    fpi, sens, _ = curve
-    ok = fpi <= rate + 1e-12
-    return float(sens[ok].max())
-
-
-def fit_lr(X, y, groups=None, c=1.0):
-    """Logistic regression (inverse regularisation ``c``); weights: every mass counts once (its
-    positive candidates share a weight of 1), the negatives together weigh
-    as much as the positives."""
+def fit_lr(X, groups, c=1.0):
+    """Standardised logistic regression; every mass's positives weigh 1 in
+    all, the negatives together as much as the positives."""
     from sklearn.linear_model import LogisticRegression
 
     mean, scale = X.mean(axis=0), X.std(axis=0)
     scale[scale == 0] = 1.0
-    y = np.asarray(y, bool)
-    w = np.ones(len(y))
-    if groups is not None:
-        pos = groups >= 0
-        for g in np.unique(groups[pos]):
-            w[groups == g] = 1.0 / np.sum(groups == g)
-        w[~pos] = w[pos].sum() / max(1, np.sum(~pos))
-    lr = LogisticRegression(C=c, max_iter=2000)
-    lr.fit((X - mean) / scale, y, sample_weight=w)
+    lr = LogisticRegression(C=c, max_iter=3000)
+    lr.fit((X - mean) / scale, groups >= 0, sample_weight=_weights(groups))
     return mean, scale, lr.coef_[0], float(lr.intercept_[0])
 
 
@@ -297,312 +330,394 @@ def model_of(cols, params):
                        "scale": scale.tolist(), "coef": coef.tolist(), "intercept": intercept})
 
 
-def cross_validate(data, names, masses, cols, c=1.0):
-    """CV FROC marks: per image (scores, strict hits, lenient hits)."""
-    out = {}
-    for k in range(FOLDS):
-        train = [n for n in names if fold_of(n) != k]
-        test = [n for n in names if fold_of(n) == k]
-        model = model_of(cols, fit_lr(*training_set(data, train, cols), c=c))
-        for n in test:
-            kept, Xn, f, _ = data[n]
-            out[n] = evaluate_image(model, kept, Xn, f, masses[n])
-    return out
+def _weights(groups):
+    pos = groups >= 0
+    w = np.ones(len(groups))
+    _, inv, counts = np.unique(groups[pos], return_inverse=True, return_counts=True)
+    w[pos] = 1.0 / counts[inv]
+    w[~pos] = w[pos].sum() / max(1, np.sum(~pos))
+    return w
 
 
-def nested_choices(idx):
-    """What the nested CV chooses among: label -> (mode, descriptor columns,
-    C): the CAR or the pooled candidates with four descriptor sets, the
-    control's candidates with the CAR surprise, three regularisations
-    (fewest descriptors and strongest regularisation first: ties go to
-    them)."""
-    gs = idx["grey"] + idx["shape"]
-    sets = {"grey + shape": gs, "+ surprise": gs + idx["surprise"],
-            "+ texture": gs + idx["texture"],
-            "+ texture + surprise": gs + idx["texture"] + idx["surprise"],
-            "+ host": gs + idx["host"]}
-    out = {f"{mode}: {name}, C={c:g}": (mode, cols, c)
-           for mode in ("car", "pooled") for name, cols in sets.items() for c in CS}
-    # the bright-region cutting of the whole breast, described with the CAR
-    # surprise (its candidates carry no CAR texture features)
-    out.update({f"control: + surprise, C={c:g}": ("control", sets["+ surprise"], c)
-                for c in CS})
-    return out
+def fit_trees(X, groups):
+    """Gradient-boosted trees (scikit-learn's histogram GBT, settings fixed a
+    priori), the same weights as :func:`fit_lr`; returns the model's spec
+    (``"kind": "trees"``), checked against scikit-learn's own prediction."""
+    from sklearn.ensemble import HistGradientBoostingClassifier
+
+    clf = HistGradientBoostingClassifier(max_iter=150, learning_rate=0.05, max_leaf_nodes=15,
+                                         min_samples_leaf=40, l2_regularization=1.0,
+                                         early_stopping=False, random_state=0)
+    clf.fit(X, groups >= 0, sample_weight=_weights(groups))
+    trees = []
+    for (predictor,) in clf._predictors:
+        nodes = predictor.nodes
+        trees.append({"feature": nodes["feature_idx"].tolist(),
+                      "threshold": nodes["num_threshold"].tolist(),
+                      "left": nodes["left"].tolist(), "right": nodes["right"].tolist(),
+                      "leaf": nodes["is_leaf"].astype(int).tolist(),
+                      "value": nodes["value"].tolist()})
+    spec = {"kind": "trees", "baseline": float(np.ravel(clf._baseline_prediction)[0]),
+            "trees": trees}
+    return spec, clf
 
 
-def select(data, names, masses, choices):
-    """The choice with the best mean strict sensitivity at 1, 2, 3 false
-    regions per image in a leave-one-fold-out CV over the folds of
-    ``names``; returns (label, value)."""
+def trees_model(cols, spec, clf=None, X=None):
+    model = C.RoiModel({**spec, "descriptors": [C.DESCRIPTORS[c] for c in cols]})
+    if clf is not None:  # our NumPy traversal against scikit-learn's own
+        full = np.zeros((min(len(X), 2000), len(C.DESCRIPTORS)))
+        full[:, cols] = X[: len(full)]
+        diff = np.abs(model.raw(full) - clf.decision_function(X[: len(full)])).max()
+        assert diff < 1e-9, diff
+    return model
+
+
+def fit_model(d, names, cols, scorer):
+    X, groups = training_set(d, names, cols)
+    if scorer == "logistic":
+        return model_of(cols, fit_lr(X, groups))
+    spec, clf = fit_trees(X, groups)
+    return trees_model(cols, spec, clf, X)
+
+
+def choose_scorer(ds, d, names, cols, shape):
+    """Logistic regression or trees, chosen on ``names`` alone (a training
+    part): fitted on all but one of its folds, each scores the held-out fold;
+    the better mean strict sensitivity at :data:`RATES` wins (ties: logistic)."""
+    folds = sorted({fold_of(ds, n) for n in names})
+    held = folds[0]
+    fit_on = [n for n in names if fold_of(ds, n) != held]
+    test = [n for n in names if fold_of(ds, n) == held]
     best = None
-    for label, (mode, cols, c) in choices.items():
-        d = data[mode]
-        inner = {}
-        for j in sorted(set(fold_of(n) for n in names)):
-            fit_on = [n for n in names if fold_of(n) != j]
-            model = model_of(cols, fit_lr(*training_set(d, fit_on, cols), c=c))
-            for n in names:
-                if fold_of(n) == j:
-                    kept, Xn, f, _ = d[n]
-                    inner[n] = evaluate_image(model, kept, Xn, f, masses[n])
-        cv = curves(inner, names, masses)["strict"]
-        value = float(np.mean([at_rate(cv, r) for r in RATES]))
-        # ties: the first (the fewest descriptors, the strongest regularisation)
+    for scorer in SCORERS:
+        model = fit_model(d, fit_on, cols, scorer)
+        res = {n: match(marks_of(model, *d[n][:3], shape), ds.masses[n]) for n in test}
+        froc = Froc(ds, test, res, "strict")
+        value = float(np.mean([froc.at(r)[0] for r in RATES]))
         if best is None or value > best[1] + 1e-12:
-            best = (label, value)
-    return best
+            best = (scorer, value)
+    return best[0]
 
 
-def nested(data, names, masses, choices):
-    """CV FROC marks where the candidate set, the descriptor set and the
-    regularisation (``choices``: label -> (mode, cols, C); ``data``: mode ->
-    per-image data) are chosen inside each training part by :func:`select`
-    (an inner CV over its 4 folds): the honest figure of the whole
-    procedure, selection included. Returns the marks and the choice per
-    outer fold."""
-    out, chosen = {}, {}
-    for k in range(FOLDS):
-        train = [n for n in names if fold_of(n) != k]
-        test = [n for n in names if fold_of(n) == k]
-        label, _ = select(data, train, masses, choices)
-        chosen[k] = label
-        mode, cols, c = choices[label]
-        model = model_of(cols, fit_lr(*training_set(data[mode], train, cols), c=c))
-        for n in test:
-            kept, Xn, f, _ = data[mode][n]
-            out[n] = evaluate_image(model, kept, Xn, f, masses[n])
-    return out, chosen
+def training_set(d, names, cols):
+    X = np.vstack([d[n][1][:, cols] for n in names])
+    groups = np.concatenate([np.where(d[n][4] >= 0, 1000 * i + d[n][4], -1)
+                             for i, n in enumerate(names)])
+    return X, groups
 
 
-def evaluate_image(model, kept, X, f, findings):
+def marks_of(model, kept, X, f, shape):
+    """(score, row, col, mask, (r0, c0), f) per finding, as the package merges them."""
     scores = model.score(X) if len(kept) else np.zeros(0)
-    shape = (1024 // f + 1, 1024 // f + 1)  # covers every box of the grid
-    merged = C._visible(C._merge(kept, scores), shape)
-    marks = marks_of(merged, f)
-    return ([m[0] for m in marks], match(marks, findings, f, False),
-            match(marks, findings, f, True))
-
-
-def curves(results, names, masses):
-    n_masses = sum(len(masses[n]) for n in names)
-    out = {}
-    for j, rule in ((1, "strict"), (2, "lenient")):
-        per = [(results[n][0], results[n][j], i) for i, n in enumerate(names)]
-        out[rule] = froc(per, n_masses, len(names))
+    out = []
+    for score, mask, (r0, _r1, c0, _c1), _best in C._visible(C._merge(kept, scores), shape):
+        rr, cc = np.nonzero(mask)
+        out.append((score, (rr.mean() + r0 + 0.5) * f - 0.5, (cc.mean() + c0 + 0.5) * f - 0.5,
+                    mask, (r0, c0), f))
     return out
 
 
-def cached(path, make):
-    import pickle
-
-    if path.exists():
-        with open(path, "rb") as fh:
-            return pickle.load(fh)
-    out = make()
-    with open(path, "wb") as fh:
-        pickle.dump(out, fh)
-    return out
-
-
-def dog_baseline(name):
-    """DoG blobs in the breast, scored by the normalised DoG response."""
-    from scipy import ndimage
-    from skimage.feature import blob_dog
-
-    from car_napari.mammography import detect_breast
-
-    grey = read(name) / 255.0
-    breast = detect_breast(grey)
-    factor = 4
-    small = _block_mean(grey, factor)
-    blobs = blob_dog(small, min_sigma=2, max_sigma=24, threshold=0.005)
-    marks = []
-    dogs = {}
-    for r, c, s in blobs:
-        R, Cc = int(r) * factor + factor // 2, int(c) * factor + factor // 2
-        if breast[min(R, breast.shape[0] - 1), min(Cc, breast.shape[1] - 1)]:
-            if s not in dogs:  # blob sigmas come from a few scales
-                dogs[s] = s * (ndimage.gaussian_filter(small, s)
-                               - ndimage.gaussian_filter(small, 1.6 * s))
-            resp = dogs[s][int(r), int(c)]
-            rad = np.sqrt(2) * s  # analysis pixels of the factor-4 grid
-            yy, xx = np.ogrid[-int(rad) - 1 : int(rad) + 2, -int(rad) - 1 : int(rad) + 2]
-            mask = yy**2 + xx**2 <= rad**2
-            marks.append((float(resp), float(R), float(Cc), mask,
-                          (int(r) - int(rad) - 1, int(c) - int(rad) - 1)))
-    return marks
+def match(marks, masses):
+    """Per mark: (strict hit, lenient hit) mass indices, -1 for a false mark."""
+    strict, lenient = [], []
+    for _s, r, c, mask, (r0, c0), f in marks:
+        js = next((j for j, m in enumerate(masses) if hits(m, r, c)), -1)
+        jl = js
+        if jl < 0:
+            for j, m in enumerate(masses):
+                a, b = int(centre(m)[0] // f) - r0, int(centre(m)[1] // f) - c0
+                if 0 <= a < mask.shape[0] and 0 <= b < mask.shape[1] and mask[a, b]:
+                    jl = j
+                    break
+        strict.append(js)
+        lenient.append(jl)
+    return [m[0] for m in marks], strict, lenient
 
 
-def main():
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--cache", default="/tmp/car_napari_froc_cache")
-    ap.add_argument("--prepare-only", action="store_true")
-    ap.add_argument("--png", default=None)
-    ap.add_argument("--write-model", action="store_true")
-    ap.add_argument("--nested", action="store_true",
-                    help="also choose the descriptor families inside each training part")
-    ap.add_argument("--limit", type=int, default=None, help="development: first N images")
-    args = ap.parse_args()
-    cache = Path(args.cache)
-    cache.mkdir(parents=True, exist_ok=True)
-    names, masses = load_truth()
-    make_folds(names, masses)
-    order = sorted(names, key=lambda n: (not masses[n], n))
-    if args.limit:
-        order = order[: args.limit]
-        names = sorted(order)
-    secs = []
-    for i, n in enumerate(order):
-        secs.append(segmentation(n, cache)[2])
-        print(f"\rsegmented {i + 1}/{len(order)}", end="", file=sys.stderr, flush=True)
-    print(file=sys.stderr)
-    if args.prepare_only:
-        return
-    n_masses = sum(len(masses[n]) for n in names)
-    print(f"{len(names)} images, {n_masses} mass findings in "
-          f"{sum(bool(masses[n]) for n in names)} images; folds: "
-          f"{[sum(fold_of(n) == k for n in names) for k in range(FOLDS)]} images, "
-          f"{[sum(len(masses[n]) for n in names if fold_of(n) == k) for k in range(FOLDS)]} "
-          "masses")
-    print(f"segmentation (cached, as first run): median {np.median(secs):.1f} s/image")
+def cv_fold(ds, d, names, cols, shape, k, scorer=None):
+    """Fold ``k``: the model fitted on the other folds (its scorer chosen on
+    them, unless given) marks the fold's images: per image (scores, strict
+    hits, lenient hits); and the scorer."""
+    from threadpoolctl import threadpool_limits
 
-    data = {}
-    for mode in MODES:
-        d = {}
+    with threadpool_limits(1):  # one process a core
+        train = [n for n in names if fold_of(ds, n) != k]
+        kind = scorer or choose_scorer(ds, d, train, cols, shape)
+        model = fit_model(d, train, cols, kind)
+        return {n: match(marks_of(model, *d[n][:3], shape), ds.masses[n])
+                for n in names if fold_of(ds, n) == k}, kind
+
+
+_FORKED = {}  # what the forked workers read (copy on write)
+
+
+def _cv_task(task):
+    label, k = task
+    ds, data, names, shape = (_FORKED[x] for x in ("ds", "data", "names", "shape"))
+    mode, fams = VARIANTS[label]
+    return label, k, cv_fold(ds, data[mode], names, columns(fams), shape, k)
+
+
+def cross_validate(ds, data, names, shape, jobs):
+    """Every variant's cross-validated marks (:func:`cv_fold`, the folds in
+    ``jobs`` forked single-threaded processes); returns per variant the marks
+    per image and the scorer of each fold."""
+    import multiprocessing as mp
+
+    _FORKED.update(ds=ds, data=data, names=names, shape=shape)
+    tasks = [(label, k) for label in VARIANTS for k in range(FOLDS)]
+    raw = {label: {} for label in VARIANTS}
+    scorers = {label: [None] * FOLDS for label in VARIANTS}
+    with mp.get_context("fork").Pool(jobs) as pool:
+        for label, k, (marks, kind) in pool.imap_unordered(_cv_task, tasks):
+            raw[label].update(marks)
+            scorers[label][k] = kind
+    return raw, scorers
+
+
+class Froc:
+    """FROC of per-image marks, with bootstrap over patients.
+
+    For every mass the best score of a mark hitting it (-inf: never found)
+    and every false mark's score, with the patient they belong to; the
+    sensitivity at a rate is that at the lowest threshold whose false marks
+    per image stay within the rate."""
+
+    def __init__(self, ds, names, results, rule):
+        j = 1 if rule == "strict" else 2
+        patients = sorted({ds.patient(n) for n in names})
+        index = {p: i for i, p in enumerate(patients)}
+        self.n_patients = len(patients)
+        self.images = np.bincount([index[ds.patient(n)] for n in names],
+                                  minlength=self.n_patients).astype(float)
+        best, owner, fp, fp_owner = [], [], [], []
         for n in names:
-            kept, X, f = candidates(n, cache, mode)
-            d[n] = (kept, X, f, labels_for(kept, f, masses[n]))
-        data[mode] = d
-        print(f"{mode}: candidates per image median "
-              f"{np.median([len(d[n][0]) for n in names]):.0f}, positives "
-              f"{sum(int((d[n][3] >= 0).sum()) for n in names)}")
+            scores, hit = results[n][0], results[n][j]
+            p = index[ds.patient(n)]
+            for m in range(len(ds.masses[n])):
+                s = [sc for sc, h in zip(scores, hit, strict=True) if h == m]
+                best.append(max(s) if s else -np.inf)
+                owner.append(p)
+            for sc, h in zip(scores, hit, strict=True):
+                if h < 0:
+                    fp.append(sc)
+                    fp_owner.append(p)
+        order = np.argsort(-np.asarray(fp, float), kind="stable")
+        self.fp = np.asarray(fp, float)[order]
+        self.fp_owner = np.asarray(fp_owner, int)[order]
+        self.best = np.asarray(best, float)
+        self.owner = np.asarray(owner, int)
 
-    idx = {fam: [C.DESCRIPTORS.index(x) for x in C.FAMILIES[fam]] for fam in C.FAMILIES}
-    gs = idx["grey"] + idx["shape"]
-    # the variants, declared before any was measured (see the README)
-    variants = {
-        "CAR: grey + shape": ("car", gs),
-        "CAR: grey + shape + texture": ("car", gs + idx["texture"]),
-        "CAR: grey + shape + surprise": ("car", gs + idx["surprise"]),
-        "CAR + control pooled: grey + shape": ("pooled", gs),
-        "CAR + control pooled: grey + shape + surprise": ("pooled", gs + idx["surprise"]),
-        "CAR + control pooled: grey + shape + texture + surprise":
-            ("pooled", gs + idx["texture"] + idx["surprise"]),
-        "control (no CAR): grey + shape": ("control", gs),
-        "control's candidates + CAR surprise": ("control", gs + idx["surprise"]),
-        # added after the first runs (the brief's "contrast against the host
-        # CAR segment instead of a ring")
-        "CAR: grey + shape + host segment": ("car", gs + idx["host"]),
-        "CAR + control pooled: grey + shape + host segment": ("pooled", gs + idx["host"]),
-    }
-    results = {}
-    t0 = time.perf_counter()
-    raw = {}
-    for label, (mode, cols) in variants.items():
-        raw[label] = res = cross_validate(data[mode], names, masses, cols)
-        results[label] = curves(res, names, masses)
-    print(f"cross-validation of {len(variants)} variants: {time.perf_counter() - t0:.0f} s")
-    choices = nested_choices(idx)
-    if args.nested:
-        t0 = time.perf_counter()
-        res, chosen = nested(data, names, masses, choices)
-        results[NESTED] = curves(res, names, masses)
-        raw[NESTED] = res
-        print(f"nested CV over {len(choices)} choices: {time.perf_counter() - t0:.0f} s; "
-              f"inner-CV choice per outer fold: {chosen}")
-    dog = {}
+    def at(self, rate, weights=None):
+        """(sensitivity, threshold) at ``rate`` false marks per image; ``weights``:
+        how many times each patient is drawn."""
+        w = np.ones(self.n_patients) if weights is None else weights
+        n_images = float(w @ self.images)
+        cum = np.cumsum(w[self.fp_owner]) / n_images
+        # false marks above the threshold: the first k, k the most within the rate
+        k = int(np.searchsorted(cum, rate + 1e-12, side="right"))
+        threshold = self.fp[k] if k < len(self.fp) else -np.inf
+        found = self.best > threshold
+        n_masses = float(w[self.owner].sum())
+        return float(w[self.owner] @ found) / max(n_masses, 1e-12), threshold
+
+    def curve(self):
+        thresholds = np.unique(np.concatenate([self.fp, self.best[np.isfinite(self.best)]]))
+        thresholds = np.concatenate([thresholds[::-1], [-np.inf]])
+        fpi = np.array([np.sum(self.fp >= t) for t in thresholds]) / self.images.sum()
+        sens = np.array([np.mean(self.best >= t) for t in thresholds])
+        return fpi, sens
+
+
+def bootstrap(frocs, rates, n_boot, seed=0):
+    """Per method and rate: the bootstrap samples (patients drawn with
+    replacement, the same draws for every method: paired differences)."""
+    rng = np.random.default_rng(seed)
+    n = next(iter(frocs.values())).n_patients
+    draws = [np.bincount(rng.integers(0, n, n), minlength=n).astype(float)
+             for _ in range(n_boot)]
+    return {k: {r: np.array([fr.at(r, w)[0] for w in draws]) for r in rates}
+            for k, fr in frocs.items()}
+
+
+def interval(samples):
+    lo, hi = np.percentile(samples, [2.5, 97.5])
+    return float(lo), float(hi)
+
+
+# --- the run ---------------------------------------------------------------------
+
+
+def load(ds, cache, names, mode):
+    d = {}
     for n in names:
-        marks = cached(cache / f"{n}_dog.pkl", lambda n=n: dog_baseline(n))
-        dog[n] = ([m[0] for m in marks], match(marks, masses[n], 4, False),
-                  match(marks, masses[n], 4, True))
-    results["DoG blobs"] = curves(dog, names, masses)
+        kept, X, f, secs = candidates(ds, n, cache, mode)
+        d[n] = (kept, X, f, secs, positives(kept, f, ds.masses[n]))
+    return d
 
-    print("\n| method | rule | " + " | ".join(f"sens. at {r:g} FP/image" for r in RATES) + " |")
+
+def evaluate(ds, cache, names, n_boot, jobs):
+    """The table's figures of one data set; returns (frocs, boot, raw)."""
+    data = {mode: load(ds, cache, names, mode) for mode in ("car", "control")}
+    first = ds.read(names[0])
+    f = max(1, round(max(first.shape) / _ANALYSIS_SIDE))
+    shape = (first.shape[0] // f + 2, first.shape[1] // f + 2)
+    t0 = time.perf_counter()
+    raw, scorers = cross_validate(ds, data, names, shape, jobs)
+    for label in VARIANTS:
+        print(f"{ds.key}: {label}: scorer chosen per fold {scorers[label]}")
+    print(f"{ds.key}: cross-validation of {len(VARIANTS)} variants "
+          f"{time.perf_counter() - t0:.0f} s", file=sys.stderr)
+    dogs = {}
+    for n in names:
+        marks = dog(ds, n, cache)
+        dogs[n] = match(marks, ds.masses[n])
+    raw["DoG blobs"] = dogs
+    frocs = {(k, rule): Froc(ds, names, res, rule) for k, res in raw.items()
+             for rule in ("strict", "lenient")}
+    boot = bootstrap(frocs, RATES, n_boot)
+    return frocs, boot, raw, data, scorers
+
+
+def table(ds, names, frocs, boot):
+    n_masses = sum(len(ds.masses[n]) for n in names)
+    patients = len({ds.patient(n) for n in names})
+    print(f"\n{ds.key}: {len(names)} images, {patients} patients, {n_masses} masses; "
+          "sensitivity (95 % bootstrap interval over patients) at false marks per image")
+    print("\n| method | rule | " + " | ".join(f"{r:g}" for r in RATES) + " |")
     print("| --- | --- |" + " --- |" * len(RATES))
-    for label, cv in results.items():
-        for rule in ("strict", "lenient"):
-            vals = [at_rate(cv[rule], r) for r in RATES]
-            cells = " | ".join(f"{v:.2f} ({round(v * n_masses)}/{n_masses})" for v in vals)
-            print(f"| {label} | {rule} | {cells} |")
-
-    for label in raw:
-        print(f"{label}: masses found (strict) at 2 FP/image: {found_at(raw[label], 2.0)}")
-
-    if args.png:
-        shown = [k for k in (NESTED, "CAR: grey + shape", "control (no CAR): grey + shape",
-                             "DoG blobs") if k in results]
-        plot({k: results[k] for k in shown}, args.png, n_masses, len(names))
-    if args.write_model:
-        # the shipped descriptors: the best CAR variant of this CV, set when
-        # the texture family was first compared (issue 17); neither the
-        # surprise or host families nor the pooled candidates raised the CV
-        # figures,
-        # and the nested choice among them is lower still: all left out
-        mode, cols = variants[SHIPPED]
-        write_model(data[mode], names, masses, cols, results[SHIPPED])
+    for (label, rule), fr in frocs.items():
+        cells = []
+        for r in RATES:
+            lo, hi = interval(boot[(label, rule)][r])
+            cells.append(f"{fr.at(r)[0]:.2f} ({lo:.2f}-{hi:.2f})")
+        print(f"| {label} | {rule} | " + " | ".join(cells) + " |")
+    for other in (CONTROL, "CAR segments, no CAR descriptors", "DoG blobs"):
+        cells = []
+        for r in RATES:
+            diff = frocs[(SHIPPED, "strict")].at(r)[0] - frocs[(other, "strict")].at(r)[0]
+            lo, hi = interval(boot[(SHIPPED, "strict")][r] - boot[(other, "strict")][r])
+            cells.append(f"{diff:+.2f} ({lo:+.2f} to {hi:+.2f})")
+        print(f"| {SHIPPED} - {other} | strict | " + " | ".join(cells) + " |")
 
 
-def plot(results, png, n_masses, n_images):
+def plot(results, png):
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(6.4, 4.4), dpi=110)
-    styles = {"strict": "-", "lenient": ":"}
+    fig, axs = plt.subplots(1, len(results), figsize=(6.0 * len(results), 4.4), dpi=100,
+                            squeeze=False)
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    for k, (label, cv) in enumerate(results.items()):
-        for rule in ("strict", "lenient"):
-            fpi, sens, _ = cv[rule]
-            ax.step(fpi, sens, where="post", ls=styles[rule], color=colours[k % len(colours)],
-                    label=f"{label} ({rule})" if rule == "strict" else None, lw=1.4)
-    ax.set_xlim(0, 8)
-    ax.set_ylim(0, 1.02)
-    ax.set_xlabel("false regions per image")
-    ax.set_ylabel("sensitivity (masses found)")
-    ax.set_title(f"mini-MIAS, 5-fold CV by image: {n_masses} masses, {n_images} images\n"
-                 "solid: strict (centroid within radius), dotted: lenient", fontsize=9)
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, loc="lower right")
+    for ax, (title, frocs) in zip(axs[0], results.items(), strict=True):
+        labels = list(dict.fromkeys(k for k, _ in frocs))
+        for i, label in enumerate(labels):
+            for rule, ls in (("strict", "-"), ("lenient", ":")):
+                fpi, sens = frocs[(label, rule)].curve()
+                ax.step(fpi, sens, where="post", ls=ls, color=colours[i % len(colours)],
+                        lw=1.4, label=label if rule == "strict" else None)
+        ax.set_xlim(0, 4)
+        ax.set_ylim(0, 1.02)
+        ax.set_xlabel("false marks per image")
+        ax.set_ylabel("sensitivity (masses found)")
+        ax.set_title(title + "\nsolid: strict, dotted: lenient", fontsize=9)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="lower right")
     fig.tight_layout()
     fig.savefig(png)
     print(f"plot: {png}")
 
 
-def write_model(d, names, masses, cols, cv):
-    params = fit_lr(*training_set(d, names, cols))
-    model = model_of(cols, params)
-    res = {n: evaluate_image(model, d[n][0], d[n][1], d[n][2], masses[n]) for n in names}
-    fpi, sens, thr = curves(res, names, masses)["strict"]
+def write_model(ds, data, names, frocs, boot, fold_scorers, command):
+    """The shipped variant fitted on every image, with the scorer most folds
+    chose (ties: logistic)."""
+    mode, fams = VARIANTS[SHIPPED]
+    cols = columns(fams)
+    scorer = max(SCORERS, key=lambda k: (fold_scorers.count(k), k == "logistic"))
+    X, groups = training_set(data[mode], names, cols)
+    if scorer == "logistic":
+        mean, scale, coef, intercept = fit_lr(X, groups)
+        fitted = {"mean": mean.tolist(), "scale": scale.tolist(), "coef": coef.tolist(),
+                  "intercept": intercept}
+        how = "sklearn LogisticRegression(C=1) on standardised descriptors"
+    else:
+        fitted, clf = fit_trees(X, groups)
+        trees_model(cols, fitted, clf, X)
+        how = ("sklearn HistGradientBoostingClassifier(max_iter=150, learning_rate=0.05, "
+               "max_leaf_nodes=15, min_samples_leaf=40, l2_regularization=1), its trees "
+               "evaluated in NumPy")
     points = []
-    for rate in (0.25, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0):
-        ok = np.flatnonzero(fpi <= rate + 1e-12)
-        j = ok[-1]  # the lowest threshold with at most ``rate`` false marks per image
-        points.append({"marks_per_image": rate, "threshold": float(thr[j]) if j else 1.0,
-                       "cv_sensitivity_strict": at_rate(cv["strict"], rate),
-                       "cv_sensitivity_lenient": at_rate(cv["lenient"], rate)})
-    mean, scale, coef, intercept = params
+    fr, ctl = frocs[(SHIPPED, "strict")], frocs[(CONTROL, "strict")]
+    for rate in (0.25, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0):
+        sens, thr = fr.at(rate)
+        lo, hi = interval(boot[(SHIPPED, "strict")][rate]) if rate in RATES else (None, None)
+        points.append({"marks_per_image": rate, "threshold": float(min(max(thr, 0.0), 1.0)),
+                       "cv_sensitivity_strict": sens,
+                       "cv_interval_strict": [lo, hi] if lo is not None else None,
+                       "cv_sensitivity_lenient": frocs[(SHIPPED, "lenient")].at(rate)[0],
+                       "control_cv_sensitivity_strict": ctl.at(rate)[0]})
     spec = {
         "what": "logistic score of mammogram ROI candidates (car_napari.mammography)",
-        "made_by": "PYTHONPATH=. nice -n 10 python benchmarks/bench_froc.py --write-model",
+        "made_by": command,
         "date": datetime.date.today().isoformat(),
-        "data": f"mini-MIAS, all {len(names)} images, "
-                f"{sum(len(masses[n]) for n in names)} mass findings (CIRC, SPIC, MISC)",
-        "fit": "sklearn LogisticRegression(C=1) on standardised descriptors; positive = "
-               "candidate centroid within the mass radius (>= 10 px); weights: each mass's "
-               "positives share 1, the negatives together weigh as much as the positives",
+        "data": f"CBIS-DDSM mass training split, {len(names)} film mammograms resized to "
+                f"800x800, {sum(len(ds.masses[n]) for n in names)} boxed masses, "
+                f"{len({ds.patient(n) for n in names})} patients",
+        "bit_depth": "8-bit JPEG films; 12-bit uint16 input is read as value / 4095",
+        "fit": f"{how}, fitted on all images; the scorer is the one most cross-validation "
+               f"folds chose inside their training part ({fold_scorers}); positive = "
+               "candidate centroid inside a mass box; weights: each mass's positives share "
+               "1, the negatives together weigh as much as the positives",
         "descriptors": [C.DESCRIPTORS[c] for c in cols],
-        "mean": mean.tolist(), "scale": scale.tolist(), "coef": coef.tolist(),
-        "intercept": intercept,
-        "operating_points_note": "threshold: the lowest score with at most marks_per_image "
-                                 "false marks per image on the training images (all 81); "
-                                 "cv_sensitivity_*: 5-fold cross-validated sensitivity there",
+        **fitted,
+        "operating_points_note": "threshold: where the pooled 5-fold cross-validated "
+                                 "scores (folds by patient) make marks_per_image false "
+                                 "marks per image; cv_*: the cross-validated sensitivity "
+                                 "there (strict: centroid in the box) and its 95 % "
+                                 "bootstrap interval over patients; control_*: the no-CAR "
+                                 "control's at the same rate",
         "operating_points": points,
     }
     with open(C._MODEL_FILE, "w") as fh:
         json.dump(spec, fh, indent=1)
         fh.write("\n")
     print(f"model: {C._MODEL_FILE}")
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", default="cbis,mias")
+    ap.add_argument("--cache", default="/tmp/car_napari_froc_cache")
+    ap.add_argument("--jobs", type=int, default=1)
+    ap.add_argument("--prepare-only", action="store_true")
+    ap.add_argument("--png", default=None)
+    ap.add_argument("--write-model", action="store_true")
+    ap.add_argument("--boot", type=int, default=1000)
+    ap.add_argument("--limit", type=int, default=None, help="development: first N images")
+    args = ap.parse_args()
+    cache = Path(args.cache)
+    results = {}
+    for key in args.data.split(","):
+        ds = DATASETS[key]()
+        names = ds.names[: args.limit] if args.limit else ds.names
+        prepare(ds, cache, args.jobs, names)
+        if args.prepare_only:
+            continue
+        secs = [segmentation(ds, n, cache)[2] for n in names]
+        print(f"{key}: segmentation median {np.median(secs):.2f} s/image (first run)",
+              file=sys.stderr)
+        frocs, boot, raw, data, scorers = evaluate(ds, cache, names, args.boot, args.jobs)
+        table(ds, names, frocs, boot)
+        title = (f"{key}: {len(names)} images, {sum(len(ds.masses[n]) for n in names)} masses, "
+                 "5-fold CV by patient")
+        results[title] = frocs
+        if args.write_model and key == "cbis":
+            write_model(ds, data, names, frocs, boot, scorers[SHIPPED],
+                        "PYTHONPATH=. nice -n 5 python benchmarks/bench_froc.py "
+                        + " ".join(sys.argv[1:]))
+    if args.png and results:
+        plot(results, args.png)
 
 
 if __name__ == "__main__":
