@@ -1,0 +1,75 @@
+"""``car-napari inpaint``: the mask's convention, its size, its coverage (issue 32)."""
+
+import numpy as np
+from skimage import io
+
+from car_napari.cli import main
+
+
+def _frame_and_mask(tmp_path, *, mask_shape=(48, 64), black_hole=False):
+    """A 48x64 noise frame and a mask with a 2-pixel-wide scratch."""
+    rng = np.random.default_rng(0)
+    frame = (rng.random((48, 64)) * 200).astype(np.uint8)
+    h, w = mask_shape
+    mask = np.zeros((h, w), np.uint8)
+    mask[:, w // 2 - w // 32 : w // 2 + w // 32] = 255
+    if black_hole:
+        mask = 255 - mask
+    io.imsave(tmp_path / "frame.png", frame, check_contrast=False)
+    io.imsave(tmp_path / "mask.png", mask, check_contrast=False)
+    return frame, mask
+
+
+def _inpaint(tmp_path, *options, out="out.png"):
+    return main(["inpaint", str(tmp_path / "frame.png"), "-m", str(tmp_path / "mask.png"),
+                 "-o", str(tmp_path / out), *options])
+
+
+def test_a_mostly_masked_frame_is_refused_naming_the_options(tmp_path, capsys):
+    _frame_and_mask(tmp_path, black_hole=True)
+    assert _inpaint(tmp_path) == 2
+    err = capsys.readouterr().err
+    assert "93.8 % of the frame" in err and "--invert-mask" in err and "--force" in err
+    assert not (tmp_path / "out.png").exists()  # refused before the work
+
+
+def test_invert_mask_fills_the_black_hole(tmp_path, capsys):
+    frame, _ = _frame_and_mask(tmp_path, black_hole=True)
+    assert _inpaint(tmp_path, "--invert-mask") == 0
+    restored = io.imread(tmp_path / "out.png")
+    hole = np.zeros(frame.shape, bool)
+    hole[:, 30:34] = True
+    np.testing.assert_array_equal(restored[~hole], frame[~hole])
+    assert "192 pixels restored (6.2 %)" in capsys.readouterr().err
+
+
+def test_force_fills_a_mostly_masked_frame_and_says_so(tmp_path, capsys):
+    frame, mask = _frame_and_mask(tmp_path)
+    mask = np.full(mask.shape, 255, np.uint8)
+    mask[:8, :8] = 0  # the known pixels: a corner
+    io.imsave(tmp_path / "mask.png", mask, check_contrast=False)
+    assert _inpaint(tmp_path, "--force") == 0
+    err = capsys.readouterr().err
+    assert "more than half; filling it (--force)" in err and "UserWarning" not in err
+    np.testing.assert_array_equal(io.imread(tmp_path / "out.png")[:8, :8], frame[:8, :8])
+
+
+def test_a_batch_with_one_mostly_masked_mask_is_refused_before_any_work(tmp_path, capsys):
+    _frame_and_mask(tmp_path, black_hole=True)
+    assert main(["inpaint", str(tmp_path / "frame.png"), "-m", str(tmp_path / "mask.png"),
+                 "-o", str(tmp_path / "out")]) == 2
+    assert "--invert-mask" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+    assert main(["inpaint", str(tmp_path / "frame.png"), "-m", str(tmp_path / "mask.png"),
+                 "-o", str(tmp_path / "out"), "--invert-mask"]) == 0
+    assert (tmp_path / "out" / "frame_inpainted.png").exists()
+
+
+def test_a_mask_folder_is_checked_per_frame(tmp_path, capsys):
+    _frame_and_mask(tmp_path, black_hole=True)
+    masks = tmp_path / "masks"
+    masks.mkdir()
+    (tmp_path / "mask.png").rename(masks / "frame_mask.png")
+    assert main(["inpaint", str(tmp_path / "frame.png"), "-m", str(masks),
+                 "-o", str(tmp_path / "out")]) == 2
+    assert "frame.png: failed: the mask frame_mask.png marks 93.8 %" in capsys.readouterr().err
