@@ -108,9 +108,33 @@ def load_mask(path, *, invert=False, force=False):
     return damaged
 
 
+#: The most a mask's aspect ratio may differ from its frame's (relative) for
+#: it to be resized to the frame; beyond, it would be stretched.
+MAX_ASPECT_CHANGE = 0.02
+
+
 def fit_to_frame(damaged, shape, path):
-    """``damaged`` resized to the frame ``shape`` by nearest neighbour
-    (:func:`~car_napari.inpainting.fit_mask`)."""
+    """``damaged`` (a mask's pixels, from the file ``path``) resized to the
+    frame ``shape`` (H, W) by nearest neighbour
+    (:func:`~car_napari.inpainting.fit_mask`), with a note on stderr.
+
+    Raises
+    ------
+    ValueError
+        If the aspect ratios of the mask and the frame differ by more than
+        :data:`MAX_ASPECT_CHANGE`: the mask would be stretched.
+    """
+    (h, w), (H, W) = damaged.shape, tuple(shape)
+    if (h, w) != (H, W):
+        change = abs((w / h) / (W / H) - 1.0)
+        sizes = f"{w}x{h}, the frame {W}x{H} (width x height)"
+        if change > MAX_ASPECT_CHANGE:
+            raise ValueError(
+                f"the mask {Path(path).name} is {sizes}: their aspect ratios differ by "
+                f"{100 * change:.1f} % (more than {100 * MAX_ASPECT_CHANGE:.0f} %), so the mask "
+                "would be stretched onto the frame. Draw the mask on this frame, or at a "
+                "scale of it.")
+        print_note(f"mask {Path(path).name} resized from {w}x{h} to {W}x{H} (width x height)")
     return fit_mask(damaged, shape)
 
 

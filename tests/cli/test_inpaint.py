@@ -73,3 +73,22 @@ def test_a_mask_folder_is_checked_per_frame(tmp_path, capsys):
     assert main(["inpaint", str(tmp_path / "frame.png"), "-m", str(masks),
                  "-o", str(tmp_path / "out")]) == 2
     assert "frame.png: failed: the mask frame_mask.png marks 93.8 %" in capsys.readouterr().err
+
+
+def test_a_mask_of_another_size_is_resized_with_a_note(tmp_path, capsys):
+    _frame_and_mask(tmp_path, mask_shape=(24, 32))  # half the frame's size
+    assert _inpaint(tmp_path) == 0
+    err = capsys.readouterr().err
+    assert "note: mask mask.png resized from 32x24 to 64x48 (width x height)" in err
+    _frame_and_mask(tmp_path, mask_shape=(96, 130))  # 1.6 % off: still resized
+    assert _inpaint(tmp_path) == 0
+    assert "resized from 130x96 to 64x48" in capsys.readouterr().err
+
+
+def test_a_mask_of_another_aspect_ratio_is_refused(tmp_path, capsys):
+    _frame_and_mask(tmp_path, mask_shape=(394 // 8, 625 // 8))  # the 625x394 mask
+    assert _inpaint(tmp_path) == 2
+    err = capsys.readouterr().err
+    assert "is 78x49, the frame 64x48 (width x height)" in err
+    assert "differ by 19.4 % (more than 2 %)" in err and "stretched" in err
+    assert not (tmp_path / "out.png").exists()
