@@ -1,6 +1,7 @@
 """``car-napari inpaint``: the mask's convention, its size, its coverage (issue 32)."""
 
 import numpy as np
+import pytest
 from skimage import io
 
 from car_napari.cli import main
@@ -92,3 +93,18 @@ def test_a_mask_of_another_aspect_ratio_is_refused(tmp_path, capsys):
     assert "is 78x49, the frame 64x48 (width x height)" in err
     assert "differ by 19.4 % (more than 2 %)" in err and "stretched" in err
     assert not (tmp_path / "out.png").exists()
+
+
+def test_help_and_reading_say_damaged_is_brighter_than_mid_grey(tmp_path, capsys):
+    with pytest.raises(SystemExit):
+        main(["inpaint", "--help"])
+    help_text = " ".join(capsys.readouterr().out.split())
+    assert "brighter than mid-grey (above 127 in an 8-bit mask" in help_text
+    assert "white (nonzero)" not in help_text
+    frame, mask = _frame_and_mask(tmp_path)
+    faint = np.where(mask > 0, 255, 0).astype(np.uint8)
+    faint[:, :10] = 127  # an anti-aliased edge, not past mid-grey: known
+    io.imsave(tmp_path / "mask.png", faint, check_contrast=False)
+    assert _inpaint(tmp_path) == 0
+    np.testing.assert_array_equal(io.imread(tmp_path / "out.png")[:, :10], frame[:, :10])
+    assert "192 pixels restored" in capsys.readouterr().err
