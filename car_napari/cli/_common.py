@@ -6,12 +6,13 @@ from __future__ import annotations
 
 import argparse
 import glob
+import os
 import sys
 from pathlib import Path
 
 import numpy as np
 
-from ..io.images import IMAGE_SUFFIXES, is_colour, write_image
+from ..io.images import IMAGE_SUFFIXES, WRITE_SUFFIXES, is_colour, write_image
 
 
 def expand_inputs(items):
@@ -56,6 +57,69 @@ def expand_inputs(items):
     if not paths:
         raise ValueError(f"no input images found in {list(items)}")
     return paths
+
+
+def output_file(output, paths, *, suffixes=WRITE_SUFFIXES, what="an image"):
+    """The file ``-o`` names, or None when it names a folder: the one rule of
+    every command's output.
+
+    A path that is a folder, ends in a slash or has no suffix names a folder
+    (the outputs go there, named after the inputs: :func:`output_folder`).
+    A path with a suffix names one file, which the single input's result
+    is written to; a suffix the command does not write is refused, and so is
+    a file for several inputs, before any work.
+
+    Parameters
+    ----------
+    output : str or path-like
+        The ``-o`` argument.
+    paths : list of pathlib.Path
+        The inputs (from :func:`expand_inputs`).
+    suffixes : collection of str, optional
+        The file suffixes (lower case) the command writes.
+    what : str, optional
+        What the command writes, for the messages.
+
+    Returns
+    -------
+    path : pathlib.Path or None
+        The file (its folder created), or None for a folder.
+
+    Raises
+    ------
+    ValueError
+        If the suffix is not one of ``suffixes``, or a file is named for
+        several inputs.
+
+    Examples
+    --------
+    >>> output_file("out/", [Path("a.png")]) is None
+    True
+    >>> output_file("out/b.xyz", [Path("a.png")])
+    Traceback (most recent call last):
+    ...
+    ValueError: -o out/b.xyz: .xyz is not a file type of an image; ...
+    """
+    if names_a_folder(output):
+        return None
+    path = Path(output)
+    if path.suffix.lower() not in suffixes:
+        raise ValueError(f"-o {output}: {path.suffix} is not a file type of {what}; use "
+                         f"{', '.join(sorted(suffixes))} for one file, or a folder (a name "
+                         "without a suffix, or ending in /).")
+    if len(paths) != 1:
+        raise ValueError(f"-o {output} names one file, but there are {len(paths)} inputs: "
+                         "name a folder (without a suffix, or ending in /) for several.")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+def names_a_folder(output):
+    """Whether ``-o output`` names a folder: one that exists, a path ending
+    in a slash or one without a suffix (else it names a file;
+    :func:`output_file`)."""
+    path = Path(output)
+    return path.is_dir() or str(output).endswith(("/", os.sep)) or not path.suffix
 
 
 def output_folder(path):
@@ -552,7 +616,7 @@ def add_order(parser, help="neighbourhood order, or 'auto' for the decision rule
 def add_inputs(parser, help):
     """The inputs (files, folders, globs) and -o folder of a batch command."""
     parser.add_argument("inputs", nargs="+", help=help)
-    add_output(parser, "output folder")
+    add_output(parser, "output folder; or, for a single input, the output file")
 
 
 def add_output(parser, help):
@@ -565,12 +629,22 @@ def add_quiet(parser):
     parser.add_argument("--quiet", action="store_true", help="per-image lines to stderr")
 
 
+def unit_dtype(dtype):
+    """The dtype :func:`from_unit` gives for ``dtype``: uint8 and uint16
+    kept, anything else float32."""
+    return np.dtype(dtype) if dtype in (np.uint8, np.uint16) else np.dtype(np.float32)
+
+
 def from_unit(values, dtype):
     """Float values on the core's [0, 1] scale as ``dtype``: uint8 and uint16
     scaled and rounded, anything else float32."""
     if dtype in (np.uint8, np.uint16):
         return np.round(np.clip(values, 0.0, 1.0) * np.iinfo(dtype).max).astype(dtype)
     return np.asarray(values).astype(np.float32)
+
+
+#: The files a label image is written to (lossless, 8 or 16-bit).
+LABEL_SUFFIXES = frozenset({".png", ".tif", ".tiff"})
 
 
 def write_labels(path, labels):

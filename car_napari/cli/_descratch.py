@@ -14,7 +14,7 @@ from .._frames import DEFAULT_BLOCK
 from .._progress import drain
 from ..inpainting import iter_descratch_frames
 from ..io.images import IMAGE_SUFFIXES, read_image, write_image
-from ._common import ProgressBar, add_output, output_folder, positive_int
+from ._common import ProgressBar, add_output, names_a_folder, output_folder, positive_int
 
 
 def add_parser(sub):
@@ -91,6 +91,9 @@ class FrameWriter:
 
 
 def run(args):
+    if not names_a_folder(args.output):
+        raise ValueError(f"-o {args.output}: descratch writes a folder of frames (named as the "
+                         "inputs); name a folder (without a suffix, or ending in /).")
     paths = numbered_frames(args.input)
     clip = FrameFiles(paths)
     colour = clip.ndim == 4

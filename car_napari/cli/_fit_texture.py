@@ -16,6 +16,7 @@ from ._common import (
     channel_axis,
     expand_inputs,
     one_image,
+    output_file,
     output_folder,
     positive_int,
     print_note,
@@ -52,9 +53,11 @@ def texture_model(args):
 
 
 def run(args):
-    if len(args.sources) != 1 or not str(args.output).lower().endswith(".npz"):
-        return run_many(args)
-    args.source = args.sources[0]
+    paths = expand_inputs(args.sources)
+    target = output_file(args.output, paths, suffixes={".npz"}, what="a model")
+    if not target:
+        return run_many(args, paths)
+    args.source, args.output = paths[0], target
     if str(args.source).lower().endswith(".npz"):
         raise ValueError(f"{args.source} is a model file; fit-texture fits a model to an "
                          "example image (PNG, TIFF, ...). To synthesise from a saved model, "
@@ -66,12 +69,11 @@ def run(args):
           f"{'x'.join(map(str, image.shape))}", file=sys.stderr)
 
 
-def run_many(args):
+def run_many(args, paths):
     """Several textures, a model file each in the folder ``args.output``
     (one task per texture, on a dask cluster with --workers)."""
     from ..texture import TextureModel
 
-    paths = expand_inputs(args.sources)
     out = output_folder(args.output)
     levels, order = args.levels, args.order
 

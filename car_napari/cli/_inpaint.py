@@ -14,7 +14,7 @@ import numpy as np
 
 from ..inpainting import MOSTLY_MASKED, fit_mask
 from ..io.arrays import is_large_path
-from ..io.images import IMAGE_SUFFIXES, read_image, write_image
+from ..io.images import IMAGE_SUFFIXES, check_format, read_image, write_image
 from ._common import (
     add_cluster,
     add_output,
@@ -23,6 +23,7 @@ from ._common import (
     expand_inputs,
     image_suffix,
     one_image,
+    output_file,
     output_folder,
     positive_int,
     print_note,
@@ -154,32 +155,31 @@ def check_coverage(damaged, path, *, force=False):
                      "pass --force.")
 
 
-def _single(args):
-    """One frame to one file: the form before batches."""
-    return len(args.inputs) == 1 and Path(args.inputs[0]).is_file() and \
-        Path(args.output).suffix.lower() in IMAGE_SUFFIXES
-
-
 def run(args):
     if str(args.inputs[0]).lower().rstrip("/").endswith(".zarr") or \
             str(args.output).lower().rstrip("/").endswith(".zarr"):
         return run_large(args)
-    if _single(args):
-        return run_one(args)
-    return run_many(args)
+    paths = expand_inputs(args.inputs)
+    target = output_file(args.output, paths)
+    if target:
+        return run_one(args, paths[0], target)
+    return run_many(args, paths)
 
 
-def run_one(args):
+def run_one(args, path, target):
+    """One frame to the file ``target``: the form before batches."""
     from ..inpainting import inpaint
 
-    image = one_image(read_image(args.inputs[0], on_note=print_note), args.inputs[0])
+    image = one_image(read_image(path, on_note=print_note), path)
+    check_format(target, image.dtype, image.ndim)  # the file holds the frame: before the work
     mask = read_mask(args.mask, image.shape[:2], invert=args.invert_mask, force=args.force)
     t0 = time.perf_counter()
     with _checked_coverage():
         out = inpaint(image, mask, channel_axis=channel_axis(image))
-    write_image(args.output, out)
-    print(f"wrote {args.output}: {int(mask.sum())} pixels restored "
-          f"({100 * mask.mean():.1f} %), {time.perf_counter() - t0:.1f} s", file=sys.stderr)
+    write_image(target, out)
+    if not args.quiet:
+        print(f"wrote {target}: {int(mask.sum())} pixels restored "
+              f"({100 * mask.mean():.1f} %), {time.perf_counter() - t0:.1f} s", file=sys.stderr)
     return 0
 
 
@@ -197,12 +197,11 @@ def mask_for(mask_arg, path):
                      f"and {path.stem}.*)")
 
 
-def run_many(args):
+def run_many(args, paths):
     """A batch: one task per frame, on a dask cluster with --workers."""
     from .._progress import drain
     from ..inpainting import iter_inpaint
 
-    paths = expand_inputs(args.inputs)
     mask_arg, invert, force = args.mask, args.invert_mask, args.force
     # one mask for all: checked once, before any work
     shared = None if Path(mask_arg).is_dir() else load_mask(mask_arg, invert=invert,

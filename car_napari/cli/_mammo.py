@@ -12,6 +12,7 @@ import numpy as np
 from .._progress import drain
 from ..io.images import read_image
 from ._common import (
+    LABEL_SUFFIXES,
     add_cluster,
     add_inputs,
     add_quiet,
@@ -20,6 +21,7 @@ from ._common import (
     non_negative_float,
     non_negative_int,
     one_image,
+    output_file,
     output_folder,
     print_note,
     run_batch,
@@ -52,8 +54,10 @@ def run(args):
     from ..mammography import DEFAULT_MARKS_PER_IMAGE, TABLE_COLUMNS, iter_detect_mammogram_rois
 
     paths = expand_inputs(args.inputs)
-    out = output_folder(args.output)
-    table_path = out / "rois.csv"
+    target = output_file(args.output, paths, suffixes=LABEL_SUFFIXES, what="a label image")
+    out = target.parent if target else output_folder(args.output)
+    # one input to a file: its table beside it, <name>.csv
+    table_path = target.with_suffix(".csv") if target else out / "rois.csv"
     max_regions = args.max_regions or None
     marks = (DEFAULT_MARKS_PER_IMAGE if args.marks_per_image is None
              else args.marks_per_image or None)
@@ -65,18 +69,18 @@ def run(args):
             image, marks_per_image=marks, reference=args.reference,
             tolerance=args.tolerance or None, max_regions=max_regions,
             channel_axis=channel_axis(image)), on_progress)
-        write_labels(out / f"{path.stem}_rois.png", labels)
+        write_labels(outputs(path)[0], labels)
         rows = list(zip(*(np.asarray(table[k]).tolist() for k in TABLE_COLUMNS), strict=True))
         return f"{len(rows)} regions, {time.perf_counter() - t0:.1f} s", rows
 
     def outputs(path):
-        return [out / f"{path.stem}_rois.png"]
+        return [target or out / f"{path.stem}_rois.png"]
 
     # one table for the whole batch, in input order whatever order the inputs finish
     # in; the rows of inputs skipped on a rerun come from the table already there
-    rows = {} if args.overwrite else _table_rows(table_path, paths)
+    rows = {} if args.overwrite or target else _table_rows(table_path, paths)
     try:
-        return run_batch(paths, process, outputs=outputs,
+        return run_batch(paths, process, outputs=None if target else outputs,
                          on_done=lambda path, r: rows.__setitem__(path, r),
                          options=args, quiet=args.quiet)
     finally:

@@ -9,7 +9,13 @@ from pathlib import Path
 import numpy as np
 
 from ..io.images import write_image
-from ._common import add_order, add_output, from_unit, non_negative_int, positive_int
+from ._common import (
+    add_order,
+    add_output,
+    from_unit,
+    non_negative_int,
+    positive_int,
+)
 from ._fit_texture import texture_model
 
 
@@ -27,6 +33,7 @@ def add_parser(sub):
 
 
 def run(args):
+    check_texture_file(args.output)  # before the fit and the synthesis
     model, image = texture_model(args)
     sample = model.synthesize(tuple(args.size), seed=args.seed, tileable=args.tileable)
     uint16 = image is not None and image.dtype == np.uint16
@@ -35,16 +42,28 @@ def run(args):
           file=sys.stderr)
 
 
+#: The files a texture is written to: 8-bit (16-bit grey PNG), or float TIFF.
+TEXTURE_SUFFIXES = frozenset({".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"})
+
+
+def check_texture_file(path):
+    """The suffix of ``path`` (lower case), if a texture can be written
+    there (:data:`TEXTURE_SUFFIXES`); else a ValueError that says what to use."""
+    suffix = Path(path).suffix.lower()
+    if suffix not in TEXTURE_SUFFIXES:
+        raise ValueError(f"cannot write {path}: synthesize writes one image; use .png, .jpg, "
+                         ".bmp (8-bit) or .tif (float).")
+    return suffix
+
+
 def write_texture(path, sample, *, uint16=False):
     """PNG/JPEG/BMP: 8-bit (16-bit grey PNG with ``uint16``) of values in
     [0, 1]; TIFF: float32 as is."""
-    suffix = Path(path).suffix.lower()
+    suffix = check_texture_file(path)
     if suffix in (".tif", ".tiff"):
         out = from_unit(sample, np.float32)
-    elif suffix in (".png", ".jpg", ".jpeg", ".bmp"):
+    else:
         grey16 = uint16 and suffix == ".png" and sample.ndim == 2  # PNG writers: 16-bit grey only
         out = from_unit(sample, np.uint16 if grey16 else np.uint8)
-    else:
-        raise ValueError(f"cannot write {path}: use .png, .jpg, .bmp (8-bit) or .tif (float).")
     write_image(path, out)
     return out
