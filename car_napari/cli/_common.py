@@ -5,6 +5,7 @@ to file types."""
 from __future__ import annotations
 
 import argparse
+import contextlib
 import glob
 import os
 import sys
@@ -13,6 +14,34 @@ from pathlib import Path
 import numpy as np
 
 from ..io.images import IMAGE_SUFFIXES, WRITE_SUFFIXES, is_colour, write_image
+
+_QUIET = {"on": False}
+
+
+@contextlib.contextmanager
+def quiet_mode(on):
+    """Within: with ``on``, nothing but errors (no progress bar, notes or
+    per-input lines; :func:`is_quiet`). What ``--quiet`` sets for a command."""
+    before = _QUIET["on"]
+    _QUIET["on"] = bool(on)
+    try:
+        yield
+    finally:
+        _QUIET["on"] = before
+
+
+def is_quiet():
+    """Whether the command runs with ``--quiet`` (:func:`quiet_mode`)."""
+    return _QUIET["on"]
+
+
+def say(text):
+    """A line on stderr that is not an error (a summary, where the outputs
+    went): above any bar, and not with ``--quiet``."""
+    if not is_quiet():
+        from tqdm import tqdm
+
+        tqdm.write(text, file=sys.stderr)
 
 
 def expand_inputs(items):
@@ -164,7 +193,8 @@ def run_batch(paths, process, *, outputs=None, on_done=None, options=None, quiet
         ``workers``, ``scheduler``, ``overwrite`` (:func:`add_cluster`); none:
         one input after another in this process.
     quiet : bool, optional
-        Send the per-input lines to stderr instead of stdout.
+        Nothing but errors: no per-input lines, no line on skipped inputs
+        (also under :func:`quiet_mode`).
     unit : str, optional
         What the progress bar counts.
 
@@ -193,13 +223,14 @@ def run_batch(paths, process, *, outputs=None, on_done=None, options=None, quiet
     a.png: fine
     1
     """
+    quiet = quiet or is_quiet()
     overwrite = bool(getattr(options, "overwrite", False))
     todo = [p for p in paths
             if overwrite or outputs is None or not all(f.exists() for f in outputs(p))]
     skipped = len(paths) - len(todo)
     failed = 0
     with ProgressBar(len(paths), unit=unit) as bar:
-        if skipped:
+        if skipped and not quiet:
             bar.write(f"{skipped} of {len(paths)} inputs skipped: their outputs exist "
                       "(--overwrite to redo them).", err=True)
         bar.skip(skipped)
@@ -211,8 +242,8 @@ def run_batch(paths, process, *, outputs=None, on_done=None, options=None, quiet
             line, payload = result if isinstance(result, tuple) else (result, None)
             if on_done is not None:
                 on_done(path, payload)
-            if line:
-                bar.write(f"{path.name}: {line}", err=quiet)
+            if line and not quiet:
+                bar.write(f"{path.name}: {line}")
         bar.begin(len(paths), "done")
     return _exit_status(failed, len(paths), len(todo), "input", bar)
 
@@ -339,7 +370,7 @@ def run_blocks(blocks, prepare, finish, *, options=None, quiet=False, unit="bloc
     options : argparse.Namespace, optional
         ``workers``, ``scheduler`` (:func:`add_cluster`); none: in this process.
     quiet : bool, optional
-        The per-block lines to stderr.
+        Nothing but errors: no per-block lines (also under :func:`quiet_mode`).
     unit : str, optional
         What the progress bar counts.
 
@@ -381,8 +412,8 @@ def run_blocks(blocks, prepare, finish, *, options=None, quiet=False, unit="bloc
             if isinstance(result, BaseException):
                 failed += 1
                 bar.write(f"{block.name}: failed: {result}", err=True)
-            elif result[0]:
-                bar.write(f"{block.name}: {result[0]}", err=quiet)
+            elif result[0] and not (quiet or is_quiet()):
+                bar.write(f"{block.name}: {result[0]}")
         bar.begin(len(blocks), "done")
     return _exit_status(failed, len(blocks), len(blocks), "block", bar)
 
@@ -493,7 +524,8 @@ def _number(text, kind, lowest, what):
 
 
 class ProgressBar:
-    """A tqdm bar on stderr, silent when stderr is not a terminal.
+    """A tqdm bar on stderr, silent when stderr is not a terminal (and
+    under :func:`quiet_mode`).
 
     ``begin(i, label)`` starts item ``i`` of ``total``; ``on_progress`` (the
     ``drain`` callback) moves the bar within ``span`` items from there by the
@@ -504,7 +536,8 @@ class ProgressBar:
         from tqdm import tqdm
 
         self._tqdm = tqdm
-        self._bar = tqdm(total=total, unit=unit, file=sys.stderr, disable=None,
+        self._bar = tqdm(total=total, unit=unit, file=sys.stderr,
+                         disable=True if is_quiet() else None,
                          dynamic_ncols=True,
                          bar_format="{percentage:3.0f}%|{bar}| {n:.1f}/{total} "
                                     "[{elapsed}<{remaining}, {rate_fmt}] {postfix}")
@@ -571,8 +604,8 @@ def run_large_job(inputs, output, job, *, verb):
     if hasattr(out, "flush"):
         out.flush()  # a TIFF memory map
     shape = "x".join(map(str, image.shape))
-    print(f"{Path(inputs[0]).name}: {verb} ({shape}), {time.perf_counter() - t0:.1f} s "
-          f"-> {output}", file=sys.stderr)
+    say(f"{Path(inputs[0]).name}: {verb} ({shape}), {time.perf_counter() - t0:.1f} s "
+        f"-> {output}")
     return 0
 
 
@@ -625,8 +658,9 @@ def add_output(parser, help):
 
 
 def add_quiet(parser):
-    """The --quiet option of a batch command."""
-    parser.add_argument("--quiet", action="store_true", help="per-image lines to stderr")
+    """The --quiet option: nothing but errors (:func:`quiet_mode`)."""
+    parser.add_argument("--quiet", action="store_true",
+                        help="print nothing but errors (no progress, notes or per-image lines)")
 
 
 def unit_dtype(dtype):
@@ -653,7 +687,6 @@ def write_labels(path, labels):
 
 
 def print_note(text):
-    """A one-line note on stderr (``read_image``'s ``on_note``), above any bar."""
-    from tqdm import tqdm
-
-    tqdm.write(f"note: {text}", file=sys.stderr)
+    """A one-line note on stderr (``read_image``'s ``on_note``), above any
+    bar; none with ``--quiet``."""
+    say(f"note: {text}")

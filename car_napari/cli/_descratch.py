@@ -5,7 +5,6 @@ the number of frames; the result equals that of the whole clip in memory)."""
 from __future__ import annotations
 
 import re
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -14,7 +13,15 @@ from .._frames import DEFAULT_BLOCK
 from .._progress import drain
 from ..inpainting import iter_descratch_frames
 from ..io.images import IMAGE_SUFFIXES, read_image, write_image
-from ._common import ProgressBar, add_output, names_a_folder, output_folder, positive_int
+from ._common import (
+    ProgressBar,
+    add_output,
+    add_quiet,
+    names_a_folder,
+    output_folder,
+    positive_int,
+    say,
+)
 
 
 def add_parser(sub):
@@ -26,6 +33,7 @@ def add_parser(sub):
     p.add_argument("--block", type=positive_int, default=DEFAULT_BLOCK,
                    help=f"frames read and restored at a time (default {DEFAULT_BLOCK}); the "
                         "result does not depend on it")
+    add_quiet(p)
     p.set_defaults(run=run)
 
 
@@ -106,5 +114,5 @@ def run(args):
                                     kinds=kinds, channel_axis=-1 if colour else None),
               bar.on_progress)
     pixels = len(paths) * clip.shape[1] * clip.shape[2]
-    print(f"{len(paths)} frames, {100 * writer.damaged / pixels:.2f} % of pixels restored "
-          f"-> {out}", file=sys.stderr)
+    say(f"{len(paths)} frames, {100 * writer.damaged / pixels:.2f} % of pixels restored "
+        f"-> {out}")

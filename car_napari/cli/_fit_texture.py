@@ -3,7 +3,6 @@ it (a few kB)."""
 
 from __future__ import annotations
 
-import sys
 import time
 from pathlib import Path
 
@@ -21,6 +20,7 @@ from ._common import (
     positive_int,
     print_note,
     run_batch,
+    say,
 )
 
 
@@ -64,9 +64,9 @@ def run(args):
                          "use 'car-napari synthesize MODEL.npz'.")
     model, image = texture_model(args)
     model.save(args.output)
-    print(f"wrote {args.output}: orders {list(model.orders)} per band, {model.nbytes} bytes "
+    say(f"wrote {args.output}: orders {list(model.orders)} per band, {model.nbytes} bytes "
           f"of parameters, compression {model.compression_ratio(image.shape):.0f}:1 at "
-          f"{'x'.join(map(str, image.shape))}", file=sys.stderr)
+        f"{'x'.join(map(str, image.shape))}")
 
 
 def run_many(args, paths):

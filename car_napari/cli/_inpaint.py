@@ -5,7 +5,6 @@ than memory."""
 from __future__ import annotations
 
 import contextlib
-import sys
 import time
 import warnings
 from pathlib import Path
@@ -29,6 +28,7 @@ from ._common import (
     print_note,
     run_batch,
     run_large_job,
+    say,
 )
 
 
@@ -177,9 +177,8 @@ def run_one(args, path, target):
     with _checked_coverage():
         out = inpaint(image, mask, channel_axis=channel_axis(image))
     write_image(target, out)
-    if not args.quiet:
-        print(f"wrote {target}: {int(mask.sum())} pixels restored "
-              f"({100 * mask.mean():.1f} %), {time.perf_counter() - t0:.1f} s", file=sys.stderr)
+    say(f"wrote {target}: {int(mask.sum())} pixels restored ({100 * mask.mean():.1f} %), "
+        f"{time.perf_counter() - t0:.1f} s")
     return 0
 
 

@@ -4,7 +4,6 @@ image and one table for all."""
 from __future__ import annotations
 
 import csv
-import sys
 import time
 
 import numpy as np
@@ -25,6 +24,7 @@ from ._common import (
     output_folder,
     print_note,
     run_batch,
+    say,
     write_labels,
 )
 
@@ -90,7 +90,7 @@ def run(args):
             for path in paths:
                 for row in rows.get(path, ()):
                     writer.writerow((path.name, *row))
-        print(f"table: {table_path}", file=sys.stderr)
+        say(f"table: {table_path}")
 
 
 def _table_rows(table_path, paths):

@@ -3,7 +3,6 @@ example image."""
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -12,9 +11,11 @@ from ..io.images import write_image
 from ._common import (
     add_order,
     add_output,
+    add_quiet,
     from_unit,
     non_negative_int,
     positive_int,
+    say,
 )
 from ._fit_texture import texture_model
 
@@ -29,6 +30,7 @@ def add_parser(sub):
     p.add_argument("--tileable", action="store_true", help="wrap seamlessly (toroidal)")
     p.add_argument("--levels", type=positive_int, default=3, help="pyramid levels when fitting")
     add_order(p, help="neighbourhood order when fitting, or 'auto' (default)")
+    add_quiet(p)
     p.set_defaults(run=run)
 
 
@@ -38,8 +40,7 @@ def run(args):
     sample = model.synthesize(tuple(args.size), seed=args.seed, tileable=args.tileable)
     uint16 = image is not None and image.dtype == np.uint16
     write_texture(args.output, sample, uint16=uint16)
-    print(f"wrote {args.output}: {sample.shape}, orders {list(model.orders)}",
-          file=sys.stderr)
+    say(f"wrote {args.output}: {sample.shape}, orders {list(model.orders)}")
 
 
 #: The files a texture is written to: 8-bit (16-bit grey PNG), or float TIFF.
