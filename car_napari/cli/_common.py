@@ -490,10 +490,22 @@ def one_image(image, path):
         "of one scene use 'car-napari restore --stack-axis 0').")
 
 
-def image_suffix(image):
-    """The file suffix that holds ``image``'s pixels: .png for 8-bit and
-    16-bit grey, .tif for everything else (floats, 16-bit colour)."""
-    if image.dtype == np.uint8 or (image.dtype == np.uint16 and image.ndim == 2):
+def image_suffix(image, source):
+    """The file suffix of a batch's output ``image`` made from the file
+    ``source``: .png for 8-bit; 16-bit stays in its container kind, .png
+    from a 16-bit grey PNG and .tif from anything else (a TIFF, DICOM, a
+    16-bit colour image, which PNG writers do not take); .tif for floats.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> grey16 = np.zeros((2, 2), np.uint16)
+    >>> image_suffix(grey16, Path("a.png")), image_suffix(grey16, Path("a.tif"))
+    ('.png', '.tif')
+    """
+    if image.dtype == np.uint8:
+        return ".png"
+    if image.dtype == np.uint16 and image.ndim == 2 and Path(source).suffix.lower() == ".png":
         return ".png"
     return ".tif"
 

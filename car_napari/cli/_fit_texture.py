@@ -45,6 +45,8 @@ def texture_model(args):
     from ..texture import TextureModel
 
     if str(args.source).lower().endswith(".npz"):
+        if not Path(args.source).is_file():
+            raise ValueError(f"no such file: {args.source}")
         return TextureModel.load(args.source), None
     image = one_image(read_image(args.source, on_note=print_note), args.source)
     model = TextureModel.fit(image, levels=args.levels, neighbourhood=args.order,

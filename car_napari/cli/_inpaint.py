@@ -44,8 +44,8 @@ def add_parser(sub):
                         "the brightest channel), so white on black; resized to the frame if "
                         "needed (a note says so; refused when the aspect ratios differ by "
                         "more than 2 %%); for a batch, one mask for all or a folder holding "
-                        "<name>_mask.* or <name>.* per frame; for a zarr input, a zarr "
-                        "(nonzero = damaged) or image mask")
+                        "<name>_mask.*, <name>-mask.* or <name>.* per frame; for a zarr "
+                        "input, a zarr (nonzero = damaged) or image mask")
     p.add_argument("--invert-mask", action="store_true",
                    help="the mask marks the damage black (dark = damaged)")
     p.add_argument("--force", action="store_true",
@@ -184,16 +184,18 @@ def run_one(args, path, target):
 
 def mask_for(mask_arg, path):
     """The mask file of input ``path``: ``mask_arg`` itself, or in the folder
-    ``mask_arg`` the file ``<stem>_mask.*`` (else ``<stem>.*``)."""
+    ``mask_arg`` the file ``<stem>_mask.*`` or ``<stem>-mask.*`` (else
+    ``<stem>.*``)."""
     folder = Path(mask_arg)
     if not folder.is_dir():
         return folder
-    for pattern in (f"{path.stem}_mask.*", f"{path.stem}.*"):
+    patterns = (f"{path.stem}_mask.*", f"{path.stem}-mask.*", f"{path.stem}.*")
+    for pattern in patterns:
         found = sorted(p for p in folder.glob(pattern) if p.suffix.lower() in IMAGE_SUFFIXES)
         if found:
             return found[0]
-    raise ValueError(f"no mask for {path.name} in {folder} (looked for {path.stem}_mask.* "
-                     f"and {path.stem}.*)")
+    raise ValueError(f"no mask for {path.name} in {folder} (looked for "
+                     f"{', '.join(patterns[:-1])} and {patterns[-1]})")
 
 
 def run_many(args, paths):
@@ -222,7 +224,7 @@ def run_many(args, paths):
         with _checked_coverage():
             restored = drain(iter_inpaint(image, mask, channel_axis=channel_axis(image)),
                              on_progress)
-        write_image(out / f"{path.stem}_inpainted{image_suffix(restored)}", restored)
+        write_image(out / f"{path.stem}_inpainted{image_suffix(restored, path)}", restored)
         return (f"{int(mask.sum())} pixels restored ({100 * mask.mean():.1f} %), "
                 f"{time.perf_counter() - t0:.1f} s")
 

@@ -72,7 +72,7 @@ def run(args):
     out = target.parent if target else output_folder(args.output)
 
     def restored_file(path, restored):
-        return target or out / f"{path.stem}_restored{image_suffix(restored)}"
+        return target or out / f"{path.stem}_restored{image_suffix(restored, path)}"
 
     def probability_file(path):
         stem = target.stem if target else path.stem

@@ -25,8 +25,11 @@ def add_parser(sub):
                                           "file or an example image")
     p.add_argument("source", help="model file (.npz from fit-texture) or example texture")
     add_output(p, "output image (.png/.jpg: 8-bit; .tif: float)")
-    p.add_argument("--size", nargs=2, type=positive_int, metavar=("H", "W"), default=(256, 256))
-    p.add_argument("--seed", type=non_negative_int, default=None)
+    p.add_argument("--size", nargs=2, type=positive_int, metavar=("H", "W"), default=(256, 256),
+                   help="height and width of the texture in pixels (default 256 256)")
+    p.add_argument("--seed", type=non_negative_int, default=None,
+                   help="random seed: the same seed, the same texture (default: a new one "
+                        "each run)")
     p.add_argument("--tileable", action="store_true", help="wrap seamlessly (toroidal)")
     p.add_argument("--levels", type=positive_int, default=3, help="pyramid levels when fitting")
     add_order(p, help="neighbourhood order when fitting, or 'auto' (default)")

@@ -108,3 +108,33 @@ def test_help_and_reading_say_damaged_is_brighter_than_mid_grey(tmp_path, capsys
     assert _inpaint(tmp_path) == 0
     np.testing.assert_array_equal(io.imread(tmp_path / "out.png")[:, :10], frame[:, :10])
     assert "192 pixels restored" in capsys.readouterr().err
+
+
+def test_a_mask_folder_may_name_masks_name_dash_mask(tmp_path, capsys):
+    frame, mask = _frame_and_mask(tmp_path)
+    masks = tmp_path / "masks"
+    masks.mkdir()
+    (tmp_path / "mask.png").rename(masks / "frame-mask.png")
+    assert main(["inpaint", str(tmp_path / "frame.png"), "-m", str(masks),
+                 "-o", str(tmp_path / "out")]) == 0
+    assert (tmp_path / "out" / "frame_inpainted.png").exists()
+    (masks / "frame-mask.png").unlink()
+    assert main(["inpaint", str(tmp_path / "frame.png"), "-m", str(masks),
+                 "-o", str(tmp_path / "out"), "--overwrite"]) == 2
+    assert "looked for frame_mask.*, frame-mask.* and frame.*" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("shape, source, suffix", [
+    ((48, 64), "f.tif", ".tif"), ((48, 64), "f.png", ".png"), ((48, 64, 3), "f.tif", ".tif")])
+def test_16_bit_stays_in_its_container_kind(tmp_path, shape, source, suffix):
+    from car_napari.io.images import read_image, write_image
+
+    frame = (np.random.default_rng(0).random(shape) * 60000).astype(np.uint16)
+    write_image(tmp_path / source, frame)
+    mask = np.zeros((48, 64), np.uint8)
+    mask[:, 30:32] = 255
+    io.imsave(tmp_path / "mask.png", mask, check_contrast=False)
+    assert main(["inpaint", str(tmp_path / source), "-m", str(tmp_path / "mask.png"),
+                 "-o", str(tmp_path / "out")]) == 0
+    assert [p.name for p in (tmp_path / "out").iterdir()] == [f"f_inpainted{suffix}"]
+    assert read_image(tmp_path / "out" / f"f_inpainted{suffix}").dtype == np.uint16
