@@ -555,7 +555,7 @@ class ProgressBar:
                                     "[{elapsed}<{remaining}, {rate_fmt}] {postfix}")
         self._total = total
         self._offset = 0
-        self._start, self._span = 0, 1
+        self._start, self._span, self._label = 0, 1, ""
 
     def __enter__(self):
         return self
@@ -564,10 +564,10 @@ class ProgressBar:
         self._bar.close()
 
     def begin(self, index, label, *, span=1):
-        """Start the work on items ``index`` to ``index + span``."""
-        self._start, self._span = index, span
-        self._bar.set_postfix_str(f"{min(index + 1, self._total)}/{self._total} {label[:40]}",
-                                  refresh=False)
+        """Start the work on items ``index`` to ``index + span`` (with a span
+        of several, the count follows the job's progress through them)."""
+        self._start, self._span, self._label = index, span, label[:40]
+        self._count(index)
         self._move(index)
 
     def position(self, index):
@@ -581,11 +581,19 @@ class ProgressBar:
 
     def on_progress(self, record):
         """:func:`car_napari._progress.drain`'s callback: a job's Progress record."""
-        self._move(self._start + self._span * min(max(float(record.fraction), 0.0), 1.0))
+        position = self._start + self._span * min(max(float(record.fraction), 0.0), 1.0)
+        if self._span > 1:  # the item being worked on moves with the percentage
+            self._count(position)
+        self._move(position)
 
     def write(self, text, *, err=False):
         """Print a line to stdout (stderr with ``err``) without breaking the bar."""
         self._tqdm.write(text, file=sys.stderr if err else sys.stdout)
+
+    def _count(self, position):
+        """The postfix: the item at ``position`` (1-based) of the total, and the label."""
+        item = min(int(position) + 1, self._total)
+        self._bar.set_postfix_str(f"{item}/{self._total} {self._label}", refresh=False)
 
     def _move(self, position):
         self._bar.update(position - self._bar.n)  # tqdm redraws at most every 0.1 s
