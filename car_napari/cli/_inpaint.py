@@ -102,7 +102,7 @@ def load_mask(path, *, invert=False, force=False):
     (:func:`damaged_pixels`), darker with ``invert``; refused (ValueError)
     when they cover more than half of it, unless ``force``
     (:func:`check_coverage`)."""
-    damaged = damaged_pixels(read_image(path))
+    damaged = damaged_pixels(one_image(read_image(path), path))  # a stack is refused
     if invert:
         damaged = ~damaged
     check_coverage(damaged, path, force=force)

@@ -138,3 +138,14 @@ def test_16_bit_stays_in_its_container_kind(tmp_path, shape, source, suffix):
                  "-o", str(tmp_path / "out")]) == 0
     assert [p.name for p in (tmp_path / "out").iterdir()] == [f"f_inpainted{suffix}"]
     assert read_image(tmp_path / "out" / f"f_inpainted{suffix}").dtype == np.uint16
+
+
+def test_a_mask_stack_is_refused(tmp_path, capsys):
+    import tifffile
+
+    _frame_and_mask(tmp_path)
+    tifffile.imwrite(tmp_path / "masks.tif", np.zeros((5, 48, 64), np.uint8),
+                     photometric="minisblack")
+    assert main(["inpaint", str(tmp_path / "frame.png"), "-m", str(tmp_path / "masks.tif"),
+                 "-o", str(tmp_path / "out.png")]) == 2
+    assert "masks.tif holds a stack of shape (5, 48, 64)" in capsys.readouterr().err
