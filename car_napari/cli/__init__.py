@@ -21,7 +21,7 @@ from . import (
     _segment,
     _synthesize,
 )
-from ._common import INPUT_ERRORS, BatchFailed, expand_inputs
+from ._common import INPUT_ERRORS, BatchFailed, expand_inputs, quiet_mode
 
 __all__ = ["build_parser", "expand_inputs", "main"]
 
@@ -48,10 +48,23 @@ def build_parser():
         prog="car-napari",
         description="Haindl's causal autoregressive (CAR) random-field models, headless.",
     )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = parser.add_subparsers(dest="command", required=True)
     for command in _COMMANDS:
         command.add_parser(sub)
     return parser
+
+
+def _version():
+    """The installed car-napari's version (the package's own when not installed)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("car-napari")
+    except PackageNotFoundError:
+        from .. import __version__
+
+        return __version__
 
 
 def main(argv=None):
@@ -82,7 +95,8 @@ def main(argv=None):
     """
     args = build_parser().parse_args(argv)
     try:
-        return args.run(args) or 0
+        with quiet_mode(getattr(args, "quiet", False)):
+            return args.run(args) or 0
     except (BatchFailed, ImportError, *INPUT_ERRORS) as exc:  # ImportError: an extra missing
         print(f"car-napari: {exc}", file=sys.stderr)
         return 2

@@ -5,13 +5,43 @@ to file types."""
 from __future__ import annotations
 
 import argparse
+import contextlib
 import glob
+import os
 import sys
 from pathlib import Path
 
 import numpy as np
 
-from ..io.images import IMAGE_SUFFIXES, is_colour, write_image
+from ..io.images import IMAGE_SUFFIXES, WRITE_SUFFIXES, is_colour, write_image
+
+_QUIET = {"on": False}
+
+
+@contextlib.contextmanager
+def quiet_mode(on):
+    """Within: with ``on``, nothing but errors (no progress bar, notes or
+    per-input lines; :func:`is_quiet`). What ``--quiet`` sets for a command."""
+    before = _QUIET["on"]
+    _QUIET["on"] = bool(on)
+    try:
+        yield
+    finally:
+        _QUIET["on"] = before
+
+
+def is_quiet():
+    """Whether the command runs with ``--quiet`` (:func:`quiet_mode`)."""
+    return _QUIET["on"]
+
+
+def say(text):
+    """A line on stderr that is not an error (a summary, where the outputs
+    went): above any bar, and not with ``--quiet``."""
+    if not is_quiet():
+        from tqdm import tqdm
+
+        tqdm.write(text, file=sys.stderr)
 
 
 def expand_inputs(items):
@@ -58,6 +88,69 @@ def expand_inputs(items):
     return paths
 
 
+def output_file(output, paths, *, suffixes=WRITE_SUFFIXES, what="an image"):
+    """The file ``-o`` names, or None when it names a folder: the one rule of
+    every command's output.
+
+    A path that is a folder, ends in a slash or has no suffix names a folder
+    (the outputs go there, named after the inputs: :func:`output_folder`).
+    A path with a suffix names one file, which the single input's result
+    is written to; a suffix the command does not write is refused, and so is
+    a file for several inputs, before any work.
+
+    Parameters
+    ----------
+    output : str or path-like
+        The ``-o`` argument.
+    paths : list of pathlib.Path
+        The inputs (from :func:`expand_inputs`).
+    suffixes : collection of str, optional
+        The file suffixes (lower case) the command writes.
+    what : str, optional
+        What the command writes, for the messages.
+
+    Returns
+    -------
+    path : pathlib.Path or None
+        The file (its folder created), or None for a folder.
+
+    Raises
+    ------
+    ValueError
+        If the suffix is not one of ``suffixes``, or a file is named for
+        several inputs.
+
+    Examples
+    --------
+    >>> output_file("out/", [Path("a.png")]) is None
+    True
+    >>> output_file("out/b.xyz", [Path("a.png")])
+    Traceback (most recent call last):
+    ...
+    ValueError: -o out/b.xyz: .xyz is not a file type of an image; ...
+    """
+    if names_a_folder(output):
+        return None
+    path = Path(output)
+    if path.suffix.lower() not in suffixes:
+        raise ValueError(f"-o {output}: {path.suffix} is not a file type of {what}; use "
+                         f"{', '.join(sorted(suffixes))} for one file, or a folder (a name "
+                         "without a suffix, or ending in /).")
+    if len(paths) != 1:
+        raise ValueError(f"-o {output} names one file, but there are {len(paths)} inputs: "
+                         "name a folder (without a suffix, or ending in /) for several.")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+def names_a_folder(output):
+    """Whether ``-o output`` names a folder: one that exists, a path ending
+    in a slash or one without a suffix (else it names a file;
+    :func:`output_file`)."""
+    path = Path(output)
+    return path.is_dir() or str(output).endswith(("/", os.sep)) or not path.suffix
+
+
 def output_folder(path):
     """The output folder, created if needed."""
     out = Path(path)
@@ -100,7 +193,8 @@ def run_batch(paths, process, *, outputs=None, on_done=None, options=None, quiet
         ``workers``, ``scheduler``, ``overwrite`` (:func:`add_cluster`); none:
         one input after another in this process.
     quiet : bool, optional
-        Send the per-input lines to stderr instead of stdout.
+        Nothing but errors: no per-input lines, no line on skipped inputs
+        (also under :func:`quiet_mode`).
     unit : str, optional
         What the progress bar counts.
 
@@ -129,13 +223,14 @@ def run_batch(paths, process, *, outputs=None, on_done=None, options=None, quiet
     a.png: fine
     1
     """
+    quiet = quiet or is_quiet()
     overwrite = bool(getattr(options, "overwrite", False))
     todo = [p for p in paths
             if overwrite or outputs is None or not all(f.exists() for f in outputs(p))]
     skipped = len(paths) - len(todo)
     failed = 0
     with ProgressBar(len(paths), unit=unit) as bar:
-        if skipped:
+        if skipped and not quiet:
             bar.write(f"{skipped} of {len(paths)} inputs skipped: their outputs exist "
                       "(--overwrite to redo them).", err=True)
         bar.skip(skipped)
@@ -147,8 +242,8 @@ def run_batch(paths, process, *, outputs=None, on_done=None, options=None, quiet
             line, payload = result if isinstance(result, tuple) else (result, None)
             if on_done is not None:
                 on_done(path, payload)
-            if line:
-                bar.write(f"{path.name}: {line}", err=quiet)
+            if line and not quiet:
+                bar.write(f"{path.name}: {line}")
         bar.begin(len(paths), "done")
     return _exit_status(failed, len(paths), len(todo), "input", bar)
 
@@ -275,7 +370,7 @@ def run_blocks(blocks, prepare, finish, *, options=None, quiet=False, unit="bloc
     options : argparse.Namespace, optional
         ``workers``, ``scheduler`` (:func:`add_cluster`); none: in this process.
     quiet : bool, optional
-        The per-block lines to stderr.
+        Nothing but errors: no per-block lines (also under :func:`quiet_mode`).
     unit : str, optional
         What the progress bar counts.
 
@@ -317,8 +412,8 @@ def run_blocks(blocks, prepare, finish, *, options=None, quiet=False, unit="bloc
             if isinstance(result, BaseException):
                 failed += 1
                 bar.write(f"{block.name}: failed: {result}", err=True)
-            elif result[0]:
-                bar.write(f"{block.name}: {result[0]}", err=quiet)
+            elif result[0] and not (quiet or is_quiet()):
+                bar.write(f"{block.name}: {result[0]}")
         bar.begin(len(blocks), "done")
     return _exit_status(failed, len(blocks), len(blocks), "block", bar)
 
@@ -395,10 +490,22 @@ def one_image(image, path):
         "of one scene use 'car-napari restore --stack-axis 0').")
 
 
-def image_suffix(image):
-    """The file suffix that holds ``image``'s pixels: .png for 8-bit and
-    16-bit grey, .tif for everything else (floats, 16-bit colour)."""
-    if image.dtype == np.uint8 or (image.dtype == np.uint16 and image.ndim == 2):
+def image_suffix(image, source):
+    """The file suffix of a batch's output ``image`` made from the file
+    ``source``: .png for 8-bit; 16-bit stays in its container kind, .png
+    from a 16-bit grey PNG and .tif from anything else (a TIFF, DICOM, a
+    16-bit colour image, which PNG writers do not take); .tif for floats.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> grey16 = np.zeros((2, 2), np.uint16)
+    >>> image_suffix(grey16, Path("a.png")), image_suffix(grey16, Path("a.tif"))
+    ('.png', '.tif')
+    """
+    if image.dtype == np.uint8:
+        return ".png"
+    if image.dtype == np.uint16 and image.ndim == 2 and Path(source).suffix.lower() == ".png":
         return ".png"
     return ".tif"
 
@@ -429,7 +536,8 @@ def _number(text, kind, lowest, what):
 
 
 class ProgressBar:
-    """A tqdm bar on stderr, silent when stderr is not a terminal.
+    """A tqdm bar on stderr, silent when stderr is not a terminal (and
+    under :func:`quiet_mode`).
 
     ``begin(i, label)`` starts item ``i`` of ``total``; ``on_progress`` (the
     ``drain`` callback) moves the bar within ``span`` items from there by the
@@ -440,13 +548,14 @@ class ProgressBar:
         from tqdm import tqdm
 
         self._tqdm = tqdm
-        self._bar = tqdm(total=total, unit=unit, file=sys.stderr, disable=None,
+        self._bar = tqdm(total=total, unit=unit, file=sys.stderr,
+                         disable=True if is_quiet() else None,
                          dynamic_ncols=True,
                          bar_format="{percentage:3.0f}%|{bar}| {n:.1f}/{total} "
                                     "[{elapsed}<{remaining}, {rate_fmt}] {postfix}")
         self._total = total
         self._offset = 0
-        self._start, self._span = 0, 1
+        self._start, self._span, self._label = 0, 1, ""
 
     def __enter__(self):
         return self
@@ -455,10 +564,10 @@ class ProgressBar:
         self._bar.close()
 
     def begin(self, index, label, *, span=1):
-        """Start the work on items ``index`` to ``index + span``."""
-        self._start, self._span = index, span
-        self._bar.set_postfix_str(f"{min(index + 1, self._total)}/{self._total} {label[:40]}",
-                                  refresh=False)
+        """Start the work on items ``index`` to ``index + span`` (with a span
+        of several, the count follows the job's progress through them)."""
+        self._start, self._span, self._label = index, span, label[:40]
+        self._count(index)
         self._move(index)
 
     def position(self, index):
@@ -472,11 +581,19 @@ class ProgressBar:
 
     def on_progress(self, record):
         """:func:`car_napari._progress.drain`'s callback: a job's Progress record."""
-        self._move(self._start + self._span * min(max(float(record.fraction), 0.0), 1.0))
+        position = self._start + self._span * min(max(float(record.fraction), 0.0), 1.0)
+        if self._span > 1:  # the item being worked on moves with the percentage
+            self._count(position)
+        self._move(position)
 
     def write(self, text, *, err=False):
         """Print a line to stdout (stderr with ``err``) without breaking the bar."""
         self._tqdm.write(text, file=sys.stderr if err else sys.stdout)
+
+    def _count(self, position):
+        """The postfix: the item at ``position`` (1-based) of the total, and the label."""
+        item = min(int(position) + 1, self._total)
+        self._bar.set_postfix_str(f"{item}/{self._total} {self._label}", refresh=False)
 
     def _move(self, position):
         self._bar.update(position - self._bar.n)  # tqdm redraws at most every 0.1 s
@@ -507,8 +624,8 @@ def run_large_job(inputs, output, job, *, verb):
     if hasattr(out, "flush"):
         out.flush()  # a TIFF memory map
     shape = "x".join(map(str, image.shape))
-    print(f"{Path(inputs[0]).name}: {verb} ({shape}), {time.perf_counter() - t0:.1f} s "
-          f"-> {output}", file=sys.stderr)
+    say(f"{Path(inputs[0]).name}: {verb} ({shape}), {time.perf_counter() - t0:.1f} s "
+        f"-> {output}")
     return 0
 
 
@@ -552,7 +669,7 @@ def add_order(parser, help="neighbourhood order, or 'auto' for the decision rule
 def add_inputs(parser, help):
     """The inputs (files, folders, globs) and -o folder of a batch command."""
     parser.add_argument("inputs", nargs="+", help=help)
-    add_output(parser, "output folder")
+    add_output(parser, "output folder; or, for a single input, the output file")
 
 
 def add_output(parser, help):
@@ -561,8 +678,15 @@ def add_output(parser, help):
 
 
 def add_quiet(parser):
-    """The --quiet option of a batch command."""
-    parser.add_argument("--quiet", action="store_true", help="per-image lines to stderr")
+    """The --quiet option: nothing but errors (:func:`quiet_mode`)."""
+    parser.add_argument("--quiet", action="store_true",
+                        help="print nothing but errors (no progress, notes or per-image lines)")
+
+
+def unit_dtype(dtype):
+    """The dtype :func:`from_unit` gives for ``dtype``: uint8 and uint16
+    kept, anything else float32."""
+    return np.dtype(dtype) if dtype in (np.uint8, np.uint16) else np.dtype(np.float32)
 
 
 def from_unit(values, dtype):
@@ -573,13 +697,16 @@ def from_unit(values, dtype):
     return np.asarray(values).astype(np.float32)
 
 
+#: The files a label image is written to (lossless, 8 or 16-bit).
+LABEL_SUFFIXES = frozenset({".png", ".tif", ".tiff"})
+
+
 def write_labels(path, labels):
     """A label image as an 8-bit PNG (16-bit beyond 255 labels)."""
     write_image(path, labels.astype(np.uint8 if labels.max() < 256 else np.uint16))
 
 
 def print_note(text):
-    """A one-line note on stderr (``read_image``'s ``on_note``), above any bar."""
-    from tqdm import tqdm
-
-    tqdm.write(f"note: {text}", file=sys.stderr)
+    """A one-line note on stderr (``read_image``'s ``on_note``), above any
+    bar; none with ``--quiet``."""
+    say(f"note: {text}")

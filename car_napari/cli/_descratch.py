@@ -5,7 +5,6 @@ the number of frames; the result equals that of the whole clip in memory)."""
 from __future__ import annotations
 
 import re
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -14,7 +13,16 @@ from .._frames import DEFAULT_BLOCK
 from .._progress import drain
 from ..inpainting import iter_descratch_frames
 from ..io.images import IMAGE_SUFFIXES, read_image, write_image
-from ._common import ProgressBar, add_output, output_folder, positive_int
+from ._common import (
+    ProgressBar,
+    add_output,
+    add_quiet,
+    names_a_folder,
+    output_folder,
+    positive_int,
+    print_note,
+    say,
+)
 
 
 def add_parser(sub):
@@ -26,20 +34,39 @@ def add_parser(sub):
     p.add_argument("--block", type=positive_int, default=DEFAULT_BLOCK,
                    help=f"frames read and restored at a time (default {DEFAULT_BLOCK}); the "
                         "result does not depend on it")
+    p.add_argument("--overwrite", action="store_true",
+                   help="redo the clip when its outputs exist (default: skip it when all "
+                        "exist, refuse when some do)")
+    add_quiet(p)
     p.set_defaults(run=run)
 
 
-def numbered_frames(folder):
+def numbered_frames(folder, *, on_note=None):
     """The images of ``folder`` whose names hold a number, in the order of
-    their last number."""
+    their last number; ``on_note(text)`` is told of the images skipped (no
+    number in the name)."""
     folder = Path(folder)
     if not folder.is_dir():
         raise ValueError(f"{folder} is not a folder of numbered frames.")
-    paths = [p for p in folder.iterdir()
-             if p.suffix.lower() in IMAGE_SUFFIXES and re.search(r"\d+", p.stem)]
+    images = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    paths = [p for p in images if re.search(r"\d+", p.stem)]
+    others = [p.name for p in images if not re.search(r"\d+", p.stem)]
     if not paths:
         raise ValueError(f"no numbered frames (like 0001.png) in {folder}.")
+    if others and on_note is not None:
+        shown = ", ".join(others[:5]) + (", ..." if len(others) > 5 else "")
+        on_note(f"{len(others)} image(s) of {folder} skipped, no frame number in the name: "
+                f"{shown}")
     return sorted(paths, key=lambda p: (int(re.findall(r"\d+", p.stem)[-1]), p.name))
+
+
+def existing_outputs(paths, out, *, masks=False):
+    """The output files of the clip that exist in the folder ``out``, and
+    how many there are in all."""
+    files = [out / p.name for p in paths]
+    if masks:
+        files += [out / f"{p.stem}_mask.png" for p in paths]
+    return [f for f in files if f.exists()], len(files)
 
 
 class FrameFiles:
@@ -91,7 +118,21 @@ class FrameWriter:
 
 
 def run(args):
-    paths = numbered_frames(args.input)
+    if not names_a_folder(args.output):
+        raise ValueError(f"-o {args.output}: descratch writes a folder of frames (named as the "
+                         "inputs); name a folder (without a suffix, or ending in /).")
+    paths = numbered_frames(args.input, on_note=print_note)
+    done, total = existing_outputs(paths, Path(args.output), masks=args.masks)
+    if done and not args.overwrite:
+        if len(done) == total:
+            say(f"{len(paths)} of {len(paths)} frames skipped: their outputs exist "
+                "(--overwrite to redo them).")
+            return 0
+        raise ValueError(
+            f"{args.output} holds {len(done)} of the clip's {total} output files (e.g. "
+            f"{done[0].name}): a clip is restored as a whole, each frame from its "
+            "neighbours, so it is not resumed. Pass --overwrite to redo it, or another -o "
+            "folder.")
     clip = FrameFiles(paths)
     colour = clip.ndim == 4
     out = output_folder(args.output)
@@ -103,5 +144,5 @@ def run(args):
                                     kinds=kinds, channel_axis=-1 if colour else None),
               bar.on_progress)
     pixels = len(paths) * clip.shape[1] * clip.shape[2]
-    print(f"{len(paths)} frames, {100 * writer.damaged / pixels:.2f} % of pixels restored "
-          f"-> {out}", file=sys.stderr)
+    say(f"{len(paths)} frames, {100 * writer.damaged / pixels:.2f} % of pixels restored "
+        f"-> {out}")

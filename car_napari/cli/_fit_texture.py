@@ -3,7 +3,6 @@ it (a few kB)."""
 
 from __future__ import annotations
 
-import sys
 import time
 from pathlib import Path
 
@@ -16,10 +15,12 @@ from ._common import (
     channel_axis,
     expand_inputs,
     one_image,
+    output_file,
     output_folder,
     positive_int,
     print_note,
     run_batch,
+    say,
 )
 
 
@@ -44,6 +45,8 @@ def texture_model(args):
     from ..texture import TextureModel
 
     if str(args.source).lower().endswith(".npz"):
+        if not Path(args.source).is_file():
+            raise ValueError(f"no such file: {args.source}")
         return TextureModel.load(args.source), None
     image = one_image(read_image(args.source, on_note=print_note), args.source)
     model = TextureModel.fit(image, levels=args.levels, neighbourhood=args.order,
@@ -52,26 +55,27 @@ def texture_model(args):
 
 
 def run(args):
-    if len(args.sources) != 1 or not str(args.output).lower().endswith(".npz"):
-        return run_many(args)
-    args.source = args.sources[0]
+    paths = expand_inputs(args.sources)
+    target = output_file(args.output, paths, suffixes={".npz"}, what="a model")
+    if not target:
+        return run_many(args, paths)
+    args.source, args.output = paths[0], target
     if str(args.source).lower().endswith(".npz"):
         raise ValueError(f"{args.source} is a model file; fit-texture fits a model to an "
                          "example image (PNG, TIFF, ...). To synthesise from a saved model, "
                          "use 'car-napari synthesize MODEL.npz'.")
     model, image = texture_model(args)
     model.save(args.output)
-    print(f"wrote {args.output}: orders {list(model.orders)} per band, {model.nbytes} bytes "
+    say(f"wrote {args.output}: orders {list(model.orders)} per band, {model.nbytes} bytes "
           f"of parameters, compression {model.compression_ratio(image.shape):.0f}:1 at "
-          f"{'x'.join(map(str, image.shape))}", file=sys.stderr)
+        f"{'x'.join(map(str, image.shape))}")
 
 
-def run_many(args):
+def run_many(args, paths):
     """Several textures, a model file each in the folder ``args.output``
     (one task per texture, on a dask cluster with --workers)."""
     from ..texture import TextureModel
 
-    paths = expand_inputs(args.sources)
     out = output_folder(args.output)
     levels, order = args.levels, args.order
 

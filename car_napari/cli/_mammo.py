@@ -4,7 +4,6 @@ overlay PNG per image and one table for all."""
 from __future__ import annotations
 
 import csv
-import sys
 import time
 
 import numpy as np
@@ -12,6 +11,7 @@ import numpy as np
 from .._progress import drain
 from ..io.images import read_image, write_image
 from ._common import (
+    LABEL_SUFFIXES,
     add_cluster,
     add_inputs,
     add_quiet,
@@ -20,9 +20,11 @@ from ._common import (
     non_negative_float,
     non_negative_int,
     one_image,
+    output_file,
     output_folder,
     print_note,
     run_batch,
+    say,
     write_labels,
 )
 
@@ -60,8 +62,10 @@ def run(args):
     from ..mammography._images import bit_depth
 
     paths = expand_inputs(args.inputs)
-    out = output_folder(args.output)
-    table_path = out / "rois.csv"
+    target = output_file(args.output, paths, suffixes=LABEL_SUFFIXES, what="a label image")
+    out = target.parent if target else output_folder(args.output)
+    # one input to a file: its table beside it, <name>.csv
+    table_path = target.with_suffix(".csv") if target else out / "rois.csv"
     max_regions = args.max_regions or None
     marks = (DEFAULT_MARKS_PER_IMAGE if args.marks_per_image is None
              else args.marks_per_image or None)
@@ -73,9 +77,9 @@ def run(args):
             image, marks_per_image=marks, reference=args.reference,
             tolerance=args.tolerance or None, max_regions=max_regions,
             channel_axis=channel_axis(image)), on_progress)
-        write_labels(out / f"{path.stem}_rois.png", labels)
-        write_image(out / f"{path.stem}_overlay.png",
-                    roi_overlay(image, labels, channel_axis=channel_axis(image)))
+        labels_path, overlay_path = outputs(path)
+        write_labels(labels_path, labels)
+        write_image(overlay_path, roi_overlay(image, labels, channel_axis=channel_axis(image)))
         depth = bit_depth(image) if np.ndim(image) == 2 else None
         depth = f"{depth}-bit" if depth else "float"
         rows = [(depth, *row) for row in zip(
@@ -83,13 +87,16 @@ def run(args):
         return f"{len(rows)} regions ({depth}), {time.perf_counter() - t0:.1f} s", rows
 
     def outputs(path):
+        # the label image, and beside it the overlay a person opens (labels look black)
+        if target:
+            return [target, target.with_name(f"{target.stem}_overlay.png")]
         return [out / f"{path.stem}_rois.png", out / f"{path.stem}_overlay.png"]
 
     # one table for the whole batch, in input order whatever order the inputs finish
     # in; the rows of inputs skipped on a rerun come from the table already there
-    rows = {} if args.overwrite else _table_rows(table_path, paths)
+    rows = {} if args.overwrite or target else _table_rows(table_path, paths)
     try:
-        return run_batch(paths, process, outputs=outputs,
+        return run_batch(paths, process, outputs=None if target else outputs,
                          on_done=lambda path, r: rows.__setitem__(path, r),
                          options=args, quiet=args.quiet)
     finally:
@@ -99,7 +106,7 @@ def run(args):
             for path in paths:
                 for row in rows.get(path, ()):
                     writer.writerow((path.name, *row))
-        print(f"table: {table_path}", file=sys.stderr)
+        say(f"table: {table_path}")
 
 
 def _table_rows(table_path, paths):

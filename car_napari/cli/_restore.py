@@ -10,7 +10,7 @@ import numpy as np
 
 from .._progress import drain
 from ..io.arrays import is_large_path
-from ..io.images import read_image, write_image
+from ..io.images import check_format, read_image, write_image
 from ._common import (
     add_cluster,
     add_inputs,
@@ -20,11 +20,13 @@ from ._common import (
     from_unit,
     image_suffix,
     one_image,
+    output_file,
     output_folder,
     positive_int,
     print_note,
     run_batch,
     run_large_job,
+    unit_dtype,
 )
 
 
@@ -62,17 +64,25 @@ def kappa_type(text):
 def run(args):
     from ..restoration import DEFAULT_KAPPA, iter_restore, iter_restore_multichannel
 
-    if is_large_path(args.output):
+    if _large(args):
         return run_large(args)
 
     paths = expand_inputs(args.inputs)
-    out = output_folder(args.output)
+    target = output_file(args.output, paths)
+    out = target.parent if target else output_folder(args.output)
+
+    def restored_file(path, restored):
+        return target or out / f"{path.stem}_restored{image_suffix(restored, path)}"
+
+    def probability_file(path):
+        stem = target.stem if target else path.stem
+        return out / f"{stem}_probability.tif"
 
     def outputs(path):
         # the restored image's suffix depends on its dtype: either one counts
         done = [out / f"{path.stem}_restored{sfx}" for sfx in (".png", ".tif")]
         first = next((f for f in done if f.exists()), done[0])
-        return [first] + ([out / f"{path.stem}_probability.tif"] if args.probability else [])
+        return [first] + ([probability_file(path)] if args.probability else [])
 
     def process(path, on_progress):
         t0 = time.perf_counter()
@@ -81,24 +91,37 @@ def run(args):
             image = one_image(image, path)
             job = iter_restore(image, kappa=args.kappa or 0.0, channel_axis=channel_axis(image),
                                return_result=True)
+            colour = image.ndim == 3
         else:
             kappa = DEFAULT_KAPPA if args.kappa is None else args.kappa
             job = iter_restore_multichannel(image, axis=args.stack_axis, kappa=kappa,
                                             channel_axis=channel_axis(image, stack=True),
                                             return_result=True)
+            colour = image.ndim == 4
+        if target:  # the file can hold the result: checked before the work
+            check_format(target, unit_dtype(image.dtype), 3 if colour else 2)
         result = drain(job, on_progress)
         restored = result.restored()
         if restored.ndim == 3 and restored.shape[2] == 1:
             restored = restored[..., 0]
         restored = from_unit(restored, image.dtype)  # a stack's versions share its dtype
-        write_image(out / f"{path.stem}_restored{image_suffix(restored)}", restored)
+        write_image(restored_file(path, restored), restored)
         if args.probability:
-            write_image(out / f"{path.stem}_probability.tif",
-                        result.probability.astype(np.float32))
+            write_image(probability_file(path), result.probability.astype(np.float32))
         ref = "" if result.reference is None else f", reference version {result.reference}"
         return f"restored{ref}, {time.perf_counter() - t0:.1f} s"
 
-    return run_batch(paths, process, outputs=outputs, options=args, quiet=args.quiet)
+    # a file named by -o is written (again) as asked; a folder's outputs are skipped if done
+    return run_batch(paths, process, outputs=None if target else outputs, options=args,
+                     quiet=args.quiet)
+
+
+def _large(args):
+    """A large image by tiles: a zarr in or out, or a TIFF from one zarr or TIFF."""
+    if any(str(p).lower().rstrip("/").endswith(".zarr") for p in (args.output, *args.inputs)):
+        return True
+    return is_large_path(args.output) and len(args.inputs) == 1 and \
+        is_large_path(args.inputs[0])
 
 
 def run_large(args):

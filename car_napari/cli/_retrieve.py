@@ -3,6 +3,7 @@ illumination-invariant distance to a query."""
 
 from __future__ import annotations
 
+import contextlib
 import sys
 from pathlib import Path
 
@@ -28,6 +29,27 @@ def add_parser(sub):
     p.set_defaults(run=run)
 
 
+#: The core's advice in Python words, and what a command-line user does instead.
+_PYTHON_ADVICE = ("Pass one channel (channel_axis=None on a 2-D image) or a true colour image.",
+                  "Save it as a grey (one-channel) image, or use a true colour one.")
+
+
+@contextlib.contextmanager
+def cli_words(what=None):
+    """The core's ValueErrors with their Python advice (a ``channel_axis``
+    argument) said the command line's way; ``what`` names the image."""
+    try:
+        yield
+    except ValueError as exc:
+        text = str(exc)
+        if _PYTHON_ADVICE[0] not in text:
+            raise
+        text = text.replace(*_PYTHON_ADVICE)
+        if what:
+            text = f"{what}: {text}"
+        raise ValueError(text) from None
+
+
 def run(args):
     from ..texture.retrieval import rank, texture_features
 
@@ -46,7 +68,8 @@ def run(args):
         image = one_image(read_image(path, on_note=print_note), path)
         if is_colour(image) != colour:
             return "", None
-        return "", texture_features(image, channel_axis=channel_axis(image))
+        with cli_words():
+            return "", texture_features(image, channel_axis=channel_axis(image))
 
     features = {}
     try:
@@ -58,8 +81,9 @@ def run(args):
     skipped = [p.name for p in paths if p in features and features[p] is None]
     if not kept:
         raise ValueError(f"no {'colour' if colour else 'grey'} images in {folder}.")
-    indices, distances = rank(query, [features[p] for p in kept],
-                              channel_axis=channel_axis(query))
+    with cli_words(f"the query {Path(args.query).name}"):
+        indices, distances = rank(query, [features[p] for p in kept],
+                                  channel_axis=channel_axis(query))
     top = len(kept) if args.top is None else args.top
     for k, (i, dist) in enumerate(zip(indices[:top], distances[:top], strict=True), start=1):
         print(f"{k}\t{dist:.4g}\t{kept[i]}")

@@ -8,12 +8,14 @@ import time
 from .._progress import drain
 from ..io.images import read_image
 from ._common import (
+    LABEL_SUFFIXES,
     add_cluster,
     add_inputs,
     add_quiet,
     channel_axis,
     expand_inputs,
     one_image,
+    output_file,
     output_folder,
     positive_int,
     print_note,
@@ -37,10 +39,11 @@ def run(args):
     from ..segmentation import iter_segment
 
     paths = expand_inputs(args.inputs)
-    out = output_folder(args.output)
+    target = output_file(args.output, paths, suffixes=LABEL_SUFFIXES, what="a label image")
+    out = None if target else output_folder(args.output)
 
     def outputs(path):
-        return [out / f"{path.stem}_segments.png"]
+        return [target or out / f"{path.stem}_segments.png"]
 
     def process(path, on_progress):
         image = one_image(read_image(path, on_note=print_note), path)
@@ -50,4 +53,6 @@ def run(args):
         write_labels(outputs(path)[0], result.labels)
         return f"{result.n_segments} segments, {time.perf_counter() - t0:.1f} s"
 
-    return run_batch(paths, process, outputs=outputs, options=args, quiet=args.quiet)
+    # a file named by -o is written (again) as asked; a folder's outputs are skipped if done
+    return run_batch(paths, process, outputs=None if target else outputs, options=args,
+                     quiet=args.quiet)

@@ -16,6 +16,7 @@ block of frames at a time into any array or writer, exactly as in memory;
 """
 
 from ._detection import detect_scratches, iter_detect_scratches
+from ._filling import MOSTLY_MASKED
 from ._frames import descratch_frames, inpaint_frames, iter_descratch_frames, iter_inpaint_frames
 from ._inpaint import inpaint, iter_inpaint
 from ._layout import fit_mask
@@ -29,6 +30,7 @@ from ._motion import (
 from ._tiled import inpaint_large, iter_inpaint_large
 
 __all__ = [
+    "MOSTLY_MASKED",
     "compensate_motion",
     "descratch_frames",
     "detect_scratches",

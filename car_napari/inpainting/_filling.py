@@ -134,6 +134,24 @@ def _as_clip(image, mask, channel_axis):
     return layout, masks
 
 
+#: A mask covering more than this fraction of a frame probably marks the
+#: known pixels (a mask drawn with the hole black): said before the work.
+MOSTLY_MASKED = 0.5
+
+
+def _warn_if_mostly_masked(masks):
+    """A UserWarning when the mask covers more than half of a frame."""
+    for t in range(masks.shape[0]):
+        share = float(np.mean(masks[t]))
+        if share > MOSTLY_MASKED:
+            where = "the frame" if masks.shape[0] == 1 else f"frame {t}"
+            warnings.warn(
+                f"the mask covers {100 * share:.1f} % of {where}: True (nonzero) marks the "
+                "pixels to fill. If your mask marks the damage black (zero), invert it: "
+                "~mask, or fit_mask(mask, shape, invert=True).", UserWarning, stacklevel=4)
+            return
+
+
 def _layout_hint(arr, mask, layout, channel_axis):
     """What to pass when the mask fits another reading of a 3-D image."""
     if arr.ndim != 3 or channel_axis is None:
@@ -577,6 +595,8 @@ def iter_inpaint_in_memory(image, mask, *, temporal=True, neighbourhood=None, fo
     if not any(damaged):
         warnings.warn("the mask is empty: nothing to restore, the input is returned "
                       "unchanged.", UserWarning, stacklevel=2)
+    if by_tiles is not None:  # the caller's own mask (not a tile's or a block's)
+        _warn_if_mostly_masked(masks)
     if by_tiles is not None and layout.single and any(damaged) \
             and max(H, W) > by_tiles.side:
         return (yield from _iter_by_tiles(

@@ -92,7 +92,10 @@ def iter_inpaint(image, mask, *, temporal=True, neighbourhood=None, forgetting=0
     Warns
     -----
     UserWarning
-        When the mask is empty (the input is returned unchanged).
+        When the mask is empty (the input is returned unchanged), or covers
+        more than half of a frame (a mask that marks the damage black, the
+        other convention, does: invert it, e.g. :func:`fit_mask` with
+        ``invert=True``).
 
     Examples
     --------
@@ -211,7 +214,10 @@ def inpaint(image, mask, *, temporal=True, neighbourhood=None, forgetting=0.9995
     Warns
     -----
     UserWarning
-        When the mask is empty (the input is returned unchanged).
+        When the mask is empty (the input is returned unchanged), or covers
+        more than half of a frame (a mask that marks the damage black, the
+        other convention, does: invert it, e.g. :func:`fit_mask` with
+        ``invert=True``).
 
     See Also
     --------

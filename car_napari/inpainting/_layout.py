@@ -97,7 +97,7 @@ def _normalised_axis(channel_axis, ndim):
     return int(channel_axis) % ndim
 
 
-def fit_mask(mask, shape, *, channel_axis=None):
+def fit_mask(mask, shape, *, channel_axis=None, invert=False):
     """A damage mask fitted to a frame or a clip: True where damaged,
     resized by nearest neighbour when its size differs.
 
@@ -105,7 +105,8 @@ def fit_mask(mask, shape, *, channel_axis=None):
     Labels layer painted on a preview) is mapped onto the frame's pixel grid:
     each frame pixel takes the mask pixel under its centre. Non-zero is
     damaged; in a colour mask, a pixel is damaged when any channel is
-    non-zero.
+    non-zero. With ``invert``, zero is damaged instead: the convention of
+    tools that mark the hole black on white.
 
     Parameters
     ----------
@@ -118,6 +119,10 @@ def fit_mask(mask, shape, *, channel_axis=None):
         The frame ``(H, W)`` or the clip ``(T, H, W)`` the mask is for.
     channel_axis : int or None, optional
         The mask's colour axis; None (the default) for a grey or label mask.
+    invert : bool, optional
+        The mask marks the damage with zero (black) and the known pixels
+        with non-zero: the result is True where the mask is zero (in a
+        colour mask, where every channel is zero).
 
     Returns
     -------
@@ -128,7 +133,7 @@ def fit_mask(mask, shape, *, channel_axis=None):
     Raises
     ------
     TypeError
-        If the mask is not boolean or numeric.
+        If the mask is not boolean or numeric, or ``invert`` not a bool.
     ValueError
         If ``shape`` is not ``(H, W)`` or ``(T, H, W)`` of positive sizes,
         the mask is empty or has another number of axes, or a mask per
@@ -145,6 +150,9 @@ def fit_mask(mask, shape, *, channel_axis=None):
            [0, 0, 0, 0]])
     >>> fit_mask(np.ones((2, 3, 3), bool), (2, 6, 6)).shape
     (2, 6, 6)
+    >>> fit_mask(small, (2, 2), invert=True).astype(int)  # the hole drawn black
+    array([[1, 0],
+           [1, 1]])
     """
     try:
         shape = check_shape(shape, "shape")
@@ -154,6 +162,8 @@ def fit_mask(mask, shape, *, channel_axis=None):
     check_memory(math.prod(shape), "shape")
     if channel_axis is not None:
         check_real(channel_axis, "channel_axis", integer=True)
+    if not isinstance(invert, (bool, np.bool_)):
+        raise TypeError(f"invert must be True or False; got {invert!r}.")
     m = np.asarray(mask)
     if m.dtype.kind not in "biuf":
         raise TypeError(f"mask must be boolean or numeric (non-zero = damaged); got "
@@ -168,6 +178,8 @@ def fit_mask(mask, shape, *, channel_axis=None):
         damaged = damaged.any(axis=_normalised_axis(channel_axis, m.ndim))
     if damaged.ndim not in (2, 3):
         raise ValueError(f"mask must be (h, w) or (t, h, w); got shape {damaged.shape}.")
+    if invert:
+        damaged = ~damaged
     frames = shape[0] if len(shape) == 3 else 1
     if damaged.ndim == 3:
         if damaged.shape[0] != frames:

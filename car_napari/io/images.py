@@ -15,7 +15,8 @@ import numpy as np
 from .._validation import check_path
 from .dicom import DICOM_SUFFIXES, read_dicom
 
-__all__ = ["DICOM_SUFFIXES", "IMAGE_SUFFIXES", "is_colour", "read_image", "write_image"]
+__all__ = ["DICOM_SUFFIXES", "IMAGE_SUFFIXES", "WRITE_SUFFIXES", "check_format", "is_colour",
+           "read_image", "write_image"]
 
 # formats that hold 8-bit pixels only (PNG also 16-bit grey)
 _EIGHT_BIT = frozenset({".png", ".jpg", ".jpeg", ".bmp", ".gif"})
@@ -145,6 +146,61 @@ def is_colour(image):
     return image.ndim == 3 and image.shape[2] == 3
 
 
+#: Suffixes (lower case) of the image files :func:`write_image` writes.
+WRITE_SUFFIXES = frozenset({".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".gif", ".pgm",
+                            ".ppm"})
+
+
+def check_format(path, dtype, ndim):
+    """Check that the file format of ``path`` (by its suffix) holds such pixels.
+
+    What :func:`write_image` checks before it writes; a command checks it
+    before any work.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The file to write.
+    dtype : numpy dtype
+        The pixels' type.
+    ndim : int
+        2 for a grey image, 3 for colour ``(H, W, C)``.
+
+    Raises
+    ------
+    ValueError
+        If ``path`` has no suffix, a suffix that is not an image format
+        car-napari writes (:data:`WRITE_SUFFIXES`), or one whose format does
+        not hold the pixels (PNG holds 8-bit and 16-bit grey, JPEG, BMP and
+        GIF 8-bit; TIFF anything). The message says what to use instead.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> check_format("out.tif", np.float32, 2)
+    >>> check_format("out.png", np.float32, 2)
+    Traceback (most recent call last):
+    ...
+    ValueError: cannot write float32 grey pixels to out.png: ... Write a .tif instead.
+    """
+    path = Path(path)
+    dtype = np.dtype(dtype)
+    suffix = path.suffix.lower()
+    if not suffix:
+        raise ValueError(f"cannot write {path}: its name has no suffix to choose the format; "
+                         "end it in .png, .jpg or .tif.")
+    if suffix not in WRITE_SUFFIXES:
+        raise ValueError(f"cannot write an image to {path.name}: {path.suffix} is not an image "
+                         f"format car-napari writes; use one of "
+                         f"{', '.join(sorted(WRITE_SUFFIXES))}.")
+    grey16_png = suffix == ".png" and dtype == np.uint16 and ndim == 2
+    if suffix in _EIGHT_BIT and dtype not in (np.uint8, np.bool_) and not grey16_png:
+        holds = "8-bit pixels (or 16-bit grey)" if suffix == ".png" else "8-bit pixels"
+        kind = "colour" if ndim == 3 else "grey"
+        raise ValueError(f"cannot write {dtype} {kind} pixels to {path.name}: "
+                         f"{path.suffix} holds {holds}. Write a .tif instead.")
+
+
 def write_image(path, image):
     """Write an array to an image file, its format chosen by the suffix.
 
@@ -192,16 +248,7 @@ def write_image(path, image):
     if image.ndim < 2 or image.size == 0:
         raise ValueError(f"cannot write an image of shape {image.shape} to {path.name}: pass "
                          "a non-empty (H, W) or (H, W, C) image.")
-    suffix = path.suffix.lower()
-    if not suffix:
-        raise ValueError(f"cannot write {path}: its name has no suffix to choose the format; "
-                         "end it in .png, .jpg or .tif.")
-    grey16_png = suffix == ".png" and image.dtype == np.uint16 and image.ndim == 2
-    if suffix in _EIGHT_BIT and image.dtype not in (np.uint8, np.bool_) and not grey16_png:
-        holds = "8-bit pixels (or 16-bit grey)" if suffix == ".png" else "8-bit pixels"
-        kind = "colour" if image.ndim == 3 else "grey"
-        raise ValueError(f"cannot write {image.dtype} {kind} pixels to {path.name}: "
-                         f"{path.suffix} holds {holds}. Write a .tif instead.")
+    check_format(path, image.dtype, image.ndim)
     try:
         io.imsave(str(path), image, check_contrast=False)
     except (ValueError, TypeError, KeyError) as exc:

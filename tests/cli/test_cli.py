@@ -324,7 +324,8 @@ def test_outputs_go_to_a_format_that_holds_them(tmp_path):
     from car_napari.io.images import read_image, write_image
 
     rgb16 = np.random.default_rng(0).integers(0, 65535, (8, 8, 3)).astype(np.uint16)
-    assert image_suffix(rgb16) == ".tif" and image_suffix(rgb16[..., 0]) == ".png"
+    assert image_suffix(rgb16, "x.png") == ".tif"
+    assert image_suffix(rgb16[..., 0], "x.png") == ".png"
     with pytest.raises(ValueError, match="Write a .tif instead"):
         write_image(tmp_path / "x.png", rgb16)
     write_image(tmp_path / "x.tif", rgb16)

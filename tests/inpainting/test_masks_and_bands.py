@@ -266,3 +266,27 @@ def test_the_banded_passes_are_the_whole_frame_passes():
         reference[:, j] = run
     for view in (mask, mask.T.copy().T, mask[::-1][::-1]):
         np.testing.assert_array_equal(_filling._side_distance(view), reference)
+
+
+def test_fit_mask_inverts_a_black_hole_mask():
+    white = np.array([[0, 255, 0], [0, 0, 0]], np.uint8)
+    np.testing.assert_array_equal(fit_mask(255 - white, (2, 3), invert=True), white != 0)
+    np.testing.assert_array_equal(fit_mask(255 - white, (4, 6), invert=True),
+                                  fit_mask(white, (4, 6)))
+    rgb = np.zeros((2, 3, 3), np.uint8)
+    rgb[0, 0, 2] = 9  # one channel set: known under invert
+    assert not fit_mask(rgb, (2, 3), channel_axis=-1, invert=True)[0, 0]
+    with pytest.raises(TypeError, match="invert must be True or False"):
+        fit_mask(white, (2, 3), invert="yes")
+
+
+def test_a_mostly_masked_frame_warns_before_the_fill():
+    from car_napari import inpaint
+
+    frame = np.random.default_rng(0).random((24, 24))
+    mask = np.ones((24, 24), bool)
+    mask[:6] = False
+    with pytest.warns(UserWarning, match=r"covers 75\.0 % of the frame.*invert=True"):
+        inpaint(frame, mask)
+    with pytest.warns(UserWarning, match=r"covers 75\.0 % of frame 1"):
+        inpaint(np.stack([frame, frame]), np.stack([~mask, mask]), channel_axis=None)
