@@ -333,6 +333,29 @@ def check_channel_axis(channel_axis, name="channel_axis"):
     return int(channel_axis)
 
 
+def check_mask(mask, name="mask", *, meaning="True (non-zero) where it applies"):
+    """``mask`` as an array of a boolean or numeric dtype without NaN, or a
+    TypeError / ValueError naming it. A NaN is non-zero, so ``mask != 0``
+    and ``astype(bool)`` would take it for True without a word: it is
+    refused (it is usually a missing value, not a decision). Not converted
+    to bool here: the callers keep their own reading (``!= 0``)."""
+    try:
+        m = np.asarray(mask)
+    except Exception as exc:  # pragma: no cover - exotic array-likes
+        raise TypeError(f"{name} could not be converted to an array: {exc}") from exc
+    if m.dtype == object or m.dtype.kind not in "biuf":
+        raise TypeError(f"{name} must be boolean or numeric ({meaning}); got dtype "
+                        f"{m.dtype}.")
+    if m.dtype.kind == "f":
+        nan = int(np.count_nonzero(np.isnan(m)))
+        if nan:
+            raise ValueError(
+                f"{name} contains {nan} NaN value{'' if nan == 1 else 's'}: a mask is "
+                f"{meaning}, and NaN is neither. Replace them by 0 (False) or 1 (True) "
+                f"first, e.g. np.nan_to_num({name}) for False.")
+    return m
+
+
 def check_flag(value, name):
     """``value`` as a bool (True, False or a numpy bool), or a TypeError naming it."""
     if not isinstance(value, (bool, np.bool_)):

@@ -884,3 +884,47 @@ def test_channel_axis_checked_on_a_grey_image(name, axis):
     # a 2-D image ignores its channel axis; a NaN one was accepted there
     with pytest.raises(TypeError, match="channel_axis must be None"):
         _channel_axis_calls()[name](axis)
+
+
+def _nan_mask_calls():
+    import car_napari as car
+
+    frame = np.random.default_rng(3).random((48, 48))
+    mask = np.zeros((48, 48))
+    mask[10:30, 20:22] = 1.0
+    mask[0, 0] = np.nan
+    breast = np.ones((64, 64))
+    breast[5, 5] = np.nan
+    mammogram = np.random.default_rng(4).random((64, 64))
+    return [
+        (lambda: car.inpaint(frame, mask), mask),
+        (lambda: car.inpaint(np.stack([frame, frame]), np.stack([mask, mask]),
+                             channel_axis=None), mask),
+        (lambda: car.fit_mask(mask, (96, 96)), mask),
+        (lambda: car.segment(frame, mask=mask, levels=1, n_init=4), mask),
+        (lambda: car.estimate_motion(frame, frame, mask=mask), mask),
+        (lambda: car.detect_mammogram_rois(mammogram, breast=breast), breast),
+        (lambda: car.segment_breast(mammogram, breast=breast), breast),
+    ]
+
+
+@pytest.mark.parametrize("case", range(7))
+def test_nan_in_a_mask_is_refused(case):
+    """A NaN is non-zero: it used to be read as True without a word."""
+    call, mask = _nan_mask_calls()[case]
+    before = mask.copy()
+    with pytest.raises(ValueError, match=r"contains \d NaN value.*Replace them"):
+        call()
+    np.testing.assert_array_equal(mask, before)  # the input is untouched
+
+
+def test_check_mask_keeps_numeric_and_boolean_masks():
+    from car_napari._validation import check_mask
+
+    for mask in (np.array([[0, 2]]), np.array([[True, False]]), np.array([[0.0, 0.5]]),
+                 [[0, 1]]):
+        np.testing.assert_array_equal(check_mask(mask), np.asarray(mask))
+    with pytest.raises(TypeError, match="boolean or numeric"):
+        check_mask(np.array([["a"]]))
+    with pytest.raises(ValueError, match="2 NaN values"):
+        check_mask(np.array([np.nan, np.nan, 1.0]), "breast")

@@ -38,6 +38,7 @@ from .._progress import Progress, drain, stage
 from .._validation import (
     as_channel_last_float,
     channel_last_shape,
+    check_mask,
     check_not_constant,
     check_real,
 )
@@ -401,9 +402,7 @@ def _check_options(image, features, mask, channel_axis, options):
         raise ValueError(f"n_init ({o['n_init']}) is too large for a {h}x{w} image: its "
                          f"regular division needs {rows}x{cols} blocks; {allowed}.")
     if mask is not None:
-        mask = np.asarray(mask)
-        if mask.dtype == object or mask.dtype.kind not in "biuf":
-            raise TypeError(f"mask must be a boolean (H, W) array; got dtype {mask.dtype}.")
+        mask = check_mask(mask, "mask", meaning="True where the image is segmented")
         if mask.shape != (h, w):
             raise ValueError(f"mask must be (H, W) like the image, {h}x{w}; got shape "
                              f"{mask.shape}.")
