@@ -461,14 +461,20 @@ def float_range(image):
 
 
 def check_real(value, name, *, low=None, high=None, low_open=False, high_open=False,
-               integer=False):
+               integer=False, strict=False):
     """``value`` as a float (an int with ``integer``) within its range, or a
     TypeError / ValueError that names the argument and says what is allowed.
     Checked before any work, so that a bad option never costs a pass over
-    the image."""
+    the image. With ``integer``, a float of integral value (2.0) is taken
+    unless ``strict``: then only an int (Python or numpy) is, as for a
+    count (a float there is usually a mistake, e.g. a ratio); a float is a
+    ValueError, as ``levels=2.0`` is for :func:`illumination_invariants`."""
     kind = "an integer" if integer else "a number"
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.number)):
         raise TypeError(f"{name} must be {kind}; got {value!r}.")
+    if integer and strict and not isinstance(value, (int, np.integer)):
+        raise ValueError(f"{name} must be an integer (an int, not a float); got {value!r}. "
+                         f"Pass int({name}) if a whole number was meant.")
     if isinstance(value, (int, np.integer)):
         number = int(value) if integer else _as_float(value, name)
     else:

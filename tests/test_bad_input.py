@@ -928,3 +928,15 @@ def test_check_mask_keeps_numeric_and_boolean_masks():
         check_mask(np.array([["a"]]))
     with pytest.raises(ValueError, match="2 NaN values"):
         check_mask(np.array([np.nan, np.nan, 1.0]), "breast")
+
+
+@pytest.mark.parametrize("option", ["n_segments", "n_init", "levels", "min_area", "seed"])
+def test_segment_refuses_float_counts(option):
+    """2.0 is refused as illumination_invariants(levels=2.0) refuses it."""
+    from car_napari import segment
+
+    image = np.random.default_rng(5).random((32, 32))
+    with pytest.raises(ValueError, match=f"{option} must be an integer .*not a float"):
+        segment(image, **{option: 2.0})
+    with pytest.raises(ValueError, match="levels"):
+        illumination_invariants(image, levels=2.0)
