@@ -940,3 +940,18 @@ def test_segment_refuses_float_counts(option):
         segment(image, **{option: 2.0})
     with pytest.raises(ValueError, match="levels"):
         illumination_invariants(image, levels=2.0)
+
+
+def test_save_refuses_an_existing_folder(model_file, tmp_path):
+    from car_napari import TextureModel
+
+    model = TextureModel.load(model_file[0])
+    folder = tmp_path / "models"
+    folder.mkdir()
+    with pytest.raises(IsADirectoryError, match="existing folder.*file name"):
+        model.save(folder)
+    with pytest.raises(IsADirectoryError, match="existing folder"):
+        model.save(str(folder))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["models"]  # no models.npz
+    model.save(tmp_path / "fresh")  # a new name still gets numpy's .npz
+    assert (tmp_path / "fresh.npz").is_file()

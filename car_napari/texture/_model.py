@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import zipfile
 import zlib
 from dataclasses import dataclass, field
@@ -1383,7 +1384,8 @@ class TextureModel:
         Raises
         ------
         OSError
-            If the file cannot be written.
+            If the file cannot be written; IsADirectoryError (before
+            anything is written) if ``path`` is an existing folder.
         TypeError
             If ``path`` is not a file name (a str or path-like object).
 
@@ -1422,6 +1424,10 @@ class TextureModel:
             },
         }
         check_path(path)
+        if os.path.isdir(path):  # np.savez would write "<folder>.npz" beside it
+            raise IsADirectoryError(
+                f"{os.fsdecode(path)!r} is an existing folder; pass a file name, e.g. "
+                f"{os.path.join(os.fsdecode(path), 'texture.npz')!r}.")
         arrays = {key: (a.astype(np.int16) if key.endswith("_offsets") else
                         np.asarray(a, np.float64).astype(np.float32))
                   for key, a in self._parameter_arrays().items()}
