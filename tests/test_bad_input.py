@@ -955,3 +955,41 @@ def test_save_refuses_an_existing_folder(model_file, tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["models"]  # no models.npz
     model.save(tmp_path / "fresh")  # a new name still gets numpy's .npz
     assert (tmp_path / "fresh.npz").is_file()
+
+
+@pytest.mark.parametrize("shape, kwargs", [
+    ((2, 2), {}),
+    ((2, 2), {"estimator": "recursive"}),
+    ((3, 3), {}),
+    ((7, 7), {"neighbourhood": [[5, 5]]}),
+    ((7, 7), {"neighbourhood": [[3, 3]]}),
+    ((5, 5, 3), {"neighbourhood": 2}),
+    ((6, 6), {"neighbourhood": 5, "estimator": "recursive"}),
+    ((2, 32), {"neighbourhood": 2, "estimator": "recursive", "directions": ["right"]}),
+])
+def test_restore_refuses_images_too_small_to_learn_from(shape, kwargs):
+    """Fewer pixels to learn from than parameters + 2 (fit_car's rule): the
+    models were the prior alone and the image came back unchanged or moved
+    to its mean."""
+    image = np.random.default_rng(6).random(shape)
+    before = image.copy()
+    with pytest.raises(ValueError, match="too small for this neighbourhood.*needs at least"):
+        restore(image, **kwargs)
+    np.testing.assert_array_equal(image, before)
+
+
+def test_restore_takes_images_just_large_enough():
+    rng = np.random.default_rng(7)
+    # windowed, order 1 grey: 3 parameters (2 neighbours, the intercept) need 5 pixels
+    # at least a row and a column from every edge
+    for image in (rng.random((4, 5)), rng.random((5, 4))):
+        assert np.isfinite(restore(image)).all()
+    # recursive, order 1 grey: 2 parameters need 4 pixels in every scan
+    assert np.isfinite(restore(rng.random((3, 3)), estimator="recursive")).all()
+
+
+def test_restore_tiled_refuses_what_restore_refuses():
+    from car_napari.restoration import restore_tiled
+
+    with pytest.raises(ValueError, match="too small for this neighbourhood"):
+        restore_tiled(np.random.default_rng(8).random((7, 7)), neighbourhood=[[5, 5]])

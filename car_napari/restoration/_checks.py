@@ -60,3 +60,46 @@ def resolve_offsets(neighbourhood, data):
         neighbourhood, _ = select_support(data, channel_axis=-1)
     offsets, _ = as_offsets(neighbourhood)
     return offsets
+
+
+def check_restorable(shape, offsets, estimator, directions):
+    """An (H, W, C) image large enough for the local models of ``estimator``
+    with these causal ``offsets``, or a ValueError that says so, by the
+    rule of :func:`~car_napari.fit_car`: at least ``parameters + 2`` pixels
+    to learn from (``parameters``: the regressors of a channel's model,
+    ``eta * C``, plus the windowed estimator's intercept). Smaller images
+    used to be restored from the prior alone (each pixel its channel's mean,
+    or left as it was), without a word.
+
+    The windowed estimator learns from the pixels whose neighbours in all
+    four mirrored neighbourhoods lie inside the image (its one pass of
+    sums); the recursive one, per scan direction, from those whose causal
+    neighbourhood does (the transposed scans see the image turned)."""
+    H, W, C = shape
+    offsets = np.asarray(offsets, np.int64).reshape(-1, 2)
+    eta = offsets.shape[0]
+    if estimator == "windowed":
+        up = int(np.max(np.abs(offsets[:, 0])))
+        side = int(np.max(np.abs(offsets[:, 1])))
+        usable = max(H - 2 * up, 0) * max(W - 2 * side, 0)
+        parameters = eta * C + 1
+        where = (f"the pixels at least {up} rows and {side} columns from every edge (whose "
+                 "neighbours in all four mirrored neighbourhoods lie inside)")
+    else:
+        top = int(np.max(offsets[:, 0]))
+        left = max(int(np.max(offsets[:, 1])), 0)
+        right = max(int(-np.min(offsets[:, 1])), 0)
+        counts = {}
+        for direction in directions:
+            h, w = (H, W) if direction in ("down", "up") else (W, H)
+            counts[direction] = max(h - top, 0) * max(w - left - right, 0)
+        worst = min(counts, key=counts.get)
+        usable = counts[worst]
+        parameters = eta * C
+        where = f"the pixels with a complete neighbourhood in the {worst!r} scan"
+    if usable < parameters + 2:
+        raise ValueError(
+            f"image of size {H}x{W} is too small for this neighbourhood and the {estimator} "
+            f"estimator: it learns from {where}, {usable} here, and its model of "
+            f"{parameters} parameters a channel needs at least {parameters + 2}. Use a "
+            "larger image or a lower order.")

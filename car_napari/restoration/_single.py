@@ -29,13 +29,12 @@ from .._validation import (
     check_flag,
     check_not_constant,
     check_real,
-    check_size,
     scale_exponent,
 )
 from ..model.blocks import iter_channel_last_float
 from ..model.directions import DIRECTIONS
 from ..model.neighbourhood import Context
-from ._checks import check_kappa, check_options, resolve_offsets
+from ._checks import check_kappa, check_options, check_restorable, resolve_offsets
 from ._combine import (
     DIRECTION_POWER,
     DirectionalAverage,
@@ -406,6 +405,10 @@ def iter_restoration(image, *, neighbourhood, estimator, window, forgetting, dir
     check_flag(keep_edges, "keep_edges")
     probability = bool(probability) or kappa > 0 or estimator == "recursive"
     H, W, C = channel_last_shape(image, channel_axis=channel_axis)
+    # given offsets: the size is checked before the image is read ('auto': after)
+    given = None if isinstance(neighbourhood, str) else resolve_offsets(neighbourhood, None)
+    if given is not None:
+        check_restorable((H, W, C), given, estimator, directions)
     if window > max(H, W, DEFAULT_WINDOW):  # its buffers grow with it
         raise ValueError(f"window {window} is larger than the image {(H, W)}: use at most "
                          f"{max(H, W, DEFAULT_WINDOW)}.")
@@ -436,9 +439,12 @@ def iter_restoration(image, *, neighbourhood, estimator, window, forgetting, dir
                                 copy=not blend),
         *span("reading"))
     check_not_constant(data, summary=summary)
-    offsets = resolve_offsets(neighbourhood, data)
+    if given is None:
+        offsets = resolve_offsets(neighbourhood, data)
+        check_restorable((H, W, C), offsets, estimator, directions)
+    else:
+        offsets = given
     context = Context.spatial(offsets, data.shape[2])
-    check_size(data, context.reach)
     lo, hi = span("centre")
     rows = row_chunks(0, H, chunk_rows(W, 2 * C))
     with ThreadPoolExecutor(max_workers=2) as pool:
