@@ -993,3 +993,16 @@ def test_restore_tiled_refuses_what_restore_refuses():
 
     with pytest.raises(ValueError, match="too small for this neighbourhood"):
         restore_tiled(np.random.default_rng(8).random((7, 7)), neighbourhood=[[5, 5]])
+
+
+@pytest.mark.parametrize("shape", [(1, 64), (64, 1), (2, 64), (64, 6), (1, 64, 3)])
+def test_detect_scratches_sizes_are_consistent(shape):
+    """Lines are vertical: at least 3 rows and more than 2 * line_width
+    columns, said in the message (1x64 used to pass, 64x1 not)."""
+    from car_napari import detect_scratches
+
+    frame = np.random.default_rng(9).random(shape)
+    with pytest.raises(ValueError, match=r"at least 3 rows and more than 6 columns"):
+        detect_scratches(frame)
+    assert detect_scratches(frame, kinds="blotch").shape == shape[:2]
+    assert detect_scratches(np.random.default_rng(9).random((3, 7))).shape == (3, 7)
