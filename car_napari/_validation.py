@@ -356,6 +356,29 @@ def check_mask(mask, name="mask", *, meaning="True (non-zero) where it applies")
     return m
 
 
+# The smallest forgetting factor phi: the adaptive estimator's effective
+# window is about 1 / (1 - phi**2) pixels, 1.33 at 0.5, so below it the local
+# model forgets each pixel almost as soon as it is seen (and for phi**2 near
+# 1e-170 its statistics leave float64's range: NaN output, without a word).
+MIN_FORGETTING = 0.5
+
+
+def check_forgetting(value, name="forgetting"):
+    """``value`` as a float in [MIN_FORGETTING, 1], or a TypeError /
+    ValueError naming it and saying why smaller values are refused."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.number)):
+        raise TypeError(f"{name} must be a number in [{MIN_FORGETTING}, 1]; got {value!r}.")
+    number = float(value) if not isinstance(value, (int, np.integer)) or abs(value) < 2 \
+        else 2.0
+    if not (MIN_FORGETTING <= number <= 1.0):  # NaN too
+        raise ValueError(
+            f"{name} must be in [{MIN_FORGETTING}, 1]; got {value!r}. The local model's "
+            f"window is about 1 / (1 - {name}**2) pixels (1.33 at {MIN_FORGETTING}, 100 at "
+            "0.995): smaller values leave it no pixels to learn from. Use 0.99 or so for "
+            "a local model, 1 for none forgotten.")
+    return number
+
+
 def check_flag(value, name):
     """``value`` as a bool (True, False or a numpy bool), or a TypeError naming it."""
     if not isinstance(value, (bool, np.bool_)):

@@ -1006,3 +1006,34 @@ def test_detect_scratches_sizes_are_consistent(shape):
         detect_scratches(frame)
     assert detect_scratches(frame, kinds="blotch").shape == shape[:2]
     assert detect_scratches(np.random.default_rng(9).random((3, 7))).shape == (3, 7)
+
+
+def _forgetting_calls():
+    from car_napari import inpaint, local_features, restore_multichannel, segment
+
+    image = np.random.default_rng(10).random((32, 32))
+    mask = np.zeros((32, 32), bool)
+    mask[10:20, 15] = True
+    return [
+        lambda f: local_parameters(image, 2, forgetting=f),
+        lambda f: restore(image, estimator="recursive", forgetting=f),
+        lambda f: restore_multichannel(np.stack([image, image * 0.9 + 0.05]), forgetting=f),
+        lambda f: segment(image, forgetting=f),
+        lambda f: local_features(image, forgetting=f),
+        lambda f: inpaint(image, mask, forgetting=f),
+    ]
+
+
+@pytest.mark.parametrize("case", range(6))
+@pytest.mark.parametrize("forgetting", [1e-300, 1e-100, 1e-10, 0.3, 0.49])
+def test_tiny_forgetting_is_refused(case, forgetting):
+    """local_parameters(forgetting=1e-300) was 97 % NaN without a word."""
+    with pytest.raises(ValueError, match=r"forgetting must be in \[0.5, 1\].*window"):
+        _forgetting_calls()[case](forgetting)
+
+
+def test_smallest_forgetting_gives_finite_parameters():
+    image = np.random.default_rng(11).random((32, 32))
+    assert np.isfinite(local_parameters(image, 2, forgetting=0.5)).all()
+    with pytest.raises(TypeError, match="forgetting"):
+        local_parameters(image, 2, forgetting="0.9")

@@ -30,7 +30,7 @@ import numpy as np
 from numba import njit
 
 from .._progress import Progress, stage
-from .._validation import check_mask, check_real
+from .._validation import check_forgetting, check_mask, check_real
 from ..model.neighbourhood import Context, causal_neighbourhood
 from ..model.recursive import RecursiveScan, default_prior
 from ._conditional import HALO_BLEND, HALO_REGION_BLEND, HALO_UNBLEND, iter_fill_conditional
@@ -549,7 +549,7 @@ def iter_inpaint_in_memory(image, mask, *, temporal=True, neighbourhood=None, fo
     conditional = method == "conditional"
     layout, masks = _as_clip(image, mask, channel_axis)
     clip = layout.clip
-    forgetting = check_real(forgetting, "forgetting", low=0.0, high=1.0, low_open=True)
+    forgetting = check_forgetting(forgetting)
     interleave = check_real(interleave, "interleave (pixels)", low=0.0, low_open=True)
     if isinstance(halo, str):
         if halo != "auto":

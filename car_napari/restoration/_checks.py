@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import check_real
+from .._validation import check_forgetting
 from ..model.directions import DIRECTIONS
 from ..model.estimation import select_support
 from ..model.neighbourhood import as_offsets
@@ -34,7 +34,7 @@ def check_flags(**flags):
 def check_options(forgetting, directions, names=DIRECTIONS):
     """``(forgetting, directions)`` validated: a float in (0, 1] and a
     non-empty tuple of ``names`` ('all' is every name)."""
-    forgetting = check_real(forgetting, "forgetting", low=0.0, high=1.0, low_open=True)
+    forgetting = check_forgetting(forgetting)
     if isinstance(directions, str):
         directions = names if directions == "all" else (directions,)
     try:
@@ -103,3 +103,4 @@ def check_restorable(shape, offsets, estimator, directions):
             f"estimator: it learns from {where}, {usable} here, and its model of "
             f"{parameters} parameters a channel needs at least {parameters + 2}. Use a "
             "larger image or a lower order.")
+

@@ -38,6 +38,7 @@ from .._progress import Progress, drain, stage
 from .._validation import (
     as_channel_last_float,
     channel_last_shape,
+    check_forgetting,
     check_mask,
     check_not_constant,
     check_real,
@@ -345,8 +346,7 @@ def _check_options(image, features, mask, channel_axis, options):
         raise ValueError(f"n_segments ({o['n_segments']}) must not exceed n_init "
                          f"({o['n_init']}).")
     o["levels"] = check_real(o["levels"], "levels", low=1, high=30, integer=True, strict=True)
-    o["forgetting"] = check_real(o["forgetting"], "forgetting", low=0.0, high=1.0,
-                                 low_open=True)
+    o["forgetting"] = check_forgetting(o["forgetting"])
     o["smoothing"] = check_real(o["smoothing"], "smoothing", low=0.0, high=_MAX_SMOOTHING)
     o["threshold"] = check_real(o["threshold"], "threshold", low=0.0, high=1.0,
                                 high_open=True)
@@ -427,7 +427,7 @@ neighbourhood : int or (eta, 2) array_like, optional
     Causal neighbourhood of the local models: an order or explicit
     offsets (causal neighbourhoods, docs/model.md).
 forgetting : float, optional
-    Forgetting factor of the adaptive models, in (0, 1] (0.98: an effective
+    Forgetting factor of the adaptive models, in [0.5, 1] (0.98: an effective
     window of about 50 pixels along each scan; 0.97-0.98 was best on the
     TUNING mosaics, docs/segmentation.md).
 n_init : int, optional
