@@ -1037,3 +1037,20 @@ def test_smallest_forgetting_gives_finite_parameters():
     assert np.isfinite(local_parameters(image, 2, forgetting=0.5)).all()
     with pytest.raises(TypeError, match="forgetting"):
         local_parameters(image, 2, forgetting="0.9")
+
+
+def test_predict_refuses_a_loaded_band_model(model_file):
+    """A loaded TextureModel's band models keep no vx: predict gave an all-NaN
+    log density without a word."""
+    from car_napari import TextureModel
+
+    image = np.random.default_rng(1).random((32, 32, 3))
+    loaded = TextureModel.load(model_file[0])
+    with pytest.raises(ValueError, match="no data statistics.*TextureModel read from a file"):
+        predict(loaded.models[0], image)
+    fitted = TextureModel.fit(image, levels=2, neighbourhood=1)  # these predict
+    assert np.isfinite(predict(fitted.models[0], image).log_density[1:, 1:-1]).all()
+    model = fit_car(GOOD[..., 0], 1)
+    model.lam = np.full((1, 1), np.nan)
+    with pytest.raises(ValueError, match="no data statistics"):
+        predict(model, GOOD[..., 0])
