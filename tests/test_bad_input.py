@@ -1054,3 +1054,24 @@ def test_predict_refuses_a_loaded_band_model(model_file):
     model.lam = np.full((1, 1), np.nan)
     with pytest.raises(ValueError, match="no data statistics"):
         predict(model, GOOD[..., 0])
+
+
+def test_rank_of_huge_feature_vectors_is_exact():
+    """Features near 1e200 overflowed the gallery's spread to inf: distances
+    [0, 0] with a warning. Scaled by a power of two, they are those of the
+    unit vectors; ordinary ones are unchanged."""
+    import warnings
+
+    from car_napari import rank
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        huge = rank(np.ones(15), [np.full(15, 1e200), np.full(15, -1e200)])
+        unit = rank(np.ones(15) * 1e-200, [np.full(15, 1.0), np.full(15, -1.0)])
+        np.testing.assert_array_equal(huge.distances, unit.distances)
+        np.testing.assert_array_equal(huge.distances, [15.0, 15.0])
+        np.testing.assert_array_equal(
+            rank(np.ones(15), [np.full(15, 1.0), np.full(15, -1.0)]).distances, [0.0, 30.0])
+        with pytest.raises(ValueError, match="distances overflow"):
+            rank(np.full(15, 1e300), [np.full(15, 1.0), np.full(15, 1.0 + 1e-10)])
+
