@@ -1075,3 +1075,24 @@ def test_rank_of_huge_feature_vectors_is_exact():
         with pytest.raises(ValueError, match="distances overflow"):
             rank(np.full(15, 1e300), [np.full(15, 1.0), np.full(15, 1.0 + 1e-10)])
 
+
+@pytest.mark.parametrize("estimator", ["windowed", "recursive"])
+def test_restore_refuses_a_noise_whose_square_overflows(estimator):
+    import warnings
+
+    image = np.random.default_rng(12).random((32, 32, 3))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # was "overflow encountered in square"
+        with pytest.raises(ValueError, match="noise 1e\\+300 is too large: at most 1e\\+150"):
+            restore(image, noise=1e300, estimator=estimator)
+        with pytest.raises(ValueError, match="noise .* too large"):
+            restore(image * 2.0**-40, noise=1e140, estimator=estimator)  # scaled for the work
+        big = restore(image, noise=1e150, estimator=estimator)  # every pixel noise: finite
+        assert np.isfinite(big).all()
+
+
+def test_restore_tiled_refuses_a_huge_noise():
+    from car_napari.restoration import restore_tiled
+
+    with pytest.raises(ValueError, match="noise .* too large"):
+        restore_tiled(np.random.default_rng(13).random((64, 64)), noise=1e300)

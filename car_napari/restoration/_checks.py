@@ -3,9 +3,11 @@ work, and say what to pass instead."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-from .._validation import check_forgetting
+from .._validation import MAGNITUDE_LIMIT, check_forgetting
 from ..model.directions import DIRECTIONS
 from ..model.estimation import select_support
 from ..model.neighbourhood import as_offsets
@@ -104,3 +106,23 @@ def check_restorable(shape, offsets, estimator, directions):
             f"{parameters} parameters a channel needs at least {parameters + 2}. Use a "
             "larger image or a lower order.")
 
+
+def check_noise_magnitude(noise, exponent=0):
+    """A ValueError when a given ``noise`` passes ``MAGNITUDE_LIMIT`` (times
+    ``2**exponent``, the power of two by which the image is scaled for the
+    work): the edge rule squares it, and 1e300 overflowed with a warning.
+    Other bad values (negative, NaN, wrong length) are left to the noise
+    checks that name them."""
+    if noise is None:
+        return
+    try:
+        values = np.abs(np.asarray(noise, float))
+    except (TypeError, ValueError):
+        return
+    limit = math.ldexp(MAGNITUDE_LIMIT, int(exponent))
+    if np.any(values > limit) and np.all(np.isfinite(values)):
+        raise ValueError(
+            f"noise {noise!r} is too large: at most {limit:.3g} for this image (the edge rule "
+            "squares it, and a noise far beyond the image's range makes every pixel noise). "
+            "Pass the noise's standard deviation in the image's units, or None to "
+            "estimate it.")

@@ -34,7 +34,13 @@ from .._validation import (
 from ..model.blocks import iter_channel_last_float
 from ..model.directions import DIRECTIONS
 from ..model.neighbourhood import Context
-from ._checks import check_kappa, check_options, check_restorable, resolve_offsets
+from ._checks import (
+    check_kappa,
+    check_noise_magnitude,
+    check_options,
+    check_restorable,
+    resolve_offsets,
+)
 from ._combine import (
     DIRECTION_POWER,
     DirectionalAverage,
@@ -534,6 +540,7 @@ def restore_job(image, *, neighbourhood, estimator, window, forgetting, directio
     are absolute, so that its magnitude would otherwise decide the result.
     Ordinary images take the unscaled path, bit for bit."""
     exponent = scale_exponent(image)
+    check_noise_magnitude(noise, exponent)
     if exponent:
         image = np.ldexp(np.asarray(image, np.float64), -exponent)
         if noise is not None:

@@ -46,7 +46,7 @@ from .._validation import (
     check_real,
 )
 from ..model.neighbourhood import as_offsets
-from ._checks import check_kappa, check_options, check_restorable
+from ._checks import check_kappa, check_noise_magnitude, check_options, check_restorable
 from ._noise import noise_from_medians
 from ._single import (
     CORNERS,
@@ -149,6 +149,7 @@ def _check(image, neighbourhood, estimator, window, directions, kappa, noise, ch
                              f"got {noise!r}.") from None
         if np.any(noise < 0) or not np.all(np.isfinite(noise)):
             raise ValueError(f"noise must be finite and >= 0; got {noise}.")
+        check_noise_magnitude(noise)
     check_restorable((*shape[:2], C), offsets, "windowed", directions)
     return offsets, directions, kappa, C, noise, window, tile
 
