@@ -1,5 +1,7 @@
 """Bad input gets a clear error naming the problem and the fix."""
 
+import functools
+
 import numpy as np
 import pytest
 
@@ -279,14 +281,25 @@ def test_unknown_members_are_never_read(model_file, tmp_path):
 
 
 # ------------------------------------------------------------ output shapes
-@pytest.mark.parametrize("shape", [(1, 1), (1, 500), (64, 1), (2, 2), (2, 40)])
-def test_tileable_synthesis_refuses_shapes_it_cannot_tile(shape, model_file):
+@functools.lru_cache
+def _small_texture_model(levels):
     from car_napari.texture import TextureModel
 
-    model = TextureModel.load(model_file[0])  # 2 levels: at least 3 pixels a side
-    with pytest.raises(ValueError, match="at least 3 pixels"):
-        model.synthesize(shape, seed=0, tileable=True)
-    assert model.synthesize((3, 5), seed=0, tileable=True).shape == (3, 5, 3)
+    return TextureModel.fit(np.random.default_rng(1).random((64, 64, 3)), levels=levels,
+                            neighbourhood=1)
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (1, 500), (64, 1), (2, 2), (2, 40), (3, 7)])
+@pytest.mark.parametrize("levels", [1, 2, 3])
+def test_tileable_synthesis_takes_any_size(shape, levels):
+    """The README says any size: small tileable sizes (a pyramid level of
+    side 1) were refused since sides under 2**(levels-1)+1 were."""
+    model = _small_texture_model(levels)
+    texture = model.synthesize(shape, seed=0, tileable=True)
+    assert texture.shape == (*shape, 3) and np.isfinite(texture).all()
+    np.testing.assert_array_equal(texture, model.synthesize(shape, seed=0, tileable=True))
+    low, high = model.value_range
+    assert np.all(texture >= low) and np.all(texture <= high)
     assert model.synthesize(shape, seed=0).shape == (*shape, 3)  # not tileable: any size
 
 

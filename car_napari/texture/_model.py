@@ -891,8 +891,9 @@ def _exponential_tails(mapped, pos, k, quantiles):
 
 def _blend_width(n):
     """Cross-fade band for a periodic level of side ``n``: a quarter of it,
-    at least 2 pixels."""
-    return max(2, n // 4)
+    at least 2 pixels, at most ``n`` (a level of side 1 fades over 1: its
+    one pixel is the extra sample, trivially periodic)."""
+    return min(max(2, n // 4), n)
 
 
 def _f32(values):
@@ -1288,15 +1289,6 @@ class TextureModel:
         h, w = output_shape(shape)
         if not isinstance(tileable, (bool, np.bool_)):
             raise TypeError(f"tileable must be True or False; got {tileable!r}.")
-        if tileable:
-            # every pyramid level must keep 2 pixels a side for its cross-fade
-            least = 2 if self.levels == 1 else 2 ** (self.levels - 1) + 1
-            if min(h, w) < least:
-                raise ValueError(
-                    f"shape {(h, w)} is too small for tileable synthesis with "
-                    f"{self.levels} pyramid levels: each side needs at least {least} pixels "
-                    "(every level keeps 2). Ask for a larger shape, or tileable=False."
-                )
         check_memory(_SYNTHESIS_COPIES * 8 * h * w * self.n_channels, f"shape {(h, w)}")
         rng = check_seed(seed)
         # one independent stream per band, fixed by the seed
