@@ -52,6 +52,7 @@ from ._combine import (
 )
 from ._noise import noise_channel_last, noise_from_medians
 from ._windowed import (
+    blend_edges,
     block_moments,
     combine_predictions,
     median_abs_laplacian,
@@ -173,10 +174,11 @@ class RestorationResult:
             raise ValueError("this result has no prediction probability to threshold; "
                              "use kappa=0 or restore with return_result=True.")
         out = self.prediction
-        if self.weight is not None:
-            out = np.subtract(self.observed, out)  # one new array, then in place
-            out *= self.weight
-            out += self.prediction
+        if self.weight is not None:  # as restore() blends in the edge rule's kernel
+            parts = np.broadcast_arrays(*(np.asarray(a, np.float64) for a in (
+                self.observed, self.prediction, self.weight)))
+            out = np.empty(parts[0].shape)
+            blend_edges(*parts, out)
         if kappa > 0:
             out = np.where((self.probability > kappa)[..., None], out, self.observed)
         return out
