@@ -32,7 +32,9 @@ def expand_inputs(items):
     Raises
     ------
     ValueError
-        If there is no file at all.
+        If there is no file at all, or none of the files named exists (a
+        command then stops before it creates its output folder; when only
+        some are missing, the batch reports each on its line).
 
     Examples
     --------
@@ -55,11 +57,16 @@ def expand_inputs(items):
             paths.append(p)
     if not paths:
         raise ValueError(f"no input images found in {list(items)}")
+    if not any(p.is_file() for p in paths):
+        shown = ", ".join(str(p) for p in paths[:3]) + (", ..." if len(paths) > 3 else "")
+        raise ValueError(f"no such input file: {shown}")
     return paths
 
 
 def output_folder(path):
-    """The output folder, created if needed."""
+    """The output folder, created if needed: call it once the inputs are
+    checked (:func:`expand_inputs`, the command's own files), so that a
+    failed command leaves no empty folder behind."""
     out = Path(path)
     out.mkdir(parents=True, exist_ok=True)
     return out

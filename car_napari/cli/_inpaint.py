@@ -108,8 +108,10 @@ def run_many(args):
     from ..inpainting import iter_inpaint
 
     paths = expand_inputs(args.inputs)
-    out = output_folder(args.output)
     mask_arg = args.mask
+    if not Path(mask_arg).exists():  # before the output folder is made
+        raise ValueError(f"no such mask file or folder: {mask_arg}")
+    out = output_folder(args.output)
 
     def outputs(path):
         done = [out / f"{path.stem}_inpainted{sfx}" for sfx in (".png", ".tif")]
