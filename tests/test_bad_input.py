@@ -1,6 +1,7 @@
 """Bad input gets a clear error naming the problem and the fix."""
 
 import functools
+import re
 
 import numpy as np
 import pytest
@@ -1109,3 +1110,105 @@ def test_restore_tiled_refuses_a_huge_noise():
 
     with pytest.raises(ValueError, match="noise .* too large"):
         restore_tiled(np.random.default_rng(13).random((64, 64)), noise=1e300)
+
+
+# --- constant input: refused clearly, or finite results ----------------------------------
+_FLAT, _FLAT3 = np.full((48, 48), 0.5), np.full((48, 48, 3), 0.25)
+_FLAT_CLIP = np.full((4, 48, 48), 0.5)
+_TEXTURE = np.random.default_rng(14).random((48, 48))
+
+
+def _constant_calls():
+    import car_napari as car
+
+    mask = np.zeros((48, 48), bool)
+    mask[10:20, 20:22] = True
+    grey_model, colour_model = fit_car(_TEXTURE, 2), fit_car(GOOD, 2)
+    return {
+        "fit_car": lambda im: car.fit_car(im, 2),
+        "select_support": lambda im: car.select_support(im),
+        "local_parameters": lambda im: car.local_parameters(im, 2),
+        "illumination_invariants": lambda im: car.illumination_invariants(im),
+        # NaN only where the neighbourhood leaves the image, as for any image
+        "predict": lambda im: [a[2:, 2:-2] for a in car.predict(
+            colour_model if im.ndim == 3 else grey_model, im)],
+        "local_features": lambda im: car.local_features(im),
+        "segment": lambda im: car.segment(im),
+        "detect_breast": lambda im: car.detect_breast(im),
+        "detect_mammogram_rois": lambda im: car.detect_mammogram_rois(im),
+        "segment_breast": lambda im: car.segment_breast(im),
+        "estimate_noise": lambda im: car.estimate_noise(im),
+        "estimate_psf_observed": lambda im: car.estimate_psf(
+            im, np.broadcast_to(_TEXTURE[..., None], im.shape) if im.ndim == 3 else _TEXTURE),
+        "estimate_psf_restored": lambda im: car.estimate_psf(im, im),
+        "restore": lambda im: car.restore(im),
+        "restore_multichannel": lambda im: car.restore_multichannel(np.stack([im, im])),
+        "detect_scratches": lambda im: car.detect_scratches(im),
+        "detect_scratches_clip": lambda im: car.detect_scratches(
+            np.stack([im] * 4), channel_axis=-1 if im.ndim == 3 else None),
+        "estimate_motion": lambda im: car.estimate_motion(im, im),
+        "compensate_motion": lambda im: car.compensate_motion(
+            np.stack([im] * 3), channel_axis=-1 if im.ndim == 3 else None),
+        "inpaint": lambda im: car.inpaint(im, mask),
+        "inpaint_clip": lambda im: car.inpaint(
+            np.stack([im] * 3), mask, channel_axis=-1 if im.ndim == 3 else None),
+        "fit_texture": lambda im: car.TextureModel.fit(im, levels=1),
+        "fit_dynamic_texture": lambda im: car.DynamicTextureModel.fit(
+            np.stack([im] * 4), channel_axis=-1 if im.ndim == 3 else None),
+        "rank": lambda im: car.rank(im, [im, GOOD if im.ndim == 3 else _TEXTURE]),
+        "texture_features": lambda im: car.texture_features(im),
+    }
+
+
+def _finite(value):
+    """Every float array or number in ``value`` (arrays, tuples, lists,
+    dataclasses and other objects with a __dict__, dicts) finite."""
+    if value is None or isinstance(value, (str, bool, int)):
+        return True
+    if isinstance(value, (float, np.floating)):
+        return bool(np.isfinite(value))
+    if isinstance(value, np.ndarray):
+        return value.dtype.kind not in "fc" or bool(np.isfinite(value).all())
+    if isinstance(value, dict):
+        return all(_finite(v) for v in value.values())
+    if isinstance(value, (tuple, list)):
+        return all(_finite(v) for v in value)
+    if hasattr(value, "__dict__"):
+        return all(_finite(v) for v in vars(value).values())
+    return True
+
+
+_ACCEPTS_CONSTANT = {"predict", "estimate_noise", "estimate_psf_observed",
+                     "detect_scratches", "detect_scratches_clip", "estimate_motion",
+                     "compensate_motion", "inpaint", "inpaint_clip"}
+
+
+@pytest.mark.parametrize("image", [_FLAT, _FLAT3], ids=["grey", "colour"])
+@pytest.mark.parametrize("name", [
+    "fit_car", "select_support", "local_parameters", "illumination_invariants", "predict",
+    "local_features", "segment", "detect_breast", "detect_mammogram_rois", "segment_breast",
+    "estimate_noise", "estimate_psf_observed", "estimate_psf_restored", "restore",
+    "restore_multichannel", "detect_scratches", "detect_scratches_clip", "estimate_motion",
+    "compensate_motion", "inpaint", "inpaint_clip", "fit_texture", "fit_dynamic_texture",
+    "rank", "texture_features"])
+def test_no_public_function_returns_nan_on_constant_input(name, image):
+    """Constant input is refused with a message that says so, or accepted
+    with finite results (predict, inpaint, detect_scratches, estimate_psf of
+    a flat observation, ...: their Notes say what they give)."""
+    import warnings
+
+    if image.ndim == 3 and name in ("detect_breast", "detect_mammogram_rois",
+                                    "segment_breast"):
+        pytest.skip("mammograms are grey")
+    before = image.copy()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)  # no 'invalid value' on the way
+        try:
+            result = _constant_calls()[name](image)
+        except ValueError as exc:
+            assert name not in _ACCEPTS_CONSTANT, f"{name} refused constant input: {exc}"
+            assert re.search("constant|flat|no breast", str(exc)), str(exc)
+        else:
+            assert name in _ACCEPTS_CONSTANT, f"{name} now accepts constant input"
+            assert _finite(result), f"{name} returned NaN or inf on constant input"
+    np.testing.assert_array_equal(image, before)

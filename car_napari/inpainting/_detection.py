@@ -475,6 +475,11 @@ def detect_scratches(image, *, kinds=KINDS, channel_axis=-1, line_width=3,
     inpaint : Fill the proposed mask.
     compensate_motion : The warped neighbours the blotch test compares with.
 
+    Notes
+    -----
+    A constant frame or clip is accepted: with no contrast there is no line
+    and no blotch, so the mask is all False.
+
     Examples
     --------
     >>> import numpy as np

@@ -218,6 +218,12 @@ def inpaint(image, mask, *, temporal=True, neighbourhood=None, forgetting=0.9995
     iter_inpaint : The same as a job, with progress and each restored frame.
     detect_scratches : Propose a mask.
 
+    Notes
+    -----
+    A constant image is accepted: the masked pixels are filled with the
+    constant (finite; the known pixels unchanged), as there is no texture
+    to continue.
+
     Examples
     --------
     >>> import numpy as np

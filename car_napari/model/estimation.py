@@ -967,6 +967,14 @@ def predict(model, image, *, channel_axis=-1):
         models of a :class:`~car_napari.TextureModel` read by its ``load``
         keep only what synthesis needs).
 
+    Notes
+    -----
+    A constant image (no texture) is accepted: each pixel is predicted
+    from its equal neighbours, so the mean and the log density are finite
+    wherever the neighbourhood lies inside the image (NaN only at the
+    borders, as for any image); the density then says how unlike the
+    model's texture a flat field is.
+
     Examples
     --------
     >>> import numpy as np
