@@ -333,6 +333,52 @@ def check_channel_axis(channel_axis, name="channel_axis"):
     return int(channel_axis)
 
 
+def check_mask(mask, name="mask", *, meaning="True (non-zero) where it applies"):
+    """``mask`` as an array of a boolean or numeric dtype without NaN, or a
+    TypeError / ValueError naming it. A NaN is non-zero, so ``mask != 0``
+    and ``astype(bool)`` would take it for True without a word: it is
+    refused (it is usually a missing value, not a decision). Not converted
+    to bool here: the callers keep their own reading (``!= 0``)."""
+    try:
+        m = np.asarray(mask)
+    except Exception as exc:  # pragma: no cover - exotic array-likes
+        raise TypeError(f"{name} could not be converted to an array: {exc}") from exc
+    if m.dtype == object or m.dtype.kind not in "biuf":
+        raise TypeError(f"{name} must be boolean or numeric ({meaning}); got dtype "
+                        f"{m.dtype}.")
+    if m.dtype.kind == "f":
+        nan = int(np.count_nonzero(np.isnan(m)))
+        if nan:
+            raise ValueError(
+                f"{name} contains {nan} NaN value{'' if nan == 1 else 's'}: a mask is "
+                f"{meaning}, and NaN is neither. Replace them by 0 (False) or 1 (True) "
+                f"first, e.g. np.nan_to_num({name}) for False.")
+    return m
+
+
+# The smallest forgetting factor phi: the adaptive estimator's effective
+# window is about 1 / (1 - phi**2) pixels, 1.33 at 0.5, so below it the local
+# model forgets each pixel almost as soon as it is seen (and for phi**2 near
+# 1e-170 its statistics leave float64's range: NaN output, without a word).
+MIN_FORGETTING = 0.5
+
+
+def check_forgetting(value, name="forgetting"):
+    """``value`` as a float in [MIN_FORGETTING, 1], or a TypeError /
+    ValueError naming it and saying why smaller values are refused."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.number)):
+        raise TypeError(f"{name} must be a number in [{MIN_FORGETTING}, 1]; got {value!r}.")
+    number = float(value) if not isinstance(value, (int, np.integer)) or abs(value) < 2 \
+        else 2.0
+    if not (MIN_FORGETTING <= number <= 1.0):  # NaN too
+        raise ValueError(
+            f"{name} must be in [{MIN_FORGETTING}, 1]; got {value!r}. The local model's "
+            f"window is about 1 / (1 - {name}**2) pixels (1.33 at {MIN_FORGETTING}, 100 at "
+            "0.995): smaller values leave it no pixels to learn from. Use 0.99 or so for "
+            "a local model, 1 for none forgotten.")
+    return number
+
+
 def check_flag(value, name):
     """``value`` as a bool (True, False or a numpy bool), or a TypeError naming it."""
     if not isinstance(value, (bool, np.bool_)):
@@ -438,14 +484,20 @@ def float_range(image):
 
 
 def check_real(value, name, *, low=None, high=None, low_open=False, high_open=False,
-               integer=False):
+               integer=False, strict=False):
     """``value`` as a float (an int with ``integer``) within its range, or a
     TypeError / ValueError that names the argument and says what is allowed.
     Checked before any work, so that a bad option never costs a pass over
-    the image."""
+    the image. With ``integer``, a float of integral value (2.0) is taken
+    unless ``strict``: then only an int (Python or numpy) is, as for a
+    count (a float there is usually a mistake, e.g. a ratio); a float is a
+    ValueError, as ``levels=2.0`` is for :func:`illumination_invariants`."""
     kind = "an integer" if integer else "a number"
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.number)):
         raise TypeError(f"{name} must be {kind}; got {value!r}.")
+    if integer and strict and not isinstance(value, (int, np.integer)):
+        raise ValueError(f"{name} must be an integer (an int, not a float); got {value!r}. "
+                         f"Pass int({name}) if a whole number was meant.")
     if isinstance(value, (int, np.integer)):
         number = int(value) if integer else _as_float(value, name)
     else:

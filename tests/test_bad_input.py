@@ -1,5 +1,8 @@
 """Bad input gets a clear error naming the problem and the fix."""
 
+import functools
+import re
+
 import numpy as np
 import pytest
 
@@ -279,14 +282,25 @@ def test_unknown_members_are_never_read(model_file, tmp_path):
 
 
 # ------------------------------------------------------------ output shapes
-@pytest.mark.parametrize("shape", [(1, 1), (1, 500), (64, 1), (2, 2), (2, 40)])
-def test_tileable_synthesis_refuses_shapes_it_cannot_tile(shape, model_file):
+@functools.lru_cache
+def _small_texture_model(levels):
     from car_napari.texture import TextureModel
 
-    model = TextureModel.load(model_file[0])  # 2 levels: at least 3 pixels a side
-    with pytest.raises(ValueError, match="at least 3 pixels"):
-        model.synthesize(shape, seed=0, tileable=True)
-    assert model.synthesize((3, 5), seed=0, tileable=True).shape == (3, 5, 3)
+    return TextureModel.fit(np.random.default_rng(1).random((64, 64, 3)), levels=levels,
+                            neighbourhood=1)
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (1, 500), (64, 1), (2, 2), (2, 40), (3, 7)])
+@pytest.mark.parametrize("levels", [1, 2, 3])
+def test_tileable_synthesis_takes_any_size(shape, levels):
+    """The README says any size: small tileable sizes (a pyramid level of
+    side 1) were refused since sides under 2**(levels-1)+1 were."""
+    model = _small_texture_model(levels)
+    texture = model.synthesize(shape, seed=0, tileable=True)
+    assert texture.shape == (*shape, 3) and np.isfinite(texture).all()
+    np.testing.assert_array_equal(texture, model.synthesize(shape, seed=0, tileable=True))
+    low, high = model.value_range
+    assert np.all(texture >= low) and np.all(texture <= high)
     assert model.synthesize(shape, seed=0).shape == (*shape, 3)  # not tileable: any size
 
 
@@ -884,3 +898,317 @@ def test_channel_axis_checked_on_a_grey_image(name, axis):
     # a 2-D image ignores its channel axis; a NaN one was accepted there
     with pytest.raises(TypeError, match="channel_axis must be None"):
         _channel_axis_calls()[name](axis)
+
+
+def _nan_mask_calls():
+    import car_napari as car
+
+    frame = np.random.default_rng(3).random((48, 48))
+    mask = np.zeros((48, 48))
+    mask[10:30, 20:22] = 1.0
+    mask[0, 0] = np.nan
+    breast = np.ones((64, 64))
+    breast[5, 5] = np.nan
+    mammogram = np.random.default_rng(4).random((64, 64))
+    return [
+        (lambda: car.inpaint(frame, mask), mask),
+        (lambda: car.inpaint(np.stack([frame, frame]), np.stack([mask, mask]),
+                             channel_axis=None), mask),
+        (lambda: car.fit_mask(mask, (96, 96)), mask),
+        (lambda: car.segment(frame, mask=mask, levels=1, n_init=4), mask),
+        (lambda: car.estimate_motion(frame, frame, mask=mask), mask),
+        (lambda: car.detect_mammogram_rois(mammogram, breast=breast), breast),
+        (lambda: car.segment_breast(mammogram, breast=breast), breast),
+    ]
+
+
+@pytest.mark.parametrize("case", range(7))
+def test_nan_in_a_mask_is_refused(case):
+    """A NaN is non-zero: it used to be read as True without a word."""
+    call, mask = _nan_mask_calls()[case]
+    before = mask.copy()
+    with pytest.raises(ValueError, match=r"contains \d NaN value.*Replace them"):
+        call()
+    np.testing.assert_array_equal(mask, before)  # the input is untouched
+
+
+def test_check_mask_keeps_numeric_and_boolean_masks():
+    from car_napari._validation import check_mask
+
+    for mask in (np.array([[0, 2]]), np.array([[True, False]]), np.array([[0.0, 0.5]]),
+                 [[0, 1]]):
+        np.testing.assert_array_equal(check_mask(mask), np.asarray(mask))
+    with pytest.raises(TypeError, match="boolean or numeric"):
+        check_mask(np.array([["a"]]))
+    with pytest.raises(ValueError, match="2 NaN values"):
+        check_mask(np.array([np.nan, np.nan, 1.0]), "breast")
+
+
+@pytest.mark.parametrize("option", ["n_segments", "n_init", "levels", "min_area", "seed"])
+def test_segment_refuses_float_counts(option):
+    """2.0 is refused as illumination_invariants(levels=2.0) refuses it."""
+    from car_napari import segment
+
+    image = np.random.default_rng(5).random((32, 32))
+    with pytest.raises(ValueError, match=f"{option} must be an integer .*not a float"):
+        segment(image, **{option: 2.0})
+    with pytest.raises(ValueError, match="levels"):
+        illumination_invariants(image, levels=2.0)
+
+
+def test_save_refuses_an_existing_folder(model_file, tmp_path):
+    from car_napari import TextureModel
+
+    model = TextureModel.load(model_file[0])
+    folder = tmp_path / "models"
+    folder.mkdir()
+    with pytest.raises(IsADirectoryError, match="existing folder.*file name"):
+        model.save(folder)
+    with pytest.raises(IsADirectoryError, match="existing folder"):
+        model.save(str(folder))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["models"]  # no models.npz
+    model.save(tmp_path / "fresh")  # a new name still gets numpy's .npz
+    assert (tmp_path / "fresh.npz").is_file()
+
+
+@pytest.mark.parametrize("shape, kwargs", [
+    ((2, 2), {}),
+    ((2, 2), {"estimator": "recursive"}),
+    ((3, 3), {}),
+    ((7, 7), {"neighbourhood": [[5, 5]]}),
+    ((7, 7), {"neighbourhood": [[3, 3]]}),
+    ((5, 5, 3), {"neighbourhood": 2}),
+    ((6, 6), {"neighbourhood": 5, "estimator": "recursive"}),
+    ((2, 32), {"neighbourhood": 2, "estimator": "recursive", "directions": ["right"]}),
+])
+def test_restore_refuses_images_too_small_to_learn_from(shape, kwargs):
+    """Fewer pixels to learn from than parameters + 2 (fit_car's rule): the
+    models were the prior alone and the image came back unchanged or moved
+    to its mean."""
+    image = np.random.default_rng(6).random(shape)
+    before = image.copy()
+    with pytest.raises(ValueError, match="too small for this neighbourhood.*needs at least"):
+        restore(image, **kwargs)
+    np.testing.assert_array_equal(image, before)
+
+
+def test_restore_takes_images_just_large_enough():
+    rng = np.random.default_rng(7)
+    # windowed, order 1 grey: 3 parameters (2 neighbours, the intercept) need 5 pixels
+    # at least a row and a column from every edge
+    for image in (rng.random((4, 5)), rng.random((5, 4))):
+        assert np.isfinite(restore(image)).all()
+    # recursive, order 1 grey: 2 parameters need 4 pixels in every scan
+    assert np.isfinite(restore(rng.random((3, 3)), estimator="recursive")).all()
+
+
+def test_restore_tiled_refuses_what_restore_refuses():
+    from car_napari.restoration import restore_tiled
+
+    with pytest.raises(ValueError, match="too small for this neighbourhood"):
+        restore_tiled(np.random.default_rng(8).random((7, 7)), neighbourhood=[[5, 5]])
+
+
+@pytest.mark.parametrize("shape", [(1, 64), (64, 1), (2, 64), (64, 6), (1, 64, 3)])
+def test_detect_scratches_sizes_are_consistent(shape):
+    """Lines are vertical: at least 3 rows and more than 2 * line_width
+    columns, said in the message (1x64 used to pass, 64x1 not)."""
+    from car_napari import detect_scratches
+
+    frame = np.random.default_rng(9).random(shape)
+    with pytest.raises(ValueError, match=r"at least 3 rows and more than 6 columns"):
+        detect_scratches(frame)
+    assert detect_scratches(frame, kinds="blotch").shape == shape[:2]
+    assert detect_scratches(np.random.default_rng(9).random((3, 7))).shape == (3, 7)
+
+
+def _forgetting_calls():
+    from car_napari import inpaint, local_features, restore_multichannel, segment
+
+    image = np.random.default_rng(10).random((32, 32))
+    mask = np.zeros((32, 32), bool)
+    mask[10:20, 15] = True
+    return [
+        lambda f: local_parameters(image, 2, forgetting=f),
+        lambda f: restore(image, estimator="recursive", forgetting=f),
+        lambda f: restore_multichannel(np.stack([image, image * 0.9 + 0.05]), forgetting=f),
+        lambda f: segment(image, forgetting=f),
+        lambda f: local_features(image, forgetting=f),
+        lambda f: inpaint(image, mask, forgetting=f),
+    ]
+
+
+@pytest.mark.parametrize("case", range(6))
+@pytest.mark.parametrize("forgetting", [1e-300, 1e-100, 1e-10, 0.3, 0.49])
+def test_tiny_forgetting_is_refused(case, forgetting):
+    """local_parameters(forgetting=1e-300) was 97 % NaN without a word."""
+    with pytest.raises(ValueError, match=r"forgetting must be in \[0.5, 1\].*window"):
+        _forgetting_calls()[case](forgetting)
+
+
+def test_smallest_forgetting_gives_finite_parameters():
+    image = np.random.default_rng(11).random((32, 32))
+    assert np.isfinite(local_parameters(image, 2, forgetting=0.5)).all()
+    with pytest.raises(TypeError, match="forgetting"):
+        local_parameters(image, 2, forgetting="0.9")
+
+
+def test_predict_refuses_a_loaded_band_model(model_file):
+    """A loaded TextureModel's band models keep no vx: predict gave an all-NaN
+    log density without a word."""
+    from car_napari import TextureModel
+
+    image = np.random.default_rng(1).random((32, 32, 3))
+    loaded = TextureModel.load(model_file[0])
+    with pytest.raises(ValueError, match="no data statistics.*TextureModel read from a file"):
+        predict(loaded.models[0], image)
+    fitted = TextureModel.fit(image, levels=2, neighbourhood=1)  # these predict
+    assert np.isfinite(predict(fitted.models[0], image).log_density[1:, 1:-1]).all()
+    model = fit_car(GOOD[..., 0], 1)
+    model.lam = np.full((1, 1), np.nan)
+    with pytest.raises(ValueError, match="no data statistics"):
+        predict(model, GOOD[..., 0])
+
+
+def test_rank_of_huge_feature_vectors_is_exact():
+    """Features near 1e200 overflowed the gallery's spread to inf: distances
+    [0, 0] with a warning. Scaled by a power of two, they are those of the
+    unit vectors; ordinary ones are unchanged."""
+    import warnings
+
+    from car_napari import rank
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        huge = rank(np.ones(15), [np.full(15, 1e200), np.full(15, -1e200)])
+        unit = rank(np.ones(15) * 1e-200, [np.full(15, 1.0), np.full(15, -1.0)])
+        np.testing.assert_array_equal(huge.distances, unit.distances)
+        np.testing.assert_array_equal(huge.distances, [15.0, 15.0])
+        np.testing.assert_array_equal(
+            rank(np.ones(15), [np.full(15, 1.0), np.full(15, -1.0)]).distances, [0.0, 30.0])
+        with pytest.raises(ValueError, match="distances overflow"):
+            rank(np.full(15, 1e300), [np.full(15, 1.0), np.full(15, 1.0 + 1e-10)])
+
+
+@pytest.mark.parametrize("estimator", ["windowed", "recursive"])
+def test_restore_refuses_a_noise_whose_square_overflows(estimator):
+    import warnings
+
+    image = np.random.default_rng(12).random((32, 32, 3))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # was "overflow encountered in square"
+        with pytest.raises(ValueError, match="noise 1e\\+300 is too large: at most 1e\\+150"):
+            restore(image, noise=1e300, estimator=estimator)
+        with pytest.raises(ValueError, match="noise .* too large"):
+            restore(image * 2.0**-40, noise=1e140, estimator=estimator)  # scaled for the work
+        big = restore(image, noise=1e150, estimator=estimator)  # every pixel noise: finite
+        assert np.isfinite(big).all()
+
+
+def test_restore_tiled_refuses_a_huge_noise():
+    from car_napari.restoration import restore_tiled
+
+    with pytest.raises(ValueError, match="noise .* too large"):
+        restore_tiled(np.random.default_rng(13).random((64, 64)), noise=1e300)
+
+
+# --- constant input: refused clearly, or finite results ----------------------------------
+_FLAT, _FLAT3 = np.full((48, 48), 0.5), np.full((48, 48, 3), 0.25)
+_FLAT_CLIP = np.full((4, 48, 48), 0.5)
+_TEXTURE = np.random.default_rng(14).random((48, 48))
+
+
+def _constant_calls():
+    import car_napari as car
+
+    mask = np.zeros((48, 48), bool)
+    mask[10:20, 20:22] = True
+    grey_model, colour_model = fit_car(_TEXTURE, 2), fit_car(GOOD, 2)
+    return {
+        "fit_car": lambda im: car.fit_car(im, 2),
+        "select_support": lambda im: car.select_support(im),
+        "local_parameters": lambda im: car.local_parameters(im, 2),
+        "illumination_invariants": lambda im: car.illumination_invariants(im),
+        # NaN only where the neighbourhood leaves the image, as for any image
+        "predict": lambda im: [a[2:, 2:-2] for a in car.predict(
+            colour_model if im.ndim == 3 else grey_model, im)],
+        "local_features": lambda im: car.local_features(im),
+        "segment": lambda im: car.segment(im),
+        "detect_breast": lambda im: car.detect_breast(im),
+        "detect_mammogram_rois": lambda im: car.detect_mammogram_rois(im),
+        "segment_breast": lambda im: car.segment_breast(im),
+        "estimate_noise": lambda im: car.estimate_noise(im),
+        "estimate_psf_observed": lambda im: car.estimate_psf(
+            im, np.broadcast_to(_TEXTURE[..., None], im.shape) if im.ndim == 3 else _TEXTURE),
+        "estimate_psf_restored": lambda im: car.estimate_psf(im, im),
+        "restore": lambda im: car.restore(im),
+        "restore_multichannel": lambda im: car.restore_multichannel(np.stack([im, im])),
+        "detect_scratches": lambda im: car.detect_scratches(im),
+        "detect_scratches_clip": lambda im: car.detect_scratches(
+            np.stack([im] * 4), channel_axis=-1 if im.ndim == 3 else None),
+        "estimate_motion": lambda im: car.estimate_motion(im, im),
+        "compensate_motion": lambda im: car.compensate_motion(
+            np.stack([im] * 3), channel_axis=-1 if im.ndim == 3 else None),
+        "inpaint": lambda im: car.inpaint(im, mask),
+        "inpaint_clip": lambda im: car.inpaint(
+            np.stack([im] * 3), mask, channel_axis=-1 if im.ndim == 3 else None),
+        "fit_texture": lambda im: car.TextureModel.fit(im, levels=1),
+        "fit_dynamic_texture": lambda im: car.DynamicTextureModel.fit(
+            np.stack([im] * 4), channel_axis=-1 if im.ndim == 3 else None),
+        "rank": lambda im: car.rank(im, [im, GOOD if im.ndim == 3 else _TEXTURE]),
+        "texture_features": lambda im: car.texture_features(im),
+    }
+
+
+def _finite(value):
+    """Every float array or number in ``value`` (arrays, tuples, lists,
+    dataclasses and other objects with a __dict__, dicts) finite."""
+    if value is None or isinstance(value, (str, bool, int)):
+        return True
+    if isinstance(value, (float, np.floating)):
+        return bool(np.isfinite(value))
+    if isinstance(value, np.ndarray):
+        return value.dtype.kind not in "fc" or bool(np.isfinite(value).all())
+    if isinstance(value, dict):
+        return all(_finite(v) for v in value.values())
+    if isinstance(value, (tuple, list)):
+        return all(_finite(v) for v in value)
+    if hasattr(value, "__dict__"):
+        return all(_finite(v) for v in vars(value).values())
+    return True
+
+
+_ACCEPTS_CONSTANT = {"predict", "estimate_noise", "estimate_psf_observed",
+                     "detect_scratches", "detect_scratches_clip", "estimate_motion",
+                     "compensate_motion", "inpaint", "inpaint_clip"}
+
+
+@pytest.mark.parametrize("image", [_FLAT, _FLAT3], ids=["grey", "colour"])
+@pytest.mark.parametrize("name", [
+    "fit_car", "select_support", "local_parameters", "illumination_invariants", "predict",
+    "local_features", "segment", "detect_breast", "detect_mammogram_rois", "segment_breast",
+    "estimate_noise", "estimate_psf_observed", "estimate_psf_restored", "restore",
+    "restore_multichannel", "detect_scratches", "detect_scratches_clip", "estimate_motion",
+    "compensate_motion", "inpaint", "inpaint_clip", "fit_texture", "fit_dynamic_texture",
+    "rank", "texture_features"])
+def test_no_public_function_returns_nan_on_constant_input(name, image):
+    """Constant input is refused with a message that says so, or accepted
+    with finite results (predict, inpaint, detect_scratches, estimate_psf of
+    a flat observation, ...: their Notes say what they give)."""
+    import warnings
+
+    if image.ndim == 3 and name in ("detect_breast", "detect_mammogram_rois",
+                                    "segment_breast"):
+        pytest.skip("mammograms are grey")
+    before = image.copy()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)  # no 'invalid value' on the way
+        try:
+            result = _constant_calls()[name](image)
+        except ValueError as exc:
+            assert name not in _ACCEPTS_CONSTANT, f"{name} refused constant input: {exc}"
+            assert re.search("constant|flat|no breast", str(exc)), str(exc)
+        else:
+            assert name in _ACCEPTS_CONSTANT, f"{name} now accepts constant input"
+            assert _finite(result), f"{name} returned NaN or inf on constant input"
+    np.testing.assert_array_equal(image, before)

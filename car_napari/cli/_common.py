@@ -62,7 +62,9 @@ def expand_inputs(items):
     Raises
     ------
     ValueError
-        If there is no file at all.
+        If there is no file at all, or none of the files named exists (a
+        command then stops before it creates its output folder; when only
+        some are missing, the batch reports each on its line).
 
     Examples
     --------
@@ -85,6 +87,9 @@ def expand_inputs(items):
             paths.append(p)
     if not paths:
         raise ValueError(f"no input images found in {list(items)}")
+    if not any(p.is_file() for p in paths):
+        shown = ", ".join(str(p) for p in paths[:3]) + (", ..." if len(paths) > 3 else "")
+        raise ValueError(f"no such input file: {shown}")
     return paths
 
 
@@ -152,7 +157,9 @@ def names_a_folder(output):
 
 
 def output_folder(path):
-    """The output folder, created if needed."""
+    """The output folder, created if needed: call it once the inputs are
+    checked (:func:`expand_inputs`, the command's own files), so that a
+    failed command leaves no empty folder behind."""
     out = Path(path)
     out.mkdir(parents=True, exist_ok=True)
     return out

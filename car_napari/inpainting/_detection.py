@@ -28,6 +28,7 @@ KINDS = ("line", "blotch")
 BAND_PIXELS = 1 << 19
 _BLOTCH_HALO = 4  # rows: the reach of the opening (2x2) and the dilation (3x3), and a spare
 _LINE_PASSES = 5  # contrast, median, strong, persistence, dilation
+_MIN_LINE_ROWS = 3  # the shortest vertical run the line search looks along
 _BLOTCH_PASSES = 2  # the blotch test is about twice as heavy as one line pass
 _MOTION_PASSES = 12  # the two flows of a frame weigh about twelve passes of a frame
 # The blotch test on motion-compensated neighbours compares a pixel with the
@@ -294,7 +295,8 @@ def iter_detect_scratches(image, *, kinds=KINDS, channel_axis=-1, line_width=3,
     ValueError
         If ``kinds`` is not a subset of ('line', 'blotch'); if the image is
         empty, neither a frame nor a clip, holds NaN or infinite values, or
-        is too narrow for ``line_width``; if ``blotch_threshold`` is not
+        is too small for the line search (fewer than 3 rows, or at most
+        ``2 * line_width`` columns); if ``blotch_threshold`` is not
         positive.
 
     Examples
@@ -330,8 +332,13 @@ def iter_detect_scratches(image, *, kinds=KINDS, channel_axis=-1, line_width=3,
     line_length = check_real(line_length, "line_length (a fraction of the frame's height)",
                              low=0.0, high=1.0, low_open=True)
     check_real(line_threshold, "line_threshold", low=0.0, low_open=True)
-    if lines and W <= 2 * w:
-        raise ValueError(f"the frame is too narrow ({W} px) for line_width {w}.")
+    if lines and (W <= 2 * w or H < _MIN_LINE_ROWS):
+        # the line search compares each column with the columns line_width away on
+        # both sides, over vertical runs of at least _MIN_LINE_ROWS rows
+        raise ValueError(
+            f"the frame ({H}x{W}) is too small for the line search with line_width {w}: it "
+            f"needs at least {_MIN_LINE_ROWS} rows and more than {2 * w} columns (2 * "
+            f"line_width). Pass a larger frame, a smaller line_width, or kinds='blotch'.")
     band = int(BAND_PIXELS)
     # the work in pixels of one pass: reading every frame, then each frame's passes
     motion = bool(motion)
@@ -354,7 +361,7 @@ def iter_detect_scratches(image, *, kinds=KINDS, channel_axis=-1, line_width=3,
             f"frame {t + 1}/{T}", band)
     mask = np.zeros((T, H, W), bool)
     if lines:
-        length = max(3, int(line_length * H) | 1)
+        length = max(_MIN_LINE_ROWS, int(line_length * H) | 1)
         for t in range(T):
             message = f"frame {t + 1}/{T}"
             done += yield from _iter_records(
@@ -458,13 +465,20 @@ def detect_scratches(image, *, kinds=KINDS, channel_axis=-1, line_width=3,
     ValueError
         If ``kinds`` is not a subset of ('line', 'blotch'); if the image is
         neither a frame nor a clip, holds NaN or infinite values, or is too
-        narrow for ``line_width``; if ``blotch_threshold`` is not positive.
+        small for the line search (fewer than 3 rows, or at most
+        ``2 * line_width`` columns: lines are vertical, so a 1x64 frame is
+        refused as a 64x1 one is); if ``blotch_threshold`` is not positive.
 
     See Also
     --------
     iter_detect_scratches : The same as a job, with progress.
     inpaint : Fill the proposed mask.
     compensate_motion : The warped neighbours the blotch test compares with.
+
+    Notes
+    -----
+    A constant frame or clip is accepted: with no contrast there is no line
+    and no blotch, so the mask is all False.
 
     Examples
     --------

@@ -30,7 +30,7 @@ import numpy as np
 from numba import njit
 
 from .._progress import Progress, stage
-from .._validation import check_real
+from .._validation import check_forgetting, check_mask, check_real
 from ..model.neighbourhood import Context, causal_neighbourhood
 from ..model.recursive import RecursiveScan, default_prior
 from ._conditional import HALO_BLEND, HALO_REGION_BLEND, HALO_UNBLEND, iter_fill_conditional
@@ -108,14 +108,12 @@ def _as_clip(image, mask, channel_axis):
         raise TypeError(f"image could not be converted to an array: {exc}") from exc
     if arr.dtype.kind not in "uif" or arr.dtype == np.float16:
         raise TypeError(f"image must be numeric (integer or float32/64); got {arr.dtype}.")
+    m = check_mask(mask, "mask", meaning="True (non-zero) where pixels are missing")
     layout = read_layout(arr, channel_axis)
     clip = layout.clip
     if clip.dtype.kind == "f" and not np.all(np.isfinite(clip)):
         raise ValueError("image contains NaN or infinite values; replace them (they are "
                          "missing pixels: put them in the mask and fill them with 0).")
-    m = np.asarray(mask)
-    if m.dtype.kind not in "biuf":
-        raise TypeError(f"mask must be boolean or numeric (nonzero = missing); got {m.dtype}.")
     T, H, W = clip.shape[:3]
     if m.shape == (H, W):
         masks = np.broadcast_to(m != 0, (T, H, W))
@@ -569,7 +567,7 @@ def iter_inpaint_in_memory(image, mask, *, temporal=True, neighbourhood=None, fo
     conditional = method == "conditional"
     layout, masks = _as_clip(image, mask, channel_axis)
     clip = layout.clip
-    forgetting = check_real(forgetting, "forgetting", low=0.0, high=1.0, low_open=True)
+    forgetting = check_forgetting(forgetting)
     interleave = check_real(interleave, "interleave (pixels)", low=0.0, low_open=True)
     if isinstance(halo, str):
         if halo != "auto":

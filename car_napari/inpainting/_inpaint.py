@@ -50,7 +50,7 @@ def iter_inpaint(image, mask, *, temporal=True, neighbourhood=None, forgetting=0
         context follows moving content.
     neighbourhood : int or None, optional
         The models' neighbourhood (see :func:`inpaint`).
-    forgetting : float in (0, 1], optional
+    forgetting : float in [0.5, 1], optional
         Forgetting factor of the adaptive models (``method="scans"``).
     interleave : float, optional
         Decay length (pixels) of each side's weight (``method="scans"``).
@@ -171,7 +171,7 @@ def inpaint(image, mask, *, temporal=True, neighbourhood=None, forgetting=0.9995
         (default 1; see :func:`line_offsets`): 5 pixels of each. One line
         measured best on composited real scratches (+1.6 dB over two lines
         of 3 pixels).
-    forgetting : float in (0, 1], optional
+    forgetting : float in [0.5, 1], optional
         Forgetting factor of the adaptive models (``method="scans"``).
     interleave : float, optional
         Decay length (pixels) of each side's weight (``method="scans"``).
@@ -223,6 +223,12 @@ def inpaint(image, mask, *, temporal=True, neighbourhood=None, forgetting=0.9995
     --------
     iter_inpaint : The same as a job, with progress and each restored frame.
     detect_scratches : Propose a mask.
+
+    Notes
+    -----
+    A constant image is accepted: the masked pixels are filled with the
+    constant (finite; the known pixels unchanged), as there is no texture
+    to continue.
 
     Examples
     --------

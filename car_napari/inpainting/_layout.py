@@ -18,7 +18,13 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .._validation import check_channel_axis, check_memory, check_real, check_shape
+from .._validation import (
+    check_channel_axis,
+    check_mask,
+    check_memory,
+    check_real,
+    check_shape,
+)
 
 MAX_COLOURS = 4  # more entries on the channel axis of a 3-D array: a grey clip
 
@@ -164,10 +170,7 @@ def fit_mask(mask, shape, *, channel_axis=None, invert=False):
         check_real(channel_axis, "channel_axis", integer=True)
     if not isinstance(invert, (bool, np.bool_)):
         raise TypeError(f"invert must be True or False; got {invert!r}.")
-    m = np.asarray(mask)
-    if m.dtype.kind not in "biuf":
-        raise TypeError(f"mask must be boolean or numeric (non-zero = damaged); got "
-                        f"{m.dtype}.")
+    m = check_mask(mask, "mask", meaning="True (non-zero) where pixels are damaged")
     if m.size == 0:
         raise ValueError(f"mask is empty (shape {m.shape}).")
     damaged = m != 0

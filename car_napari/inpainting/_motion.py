@@ -22,7 +22,7 @@ import numpy as np
 from numba import njit
 
 from .._progress import Progress, drain
-from .._validation import as_channel_last_float, check_real
+from .._validation import as_channel_last_float, check_mask, check_real
 from ._layout import read_layout
 
 __all__ = ["compensate_motion", "estimate_motion", "iter_compensate_motion",
@@ -324,7 +324,7 @@ def _as_frame(image, channel_axis, name):
 def _as_weight(mask, shape):
     if mask is None:
         return None
-    m = np.asarray(mask)
+    m = check_mask(mask, "mask", meaning="True where the reference frame is damaged")
     if m.shape != shape:
         raise ValueError(f"mask has shape {m.shape}; it must be the frame's (H, W) = {shape}, "
                          "True where the reference frame is damaged.")
@@ -583,7 +583,7 @@ def iter_compensate_motion(clip, *, mask=None, channel_axis=-1, radius=RADIUS,
                          f"({layout.reading}).")
     masks = None
     if mask is not None:
-        m = np.asarray(mask)
+        m = check_mask(mask, "mask", meaning="True where the frames are damaged")
         if m.shape == (H, W):
             masks = np.broadcast_to(m, (T, H, W))
         elif m.shape == (T, H, W):

@@ -18,6 +18,10 @@ from .dicom import DICOM_SUFFIXES, read_dicom
 __all__ = ["DICOM_SUFFIXES", "IMAGE_SUFFIXES", "WRITE_SUFFIXES", "check_format", "is_colour",
            "read_image", "write_image"]
 
+# colour samples a pixel (RGB and alpha): more on a TIFF's samples axis is a
+# guess of tifffile's for an ambiguous shape, not colour
+_MAX_SAMPLES = 4
+
 # formats that hold 8-bit pixels only (PNG also 16-bit grey)
 _EIGHT_BIT = frozenset({".png", ".jpg", ".jpeg", ".bmp", ".gif"})
 
@@ -119,8 +123,29 @@ def _read_tiff(path):
         series = tif.series[0]
         image = series.asarray()
         if "S" in series.axes:
-            image = np.moveaxis(image, series.axes.index("S"), -1)
+            s = series.axes.index("S")
+            # a file written by tifffile keeps the shape it was given; its axes
+            # are a guess, which for a stack of colour frames (T, 64, 64, 3) was
+            # "64 planar samples" (QSYX): moving them last gave (T, 64, 3, 64)
+            if not (tif.is_shaped and image.shape[s] > _MAX_SAMPLES):
+                image = np.moveaxis(image, s, -1)
     return image
+
+
+def _write_tiff(path, image):
+    """A TIFF of ``image`` with its layout said, not guessed (read back by
+    :func:`read_image` in the same shape): a last axis of 3 or 4 is colour
+    (RGB, RGBA) interleaved, so (H, W, 3) is one colour image and
+    (T, H, W, 3) a stack of them; any other array is grey, its leading axes
+    pages ((T, H, W): a stack of grey frames, as :func:`is_colour` reads it).
+    Left to guess, tifffile wrote (3, H, W) as one planar RGB image and
+    (3, 64, 64, 3) as frames of 64 planar samples."""
+    import tifffile
+
+    if image.ndim >= 3 and image.shape[-1] in (3, 4):
+        tifffile.imwrite(str(path), image, photometric="rgb", planarconfig="contig")
+    else:
+        tifffile.imwrite(str(path), image, photometric="minisblack")
 
 
 def is_colour(image):
@@ -249,7 +274,11 @@ def write_image(path, image):
         raise ValueError(f"cannot write an image of shape {image.shape} to {path.name}: pass "
                          "a non-empty (H, W) or (H, W, C) image.")
     check_format(path, image.dtype, image.ndim)
+    suffix = path.suffix.lower()
     try:
-        io.imsave(str(path), image, check_contrast=False)
+        if suffix in (".tif", ".tiff"):
+            _write_tiff(path, image)
+        else:
+            io.imsave(str(path), image, check_contrast=False)
     except (ValueError, TypeError, KeyError) as exc:
         raise ValueError(f"cannot write {path}: {exc}. Write a .tif instead.") from None

@@ -18,7 +18,7 @@ import numpy as np
 
 from .._docstrings import shared_parameters
 from .._progress import Progress, drain, stage
-from .._validation import check_real
+from .._validation import check_mask, check_real
 from ..segmentation import iter_segment, pseudo_colour
 from ._breast import _iter_detect
 from ._candidates import (
@@ -225,6 +225,8 @@ def iter_segment_breast(image, *, breast=None, n_segments=None, levels=3, neighb
     >>> job.close()
     """
     _check_segment_options(levels, work_side, seed, pool, segment_options)
+    if breast is not None:
+        breast = check_mask(breast, "breast", meaning="True on the breast")
     work = _work(np.size(image), len(pool or ()) + 1)
     spans = _spans(work, ("reading", "breast", "segmentation", "pooling"))
     grey = yield from stage(_iter_grey(image, channel_axis), *spans["reading"])
@@ -289,7 +291,7 @@ def _iter_segment_grey(grey, *, breast, n_segments, levels, neighbourhood, n_ini
         found = "found"
     else:
         found = "given"
-    breast = np.asarray(breast, bool)
+    breast = check_mask(breast, "breast", meaning="True on the breast") != 0
     if breast.shape != (H, W) or not breast.any():
         raise ValueError("breast must be an (H, W) mask like the mammogram with some True pixels.")
     yield Progress("breast", b0 + 0.6 * (b1 - b0),
@@ -490,6 +492,8 @@ def iter_detect_mammogram_rois(image, *, marks_per_image=DEFAULT_MARKS_PER_IMAGE
     """
     _check_roi_options(marks_per_image, reference, tolerance, max_regions, min_area)
     _check_segment_options(levels, work_side, seed, pool)
+    if breast is not None:
+        breast = check_mask(breast, "breast", meaning="True on the breast")
     model = shipped_model()
     pool = None if n_segments is not None else pool
     spans = _spans(_work(np.size(image), len(pool or ()) + 1),

@@ -915,6 +915,21 @@ def _augmented_factor(model):
     return U
 
 
+def _check_predictable(model):
+    """A ValueError, before any work, when ``model`` (or one of its factor
+    models) lacks the statistics the density needs: ``vx`` and ``lam``
+    finite. The models of a :class:`~car_napari.TextureModel` read from a
+    file carry only what synthesis needs (``vx`` is NaN), and their
+    densities used to come out all NaN without a word."""
+    for part in (model,) if model.factors is None else model.factors:
+        if not (np.all(np.isfinite(part.vx)) and np.all(np.isfinite(part.lam))):
+            raise ValueError(
+                "model has no data statistics (its vx or lam is not finite), as the band "
+                "models of a TextureModel read from a file, which keep only what synthesis "
+                "needs: its predictive density cannot be computed. Fit a model to the image "
+                "instead (fit_car, or TextureModel.fit, whose models predict).")
+
+
 def predict(model, image, *, channel_axis=-1):
     """Conditional mean and log predictive density of every pixel.
 
@@ -948,7 +963,17 @@ def predict(model, image, *, channel_axis=-1):
     ValueError
         If the image's channels differ from the model's, or the image is too
         small for the neighbourhood, not 2-D or 3-D, or holds NaN or
-        infinite values.
+        infinite values; if the model has no data statistics (the band
+        models of a :class:`~car_napari.TextureModel` read by its ``load``
+        keep only what synthesis needs).
+
+    Notes
+    -----
+    A constant image (no texture) is accepted: each pixel is predicted
+    from its equal neighbours, so the mean and the log density are finite
+    wherever the neighbourhood lies inside the image (NaN only at the
+    borders, as for any image); the density then says how unlike the
+    model's texture a flat field is.
 
     Examples
     --------
@@ -961,6 +986,7 @@ def predict(model, image, *, channel_axis=-1):
     True
     """
     check_model(model)
+    _check_predictable(model)
     data = as_channel_last_float(image, channel_axis=channel_axis)
     d = model.n_channels
     if data.shape[2] != d:

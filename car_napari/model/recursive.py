@@ -10,6 +10,7 @@ import numpy as np
 from .._progress import Progress, drain
 from .._validation import (
     as_channel_last_float,
+    check_forgetting,
     check_not_constant,
     check_real,
     check_size,
@@ -735,9 +736,10 @@ def local_parameters(
         Grey or multichannel image; any dtype (integers are scaled to [0, 1]).
     neighbourhood : int or (eta, 2) array of int, optional
         Order of the hierarchical causal neighbourhood, or explicit offsets.
-    forgetting : float in (0, 1], optional
+    forgetting : float in [0.5, 1], optional
         Exponential forgetting factor ``phi``; the effective window is about
-        ``1 / (1 - phi**2)`` pixels along the scan. 1 means no forgetting.
+        ``1 / (1 - phi**2)`` pixels along the scan. 1 means no forgetting;
+        below 0.5 (a window of about one pixel) is refused.
     direction : {'down', 'up', 'right', 'left'}, optional
         Where the scan moves: 'down' is the raster (rows top to bottom, each
         left to right), 'up' bottom to top, 'right' columns left to right,
@@ -812,7 +814,7 @@ def iter_local_parameters(
         Grey or multichannel image; any dtype (integers are scaled to [0, 1]).
     neighbourhood : int or (eta, 2) array of int, optional
         Order of the hierarchical causal neighbourhood, or explicit offsets.
-    forgetting : float in (0, 1], optional
+    forgetting : float in [0.5, 1], optional
         Exponential forgetting factor ``phi``.
     direction : {'down', 'up', 'right', 'left'}, optional
         Where the scan moves.
@@ -857,7 +859,7 @@ def iter_local_parameters(
     True
     """
     offsets, _ = as_offsets(neighbourhood)  # the options first: no pass over a bad call
-    forgetting = check_real(forgetting, "forgetting", low=0.0, high=1.0, low_open=True)
+    forgetting = check_forgetting(forgetting)
     if direction not in DIRECTIONS:
         raise ValueError(f"direction must be one of {DIRECTIONS}; got {direction!r}.")
     prior = check_real(prior, "prior", low=0.0, low_open=True)

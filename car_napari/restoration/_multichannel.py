@@ -342,7 +342,7 @@ def iter_restore_multichannel(stack, *, axis=0, kappa=DEFAULT_KAPPA, reference="
         See :func:`restore_multichannel`.
     neighbourhood : int, (eta, 2) array or 'auto', optional
         See :func:`restore_multichannel`.
-    forgetting : float in (0, 1], optional
+    forgetting : float in [0.5, 1], optional
         See :func:`restore_multichannel`.
     directions : 'all' or sequence of str, optional
         See :func:`restore_multichannel`.
@@ -605,7 +605,7 @@ def restore_multichannel(stack, *, axis=0, kappa=DEFAULT_KAPPA, reference="auto"
     neighbourhood : int, (eta, 2) array or 'auto', optional
         Causal neighbourhood in every version (default order 1: 2 neighbours,
         so ``3n - 1`` regressors; colour channels get one model each).
-    forgetting : float in (0, 1], optional
+    forgetting : float in [0.5, 1], optional
         Forgetting factor of the adaptive estimator ((14.26)-(14.32),
         docs/model.md); default 0.9995.
     directions : 'all' or sequence of str, optional

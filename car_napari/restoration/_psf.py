@@ -67,6 +67,12 @@ def estimate_psf(observed, restored, *, size=7, window=None, channel_axis=-1):
         integer, ``window`` is too small or larger than the image, or the
         restored image is too flat to determine the PSF.
 
+    Notes
+    -----
+    A constant ``observed`` image is accepted: none of the restored image's
+    texture is seen in it, so the PSF is zero (finite). A constant (or too
+    flat) ``restored`` image determines no PSF and is refused.
+
     Examples
     --------
     >>> import numpy as np

@@ -37,7 +37,7 @@ def iter_restore(image, *, neighbourhood=1, estimator="windowed", window=DEFAULT
         See :func:`restore`.
     window : int, optional
         See :func:`restore`.
-    forgetting : float in (0, 1], optional
+    forgetting : float in [0.5, 1], optional
         See :func:`restore`.
     directions : 'all' or sequence of str, optional
         See :func:`restore`.
@@ -140,7 +140,7 @@ def restore(image, *, neighbourhood=1, estimator="windowed", window=DEFAULT_WIND
     window : int, optional
         Side in pixels of the windowed estimator's square (3 x 3 blocks of a
         third of it; default 48). 24 gains 0.1 dB at a quarter more time.
-    forgetting : float in (0, 1], optional
+    forgetting : float in [0.5, 1], optional
         Forgetting factor of the recursive estimator ((14.26)-(14.32),
         docs/model.md).
     directions : 'all' or sequence of str, optional

@@ -29,13 +29,18 @@ from .._validation import (
     check_flag,
     check_not_constant,
     check_real,
-    check_size,
     scale_exponent,
 )
 from ..model.blocks import iter_channel_last_float
 from ..model.directions import DIRECTIONS
 from ..model.neighbourhood import Context
-from ._checks import check_kappa, check_options, resolve_offsets
+from ._checks import (
+    check_kappa,
+    check_noise_magnitude,
+    check_options,
+    check_restorable,
+    resolve_offsets,
+)
 from ._combine import (
     DIRECTION_POWER,
     DirectionalAverage,
@@ -47,6 +52,7 @@ from ._combine import (
 )
 from ._noise import noise_channel_last, noise_from_medians
 from ._windowed import (
+    blend_edges,
     block_moments,
     combine_predictions,
     median_abs_laplacian,
@@ -168,10 +174,11 @@ class RestorationResult:
             raise ValueError("this result has no prediction probability to threshold; "
                              "use kappa=0 or restore with return_result=True.")
         out = self.prediction
-        if self.weight is not None:
-            out = np.subtract(self.observed, out)  # one new array, then in place
-            out *= self.weight
-            out += self.prediction
+        if self.weight is not None:  # as restore() blends in the edge rule's kernel
+            parts = np.broadcast_arrays(*(np.asarray(a, np.float64) for a in (
+                self.observed, self.prediction, self.weight)))
+            out = np.empty(parts[0].shape)
+            blend_edges(*parts, out)
         if kappa > 0:
             out = np.where((self.probability > kappa)[..., None], out, self.observed)
         return out
@@ -406,6 +413,10 @@ def iter_restoration(image, *, neighbourhood, estimator, window, forgetting, dir
     check_flag(keep_edges, "keep_edges")
     probability = bool(probability) or kappa > 0 or estimator == "recursive"
     H, W, C = channel_last_shape(image, channel_axis=channel_axis)
+    # given offsets: the size is checked before the image is read ('auto': after)
+    given = None if isinstance(neighbourhood, str) else resolve_offsets(neighbourhood, None)
+    if given is not None:
+        check_restorable((H, W, C), given, estimator, directions)
     if window > max(H, W, DEFAULT_WINDOW):  # its buffers grow with it
         raise ValueError(f"window {window} is larger than the image {(H, W)}: use at most "
                          f"{max(H, W, DEFAULT_WINDOW)}.")
@@ -436,9 +447,12 @@ def iter_restoration(image, *, neighbourhood, estimator, window, forgetting, dir
                                 copy=not blend),
         *span("reading"))
     check_not_constant(data, summary=summary)
-    offsets = resolve_offsets(neighbourhood, data)
+    if given is None:
+        offsets = resolve_offsets(neighbourhood, data)
+        check_restorable((H, W, C), offsets, estimator, directions)
+    else:
+        offsets = given
     context = Context.spatial(offsets, data.shape[2])
-    check_size(data, context.reach)
     lo, hi = span("centre")
     rows = row_chunks(0, H, chunk_rows(W, 2 * C))
     with ThreadPoolExecutor(max_workers=2) as pool:
@@ -528,6 +542,7 @@ def restore_job(image, *, neighbourhood, estimator, window, forgetting, directio
     are absolute, so that its magnitude would otherwise decide the result.
     Ordinary images take the unscaled path, bit for bit."""
     exponent = scale_exponent(image)
+    check_noise_magnitude(noise, exponent)
     if exponent:
         image = np.ldexp(np.asarray(image, np.float64), -exponent)
         if noise is not None:

@@ -44,10 +44,9 @@ from .._validation import (
     check_channel_axis,
     check_not_constant,
     check_real,
-    check_size,
 )
-from ..model.neighbourhood import Context, as_offsets
-from ._checks import check_kappa, check_options
+from ..model.neighbourhood import as_offsets
+from ._checks import check_kappa, check_noise_magnitude, check_options, check_restorable
 from ._noise import noise_from_medians
 from ._single import (
     CORNERS,
@@ -150,8 +149,8 @@ def _check(image, neighbourhood, estimator, window, directions, kappa, noise, ch
                              f"got {noise!r}.") from None
         if np.any(noise < 0) or not np.all(np.isfinite(noise)):
             raise ValueError(f"noise must be finite and >= 0; got {noise}.")
-    context = Context.spatial(offsets, C)
-    check_size(np.broadcast_to(np.float64(0), shape[:2]), context.reach)
+        check_noise_magnitude(noise)
+    check_restorable((*shape[:2], C), offsets, "windowed", directions)
     return offsets, directions, kappa, C, noise, window, tile
 
 

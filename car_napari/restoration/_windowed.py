@@ -485,6 +485,22 @@ def _bin_of(hist, rank):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
+def blend_edges(observed, prediction, weight, out):
+    """``out = prediction + weight (observed - prediction)``, (H, W, C)
+    arrays, written as :func:`edge_weight` writes it with ``blend``: the
+    same expression under the same flags (``contract`` makes it one fused
+    multiply-add), so the restored image of a kept weight is, bit for bit,
+    the one :func:`~car_napari.restore` blends in that kernel."""
+    H, W, C = observed.shape
+    for i in range(H):
+        for j in range(W):
+            for c in range(C):
+                f = prediction[i, j, c]
+                w = weight[i, j, c]
+                out[i, j, c] = f + w * (observed[i, j, c] - f)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
 def edge_weight(observed, prediction, spread, noise2, radius, threshold, blend, out, r0, r1,
                 i_from, i_to, cols, spread_cols):
     """The edge rule's weight of the observation (see restoration._edge_weight)

@@ -26,7 +26,13 @@ import numpy as np
 from .._docstrings import shared_parameters
 from .._progress import Progress, drain, side_by_side, stage
 from .._threads import job_pool
-from .._validation import check_not_constant, check_real, check_seed, summarize
+from .._validation import (
+    check_forgetting,
+    check_not_constant,
+    check_real,
+    check_seed,
+    summarize,
+)
 from ..model.blocks import iter_channel_last_float, row_ranges
 from ..model.directions import DIRECTIONS, scan_view
 from ..model.neighbourhood import Context, as_offsets
@@ -48,7 +54,7 @@ def _check_feature_options(levels, forgetting, components, smoothing, mean_smoot
     """The numeric options of :func:`iter_local_features`, checked before any
     pass over the image: a TypeError / ValueError naming the option."""
     check_real(levels, "levels", low=1, high=_MAX_LEVELS, integer=True)
-    check_real(forgetting, "forgetting", low=0.0, high=1.0, low_open=True)
+    check_forgetting(forgetting)
     check_real(components, "components", low=1, high=_MAX_COMPONENTS, integer=True)
     check_real(smoothing, "smoothing", low=0.0, high=_MAX_SMOOTHING)
     if mean_smoothing is not None:
@@ -453,7 +459,7 @@ neighbourhood : int or (eta, 2) array_like, optional
     Causal neighbourhood of the local models: an order or explicit
     (row, column) offsets (causal neighbourhoods, docs/model.md).
 forgetting : float, optional
-    Forgetting factor of the adaptive models, in (0, 1] (0.98: an effective
+    Forgetting factor of the adaptive models, in [0.5, 1] (0.98: an effective
     window of about 50 pixels along each scan; 0.97-0.98 was best on the
     TUNING mosaics, docs/segmentation.md).
 components : int, optional

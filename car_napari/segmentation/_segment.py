@@ -38,6 +38,8 @@ from .._progress import Progress, drain, stage
 from .._validation import (
     as_channel_last_float,
     channel_last_shape,
+    check_forgetting,
+    check_mask,
     check_not_constant,
     check_real,
 )
@@ -336,28 +338,29 @@ def _check_options(image, features, mask, channel_axis, options):
     (H, W) shape and the mask as a bool array (or None)."""
     o = dict(options)
     if o["n_segments"] is not None:
-        o["n_segments"] = check_real(o["n_segments"], "n_segments", low=1, integer=True)
-    o["n_init"] = check_real(o["n_init"], "n_init", low=2, high=_MAX_N_INIT, integer=True)
+        o["n_segments"] = check_real(o["n_segments"], "n_segments", low=1, integer=True,
+                                     strict=True)
+    o["n_init"] = check_real(o["n_init"], "n_init", low=2, high=_MAX_N_INIT, integer=True,
+                             strict=True)
     if o["n_segments"] is not None and o["n_segments"] > o["n_init"]:
         raise ValueError(f"n_segments ({o['n_segments']}) must not exceed n_init "
                          f"({o['n_init']}).")
-    o["levels"] = check_real(o["levels"], "levels", low=1, high=30, integer=True)
-    o["forgetting"] = check_real(o["forgetting"], "forgetting", low=0.0, high=1.0,
-                                 low_open=True)
+    o["levels"] = check_real(o["levels"], "levels", low=1, high=30, integer=True, strict=True)
+    o["forgetting"] = check_forgetting(o["forgetting"])
     o["smoothing"] = check_real(o["smoothing"], "smoothing", low=0.0, high=_MAX_SMOOTHING)
     o["threshold"] = check_real(o["threshold"], "threshold", low=0.0, high=1.0,
                                 high_open=True)
     if o["min_area"] is not None:
-        o["min_area"] = check_real(o["min_area"], "min_area", low=0, integer=True)
+        o["min_area"] = check_real(o["min_area"], "min_area", low=0, integer=True, strict=True)
     if o["merge_threshold"] is not None:
         o["merge_threshold"] = check_real(o["merge_threshold"], "merge_threshold", low=0.0)
     o["var_floor"] = check_real(o["var_floor"], "var_floor", low=0.0, low_open=True)
     o["merge_em_steps"] = check_real(o["merge_em_steps"], "merge_em_steps", low=0,
-                                     high=_MAX_EM_STEPS, integer=True)
+                                     high=_MAX_EM_STEPS, integer=True, strict=True)
     o["prior"] = check_real(o["prior"], "prior", low=0.0)
     o["prior_iterations"] = check_real(o["prior_iterations"], "prior_iterations", low=0,
-                                       high=_MAX_PRIOR_ITERATIONS, integer=True)
-    o["seed"] = check_real(o["seed"], "seed", low=0, integer=True)
+                                       high=_MAX_PRIOR_ITERATIONS, integer=True, strict=True)
+    o["seed"] = check_real(o["seed"], "seed", low=0, integer=True, strict=True)
     if o["grey"] not in ("pseudo_colour", "grey"):
         raise ValueError(f"grey must be 'pseudo_colour' or 'grey'; got {o['grey']!r}.")
     as_offsets(o["neighbourhood"])  # its own messages
@@ -401,9 +404,7 @@ def _check_options(image, features, mask, channel_axis, options):
         raise ValueError(f"n_init ({o['n_init']}) is too large for a {h}x{w} image: its "
                          f"regular division needs {rows}x{cols} blocks; {allowed}.")
     if mask is not None:
-        mask = np.asarray(mask)
-        if mask.dtype == object or mask.dtype.kind not in "biuf":
-            raise TypeError(f"mask must be a boolean (H, W) array; got dtype {mask.dtype}.")
+        mask = check_mask(mask, "mask", meaning="True where the image is segmented")
         if mask.shape != (h, w):
             raise ValueError(f"mask must be (H, W) like the image, {h}x{w}; got shape "
                              f"{mask.shape}.")
@@ -426,7 +427,7 @@ neighbourhood : int or (eta, 2) array_like, optional
     Causal neighbourhood of the local models: an order or explicit
     offsets (causal neighbourhoods, docs/model.md).
 forgetting : float, optional
-    Forgetting factor of the adaptive models, in (0, 1] (0.98: an effective
+    Forgetting factor of the adaptive models, in [0.5, 1] (0.98: an effective
     window of about 50 pixels along each scan; 0.97-0.98 was best on the
     TUNING mosaics, docs/segmentation.md).
 n_init : int, optional

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import zipfile
 import zlib
 from dataclasses import dataclass, field
@@ -890,8 +891,9 @@ def _exponential_tails(mapped, pos, k, quantiles):
 
 def _blend_width(n):
     """Cross-fade band for a periodic level of side ``n``: a quarter of it,
-    at least 2 pixels."""
-    return max(2, n // 4)
+    at least 2 pixels, at most ``n`` (a level of side 1 fades over 1: its
+    one pixel is the extra sample, trivially periodic)."""
+    return min(max(2, n // 4), n)
 
 
 def _f32(values):
@@ -1287,15 +1289,6 @@ class TextureModel:
         h, w = output_shape(shape)
         if not isinstance(tileable, (bool, np.bool_)):
             raise TypeError(f"tileable must be True or False; got {tileable!r}.")
-        if tileable:
-            # every pyramid level must keep 2 pixels a side for its cross-fade
-            least = 2 if self.levels == 1 else 2 ** (self.levels - 1) + 1
-            if min(h, w) < least:
-                raise ValueError(
-                    f"shape {(h, w)} is too small for tileable synthesis with "
-                    f"{self.levels} pyramid levels: each side needs at least {least} pixels "
-                    "(every level keeps 2). Ask for a larger shape, or tileable=False."
-                )
         check_memory(_SYNTHESIS_COPIES * 8 * h * w * self.n_channels, f"shape {(h, w)}")
         rng = check_seed(seed)
         # one independent stream per band, fixed by the seed
@@ -1383,7 +1376,8 @@ class TextureModel:
         Raises
         ------
         OSError
-            If the file cannot be written.
+            If the file cannot be written; IsADirectoryError (before
+            anything is written) if ``path`` is an existing folder.
         TypeError
             If ``path`` is not a file name (a str or path-like object).
 
@@ -1422,6 +1416,10 @@ class TextureModel:
             },
         }
         check_path(path)
+        if os.path.isdir(path):  # np.savez would write "<folder>.npz" beside it
+            raise IsADirectoryError(
+                f"{os.fsdecode(path)!r} is an existing folder; pass a file name, e.g. "
+                f"{os.path.join(os.fsdecode(path), 'texture.npz')!r}.")
         arrays = {key: (a.astype(np.int16) if key.endswith("_offsets") else
                         np.asarray(a, np.float64).astype(np.float32))
                   for key, a in self._parameter_arrays().items()}

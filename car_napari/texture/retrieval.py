@@ -41,6 +41,7 @@ from scipy import ndimage as ndi
 
 from .._progress import Progress, drain
 from .._validation import (
+    MAGNITUDE_LIMIT,
     Summary,
     as_channel_last_float,
     channel_last_view,
@@ -585,14 +586,39 @@ def iter_rank(query, gallery, *, levels=3, neighbourhood=2, channel_axis=-1):
                 fraction = done[i] + (done[i + 1] - done[i]) * finished / work
                 yield Progress("features", float(fraction),
                                f"{label}, level {level + 1}/{levels}")
-    feats = np.array(feats)
-    q, G = feats[0], feats[1:]
+    q, G, exponents = _moderate(np.array(feats))
     spread = G.std(axis=0)
-    scale = np.where(spread > 1e-12 * np.maximum(np.abs(G).max(axis=0), 1e-300), spread, 1.0)
-    distances = (np.abs(G - q) / scale).sum(axis=1)
+    # a feature without spread counts its absolute difference (in its own units)
+    scale = np.where(spread > 1e-12 * np.maximum(np.abs(G).max(axis=0), 1e-300), spread,
+                     np.ldexp(1.0, -exponents))
+    with np.errstate(over="ignore"):  # an overflow is the ValueError below
+        distances = (np.abs(G - q) / scale).sum(axis=1)
+    if not np.all(np.isfinite(distances)):
+        raise ValueError(
+            "the distances overflow: the query's features are more than about 1e300 "
+            "gallery spreads away from the gallery's in some feature (e.g. a gallery of "
+            "near-identical vectors and a far query). Rescale or drop that feature.")
     order = np.argsort(distances, kind="stable")
     yield Progress("ranking", 1.0, f"{n} ranked")
     return Ranking(order, distances[order])
+
+
+def _moderate(feats):
+    """``(query, gallery, exponents)`` of the (1 + n, k) feature vectors, the
+    features whose magnitude in the gallery passes ``MAGNITUDE_LIMIT``
+    scaled by ``2**-exponents`` (the others as they are, exponent 0, so the distances
+    of ordinary vectors are unchanged bit for bit): their squares, in the
+    gallery's spread, would overflow to inf and their distances come out 0.
+    Each feature's distance is a ratio to its spread, which an exact
+    scaling does not change."""
+    peak = np.abs(feats[1:]).max(axis=0)  # the gallery's: its spread is the divisor
+    big = peak > MAGNITUDE_LIMIT
+    exponents = np.zeros(feats.shape[1], np.int64)
+    if big.any():
+        exponents[big] = np.frexp(peak[big])[1]
+        feats = feats.copy()
+        feats[:, big] = np.ldexp(feats[:, big], -exponents[big])
+    return feats[0], feats[1:], exponents
 
 
 def rank(query, gallery, *, levels=3, neighbourhood=2, channel_axis=-1):
@@ -644,7 +670,9 @@ def rank(query, gallery, *, levels=3, neighbourhood=2, channel_axis=-1):
         An empty gallery; feature vectors of different lengths (e.g. computed
         with other ``levels`` or ``neighbourhood``); grey and colour images
         mixed, or colour images with different channel counts; an image too
-        small (the message names the minimum side).
+        small (the message names the minimum side); distances beyond
+        float64's range (a query about 1e300 gallery spreads away; features
+        of any magnitude are otherwise compared exactly, scaled).
     TypeError
         A non-numeric entry.
 

@@ -410,3 +410,24 @@ def test_cluster_options_without_dask_say_what_to_install(tmp_path, capsys, monk
     assert main(["segment", str(tmp_path / "in"), "-o", str(tmp_path / "out"),
                  "--workers", "2"]) == 2
     assert "pip install 'car-napari[cluster]'" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("command", [
+    ["inpaint", "{missing}", "-m", "{mask}", "-o", "{out}.png"],
+    ["inpaint", "{missing}", "-m", "{mask}", "-o", "{out}"],
+    ["inpaint", "{frame}", "-m", "{missing}", "-o", "{out}"],
+    ["restore", "{missing}", "-o", "{out}"],
+    ["segment", "{missing}", "-o", "{out}"],
+    ["mammo", "{missing}", "-o", "{out}"],
+])
+def test_missing_inputs_leave_no_output_folder(tmp_path, capsys, command):
+    """`inpaint missing.png -o out.png` left an empty folder out.png."""
+    frame, mask = tmp_path / "frame.png", tmp_path / "mask.png"
+    io.imsave(frame, skdata.camera()[:32, :32])
+    io.imsave(mask, np.zeros((32, 32), np.uint8), check_contrast=False)
+    names = dict(missing=tmp_path / "missing.png", mask=mask, frame=frame,
+                 out=tmp_path / "out")
+    before = sorted(p.name for p in tmp_path.iterdir())
+    assert main([part.format(**names) for part in command]) == 2
+    assert "no such" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == before

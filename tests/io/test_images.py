@@ -4,7 +4,13 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from car_napari.io.images import DICOM_SUFFIXES, IMAGE_SUFFIXES, read_image, write_image
+from car_napari.io.images import (
+    DICOM_SUFFIXES,
+    IMAGE_SUFFIXES,
+    is_colour,
+    read_image,
+    write_image,
+)
 
 
 def _ramp(h=16, w=24):
@@ -65,3 +71,36 @@ def test_suffixes():
     assert DICOM_SUFFIXES < IMAGE_SUFFIXES
     assert {".png", ".jpg", ".tif", ".tiff"} <= IMAGE_SUFFIXES
     assert all(s == s.lower() and s.startswith(".") for s in IMAGE_SUFFIXES)
+
+
+@pytest.mark.parametrize("shape", [(3, 64, 64, 3), (4, 32, 32, 3), (5, 16, 16, 3),
+                                   (3, 16, 16, 4), (3, 64, 64), (64, 64, 3), (64, 64),
+                                   (2, 3, 8, 8)])
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.float32])
+def test_tiff_stacks_read_back_in_the_shape_written(tmp_path, shape, dtype):
+    """(3, 64, 64, 3) was written as frames of 64 planar samples and read as
+    (3, 64, 3, 64); (3, 64, 64) as one planar RGB image, read as (64, 64, 3)."""
+    image = (np.random.default_rng(0).random(shape) * 200).astype(dtype)
+    write_image(tmp_path / "stack.tif", image)
+    back = read_image(tmp_path / "stack.tif")
+    assert back.shape == image.shape
+    np.testing.assert_array_equal(back, image)
+    assert is_colour(back) == (image.ndim == 3 and shape[-1] == 3)
+
+
+def test_tiff_stacks_written_by_the_old_guess_read_right(tmp_path):
+    """Files already written with tifffile's guess (QSYX, 64 'samples') keep
+    the shape stored with them; a real planar RGB file still reads as colour."""
+    import tifffile
+    from skimage import io
+
+    stack = (np.random.default_rng(1).random((3, 64, 64, 3)) * 255).astype(np.uint8)
+    io.imsave(tmp_path / "old.tif", stack, check_contrast=False)  # how write_image wrote it
+    with tifffile.TiffFile(tmp_path / "old.tif") as tif:
+        if tif.series[0].axes != "QSYX":  # the ambiguous guess this reads right
+            pytest.skip(f"this scikit-image and tifffile write {tif.series[0].axes}")
+    np.testing.assert_array_equal(read_image(tmp_path / "old.tif"), stack)
+    planar = stack[0].transpose(2, 0, 1).copy()
+    tifffile.imwrite(tmp_path / "planar.tif", planar, photometric="rgb",
+                     planarconfig="separate")
+    np.testing.assert_array_equal(read_image(tmp_path / "planar.tif"), stack[0])
