@@ -556,8 +556,15 @@ def load(ds, cache, names, mode):
     return d
 
 
-def evaluate(ds, cache, names, n_boot, jobs):
-    """The table's figures of one data set; returns (frocs, boot, raw)."""
+def majority(fold_scorers):
+    """The scorer most folds chose (ties: logistic)."""
+    return max(SCORERS, key=lambda k: (fold_scorers.count(k), k == "logistic"))
+
+
+def evaluate(ds, cache, names, n_boot, jobs, trained=None):
+    """The table's figures of one data set; with ``trained`` (label -> (mode,
+    model) fitted on another set), those models' marks too (an external
+    test). Returns (frocs, boot, raw, data, scorers)."""
     data = {mode: load(ds, cache, names, mode) for mode in ("car", "control")}
     first = ds.read(names[0])
     f = max(1, round(max(first.shape) / _ANALYSIS_SIDE))
@@ -573,6 +580,10 @@ def evaluate(ds, cache, names, n_boot, jobs):
         marks = dog(ds, n, cache)
         dogs[n] = match(marks, ds.masses[n])
     raw["DoG blobs"] = dogs
+    for label, (mode, model) in (trained or {}).items():
+        d = data[mode]
+        raw[f"{label}, trained on CBIS-DDSM"] = {
+            n: match(marks_of(model, *d[n][:3], shape), ds.masses[n]) for n in names}
     frocs = {(k, rule): Froc(ds, names, res, rule) for k, res in raw.items()
              for rule in ("strict", "lenient")}
     boot = bootstrap(frocs, RATES, n_boot)
@@ -634,7 +645,7 @@ def write_model(ds, data, names, frocs, boot, fold_scorers, command):
     chose (ties: logistic)."""
     mode, fams = VARIANTS[SHIPPED]
     cols = columns(fams)
-    scorer = max(SCORERS, key=lambda k: (fold_scorers.count(k), k == "logistic"))
+    scorer = majority(fold_scorers)
     X, groups = training_set(data[mode], names, cols)
     if scorer == "logistic":
         mean, scale, coef, intercept = fit_lr(X, groups)
@@ -679,9 +690,13 @@ def write_model(ds, data, names, frocs, boot, fold_scorers, command):
                                  "control's at the same rate",
         "operating_points": points,
     }
+    # readable provenance; the trees (if any) one compact line each
+    text = json.dumps({k: v for k, v in spec.items() if k != "trees"}, indent=1)
+    if "trees" in spec:
+        lines = ",\n".join("  " + json.dumps(t, separators=(",", ":")) for t in spec["trees"])
+        text = text[:-2] + ',\n "trees": [\n' + lines + "\n ]\n}"
     with open(C._MODEL_FILE, "w") as fh:
-        json.dump(spec, fh, indent=1)
-        fh.write("\n")
+        fh.write(text + "\n")
     print(f"model: {C._MODEL_FILE}")
 
 
@@ -697,7 +712,7 @@ def main():
     ap.add_argument("--limit", type=int, default=None, help="development: first N images")
     args = ap.parse_args()
     cache = Path(args.cache)
-    results = {}
+    results, trained = {}, None
     for key in args.data.split(","):
         ds = DATASETS[key]()
         names = ds.names[: args.limit] if args.limit else ds.names
@@ -707,11 +722,16 @@ def main():
         secs = [segmentation(ds, n, cache)[2] for n in names]
         print(f"{key}: segmentation median {np.median(secs):.2f} s/image (first run)",
               file=sys.stderr)
-        frocs, boot, raw, data, scorers = evaluate(ds, cache, names, args.boot, args.jobs)
+        frocs, boot, raw, data, scorers = evaluate(ds, cache, names, args.boot, args.jobs,
+                                                   trained if key != "cbis" else None)
         table(ds, names, frocs, boot)
         title = (f"{key}: {len(names)} images, {sum(len(ds.masses[n]) for n in names)} masses, "
                  "5-fold CV by patient")
         results[title] = frocs
+        if key == "cbis":  # the models fitted on every film, tested on the other sets
+            trained = {label: (mode, fit_model(data[mode], names, columns(fams),
+                                               majority(scorers[label])))
+                       for label, (mode, fams) in VARIANTS.items()}
         if args.write_model and key == "cbis":
             write_model(ds, data, names, frocs, boot, scorers[SHIPPED],
                         "PYTHONPATH=. nice -n 5 python benchmarks/bench_froc.py "

@@ -402,12 +402,14 @@ def test_shipped_model_says_how_it_was_made():
     from car_napari.mammography._candidates import _MODEL_FILE, DESCRIPTORS
 
     spec = json.loads(_MODEL_FILE.read_text())
-    for key in ("made_by", "date", "data", "fit", "descriptors", "mean", "scale", "coef",
-                "intercept", "operating_points"):
+    for key in ("made_by", "date", "data", "fit", "descriptors", "operating_points"):
         assert key in spec, key
     assert set(spec["descriptors"]) <= set(DESCRIPTORS)
-    assert len(spec["mean"]) == len(spec["scale"]) == len(spec["coef"]) == len(
-        spec["descriptors"])
+    if spec.get("kind") == "trees":
+        assert spec["trees"] and isinstance(spec["baseline"], float)
+    else:
+        assert len(spec["mean"]) == len(spec["scale"]) == len(spec["coef"]) == len(
+            spec["descriptors"])
     rates = [p["marks_per_image"] for p in spec["operating_points"]]
     thresholds = [p["threshold"] for p in spec["operating_points"]]
     assert rates == sorted(rates) and thresholds == sorted(thresholds, reverse=True)
@@ -433,6 +435,33 @@ def test_model_score_and_threshold_against_plain_formulas():
     assert model.threshold(0.1) == pytest.approx(0.8) and model.threshold(99) == 0.4
     with pytest.raises(ValueError, match="unknown descriptors"):
         RoiModel({**spec, "descriptors": ["nope", "contrast"]})
+
+
+def test_tree_model_against_a_plain_walk_of_its_trees():
+    """Boosted trees: the baseline plus each tree's leaf, found by walking the
+    nodes one sample at a time in plain Python."""
+    from car_napari.mammography._candidates import DESCRIPTORS, RoiModel
+
+    trees = [  # node 0 splits on descriptor 0 ("contrast"), node 1 on 1 ("compactness")
+        {"feature": [0, 1, 0, 0, 0], "threshold": [0.5, 0.2, 0, 0, 0],
+         "left": [1, 3, 0, 0, 0], "right": [2, 4, 0, 0, 0], "leaf": [0, 0, 1, 1, 1],
+         "value": [0, 0, 0.7, -0.3, 0.4]},
+        {"feature": [1, 0, 0], "threshold": [0.6, 0, 0], "left": [1, 0, 0],
+         "right": [2, 0, 0], "leaf": [0, 1, 1], "value": [0, 0.25, -0.5]},
+    ]
+    model = RoiModel({"kind": "trees", "descriptors": ["contrast", "compactness"],
+                      "baseline": -0.1, "trees": trees, "operating_points": []})
+    X = np.random.default_rng(4).random((50, len(DESCRIPTORS)))
+    a, b = DESCRIPTORS.index("contrast"), DESCRIPTORS.index("compactness")
+    for row, got in zip(X, model.score(X), strict=True):
+        total = -0.1
+        for t in trees:
+            node = 0
+            while not t["leaf"][node]:
+                value = (row[a], row[b])[t["feature"][node]]
+                node = t["left"][node] if value <= t["threshold"][node] else t["right"][node]
+            total += t["value"][node]
+        assert got == pytest.approx(1.0 / (1.0 + np.exp(-total)), rel=1e-12)
 
 
 def test_descriptors_of_a_disc_against_direct_measurements():
