@@ -669,7 +669,8 @@ def write_model(ds, data, names, frocs, boot, fold_scorers, command):
                        "cv_sensitivity_lenient": frocs[(SHIPPED, "lenient")].at(rate)[0],
                        "control_cv_sensitivity_strict": ctl.at(rate)[0]})
     spec = {
-        "what": "logistic score of mammogram ROI candidates (car_napari.mammography)",
+        "what": "score of mammogram ROI candidates (car_napari.mammography): logistic or "
+                "boosted trees",
         "made_by": command,
         "date": datetime.date.today().isoformat(),
         "data": f"CBIS-DDSM mass training split, {len(names)} film mammograms resized to "

@@ -513,7 +513,13 @@ def test_texture_models_and_rank(image):
 @given(st.integers(0, 2**16))
 def test_mammography(seed_):
     from car_napari import detect_breast, detect_mammogram_rois, segment_breast
-    from car_napari.mammography import filter_regions, region_outlines, select_marks
+    from car_napari.mammography import (
+        filter_regions,
+        operating_point,
+        region_outlines,
+        roi_overlay,
+        select_marks,
+    )
 
     rng = np.random.default_rng(seed_)
     image = np.zeros((96, 96))
@@ -536,6 +542,11 @@ def test_mammography(seed_):
             outlines = _call(lambda got=got: region_outlines(got.labels), got.labels)
             assert len(outlines) == len(np.unique(got.labels[got.labels > 0]))
             _call(lambda got=got: select_marks(got, 1.0))
+            rgb = _call(lambda got=got: roi_overlay(image, got.labels), image, got.labels)
+            if rgb is not None:
+                assert rgb.shape == (*image.shape, 3) and rgb.dtype == np.uint8
+    point = _call(lambda: operating_point(rng.uniform(0.1, 12)))
+    assert point is None or 0 <= point["threshold"] <= 1
 
 
 @seed(15)
