@@ -15,7 +15,8 @@ own. Cases:
   run: on a machine shared with other work it is the figure to compare (the
   job runs in one thread, so on a quiet machine it is about the seconds);
 * mammogram: ``detect_mammogram_rois`` on mini-MIAS mdb001 (1024x1024,
-  shipped sample);
+  shipped sample) and on the CBIS-DDSM film 00001_LEFT_CC (800x800, from
+  ``../shared/data``);
 * restoration: ``restore`` on scikit-image's astronaut resized to
   1024x1024x3, blurred by 1 px, noise 0.05; and, in the same process,
   ``scipy.ndimage.median_filter(size=(5, 5, 1))`` on the same image.
@@ -57,6 +58,14 @@ extra = {"segments": int(result.n_segments), "cpu_s": round(time.process_time() 
 from car_napari.io.sample_data import mammogram
 from car_napari.mammography import detect_mammogram_rois
 (image, _, _), = mammogram()
+t0 = time.perf_counter(); labels, table = detect_mammogram_rois(image)
+seconds = time.perf_counter() - t0
+extra = {"regions": int(len(table["label"]))}
+""",
+    "mammogram film 800x800": """
+from skimage import io
+from car_napari.mammography import detect_mammogram_rois
+image = io.imread({root!r} + "/../shared/data/mammograms/cbis-ddsm-masses/00001_LEFT_CC.jpg")
 t0 = time.perf_counter(); labels, table = detect_mammogram_rois(image)
 seconds = time.perf_counter() - t0
 extra = {"regions": int(len(table["label"]))}

@@ -545,7 +545,8 @@ def test_mammography(seed_):
             rgb = _call(lambda got=got: roi_overlay(image, got.labels), image, got.labels)
             if rgb is not None:
                 assert rgb.shape == (*image.shape, 3) and rgb.dtype == np.uint8
-    point = _call(lambda: operating_point(rng.uniform(0.1, 12)))
+    rate = float(rng.uniform(0.1, 12))
+    point = _call(lambda: operating_point(rate))
     assert point is None or 0 <= point["threshold"] <= 1
 
 
