@@ -84,6 +84,9 @@ VARIANTS = {
     "control (no CAR)": ("control", NON_CAR),
 }
 SCORERS = ("logistic", "trees")
+# how close to a finding's score a candidate joins it (``_merge``'s tie): the
+# package's 0.1, or never (the best candidate's own shape)
+TIES = (0.1, 0.0)
 SHIPPED = "CAR: all descriptors"
 CONTROL = "control (no CAR)"
 
@@ -372,30 +375,38 @@ def trees_model(cols, spec, clf=None, X=None):
     return model
 
 
-def fit_model(d, names, cols, scorer):
+def fit_model(d, names, cols, choice):
+    """The model of ``choice`` = (scorer, merge tie) fitted on ``names``."""
+    scorer, tie = choice
     X, groups = training_set(d, names, cols)
     if scorer == "logistic":
-        return model_of(cols, fit_lr(X, groups))
-    spec, clf = fit_trees(X, groups)
-    return trees_model(cols, spec, clf, X)
+        model = model_of(cols, fit_lr(X, groups))
+    else:
+        spec, clf = fit_trees(X, groups)
+        model = trees_model(cols, spec, clf, X)
+    model.tie = tie
+    return model
 
 
 def choose_scorer(ds, d, names, cols, shape):
-    """Logistic regression or trees, chosen on ``names`` alone (a training
-    part): fitted on all but one of its folds, each scores the held-out fold;
-    the better mean strict sensitivity at :data:`RATES` wins (ties: logistic)."""
+    """Logistic regression or trees, and the merge tie (:data:`TIES`), chosen
+    on ``names`` alone (a training part): fitted on all but one of its folds,
+    each scorer marks the held-out fold with each tie; the best mean strict
+    sensitivity at :data:`RATES` wins (ties: the first)."""
     folds = sorted({fold_of(ds, n) for n in names})
     held = folds[0]
     fit_on = [n for n in names if fold_of(ds, n) != held]
     test = [n for n in names if fold_of(ds, n) == held]
     best = None
     for scorer in SCORERS:
-        model = fit_model(d, fit_on, cols, scorer)
-        res = {n: match(marks_of(model, *d[n][:3], shape), ds.masses[n]) for n in test}
-        froc = Froc(ds, test, res, "strict")
-        value = float(np.mean([froc.at(r)[0] for r in RATES]))
-        if best is None or value > best[1] + 1e-12:
-            best = (scorer, value)
+        model = fit_model(d, fit_on, cols, (scorer, TIES[0]))
+        for tie in TIES:
+            model.tie = tie
+            res = {n: match(marks_of(model, *d[n][:3], shape), ds.masses[n]) for n in test}
+            froc = Froc(ds, test, res, "strict")
+            value = float(np.mean([froc.at(r)[0] for r in RATES]))
+            if best is None or value > best[1] + 1e-12:
+                best = ((scorer, tie), value)
     return best[0]
 
 
@@ -410,7 +421,8 @@ def marks_of(model, kept, X, f, shape):
     """(score, row, col, mask, (r0, c0), f) per finding, as the package merges them."""
     scores = model.score(X) if len(kept) else np.zeros(0)
     out = []
-    for score, mask, (r0, _r1, c0, _c1), _best in C._visible(C._merge(kept, scores), shape):
+    merged = C._merge(kept, scores, tie=model.tie)
+    for score, mask, (r0, _r1, c0, _c1), _best in C._visible(merged, shape):
         rr, cc = np.nonzero(mask)
         out.append((score, (rr.mean() + r0 + 0.5) * f - 0.5, (cc.mean() + c0 + 0.5) * f - 0.5,
                     mask, (r0, c0), f))
@@ -556,9 +568,10 @@ def load(ds, cache, names, mode):
     return d
 
 
-def majority(fold_scorers):
-    """The scorer most folds chose (ties: logistic)."""
-    return max(SCORERS, key=lambda k: (fold_scorers.count(k), k == "logistic"))
+def majority(fold_choices):
+    """The (scorer, tie) most folds chose (ties: the first of the choices)."""
+    options = [(s, t) for s in SCORERS for t in TIES]
+    return max(options, key=lambda k: (fold_choices.count(k), -options.index(k)))
 
 
 def evaluate(ds, cache, names, n_boot, jobs, trained=None):
@@ -645,7 +658,7 @@ def write_model(ds, data, names, frocs, boot, fold_scorers, command):
     chose (ties: logistic)."""
     mode, fams = VARIANTS[SHIPPED]
     cols = columns(fams)
-    scorer = majority(fold_scorers)
+    scorer, tie = majority(fold_scorers)
     X, groups = training_set(data[mode], names, cols)
     if scorer == "logistic":
         mean, scale, coef, intercept = fit_lr(X, groups)
@@ -677,11 +690,12 @@ def write_model(ds, data, names, frocs, boot, fold_scorers, command):
                 f"800x800, {sum(len(ds.masses[n]) for n in names)} boxed masses, "
                 f"{len({ds.patient(n) for n in names})} patients",
         "bit_depth": "8-bit JPEG films; 12-bit uint16 input is read as value / 4095",
-        "fit": f"{how}, fitted on all images; the scorer is the one most cross-validation "
-               f"folds chose inside their training part ({fold_scorers}); positive = "
-               "candidate centroid inside a mass box; weights: each mass's positives share "
-               "1, the negatives together weigh as much as the positives",
+        "fit": f"{how}, fitted on all images; the scorer and merge tie are those most "
+               f"cross-validation folds chose inside their training part ({fold_scorers}); "
+               "positive = candidate centroid inside a mass box; weights: each mass's positives "
+               "share 1, the negatives together weigh as much as the positives",
         "descriptors": [C.DESCRIPTORS[c] for c in cols],
+        "merge_tie": tie,
         **fitted,
         "operating_points_note": "threshold: where the pooled 5-fold cross-validated "
                                  "scores (folds by patient) make marks_per_image false "

@@ -460,7 +460,9 @@ class RoiModel:
         trees (``baseline`` and ``trees``: per tree the node arrays
         ``feature``, ``threshold``, ``left``, ``right``, ``leaf``, ``value``;
         a sample goes left where its descriptor is at most the threshold; the
-        score is the logistic of the baseline plus the leaves' values).
+        score is the logistic of the baseline plus the leaves' values);
+        ``merge_tie`` (default 0.1): how close to a finding's score a
+        candidate joins it (:func:`_merge`).
     """
 
     def __init__(self, spec):
@@ -483,6 +485,8 @@ class RoiModel:
             self.scale = np.asarray(spec["scale"], float)
             self.coef = np.asarray(spec["coef"], float)
             self.intercept = float(spec["intercept"])
+        # candidates within this fraction of a finding's score join it (:func:`_merge`)
+        self.tie = float(spec.get("merge_tie", 0.1))
         points = sorted(spec.get("operating_points", []), key=lambda p: p["marks_per_image"])
         self.rates = np.array([p["marks_per_image"] for p in points], float)
         self.thresholds = np.array([p["threshold"] for p in points], float)

@@ -384,12 +384,14 @@ def segment_breast(image, *, breast=None, n_segments=None, levels=3, neighbourho
 _ROI_PARAMETERS = """
 image : (H, W) array_like
     Grey mammogram (bright = dense), any numeric dtype; integer images are
-    scaled by their dtype range. An RGB(A) export of a grey mammogram, with
+    scaled by their dtype range, except a uint16 image whose maximum is at
+    most 4,095: a 12-bit mammogram, scaled by 4095. An RGB(A) export of a grey mammogram, with
     ``channel_axis``, is reduced to its luminance.
 marks_per_image : float or None, optional
     The operating point: the score threshold at which the shipped model
-    makes this many false marks per image on average on mini-MIAS (see
-    :data:`OPERATING_POINTS` for the cross-validated sensitivity there);
+    makes this many false marks per image on average, cross-validated by
+    patient on CBIS-DDSM films (see :func:`operating_point` for the
+    sensitivity there);
     default :data:`DEFAULT_MARKS_PER_IMAGE`. None keeps every finding, each
     with its score (:func:`select_marks` cuts such a result later).
 levels : int, optional
@@ -428,7 +430,7 @@ channel_axis : int or None, optional
     grey, None forces grey.
 """
 
-# The default operating point: false marks per image on mini-MIAS.
+# The default operating point: false marks per image (cross-validated on CBIS-DDSM films).
 DEFAULT_MARKS_PER_IMAGE = 2.0
 
 
@@ -548,7 +550,7 @@ def _iter_rank(grey, segmentation, model, *, threshold, max_regions, min_area, s
     if band is not None:
         ok = np.abs(X[:, DESCRIPTORS.index("mean_grey")] - band[0]) <= band[1]
         kept, X, scores = [c for c, k in zip(kept, ok, strict=True) if k], X[ok], scores[ok]
-    findings = _visible(_merge(kept, scores), (h, w))
+    findings = _visible(_merge(kept, scores, tie=model.tie), (h, w))
     if threshold is not None:
         findings = [fnd for fnd in findings if fnd[0] >= threshold]
     if max_regions is not None:
@@ -653,8 +655,8 @@ def score_threshold(marks_per_image=DEFAULT_MARKS_PER_IMAGE):
     Parameters
     ----------
     marks_per_image : float, optional
-        False marks per image on average on mini-MIAS (the model's training
-        images).
+        False marks per image on average (cross-validated by patient on
+        the model's training films, CBIS-DDSM).
 
     Returns
     -------
@@ -738,18 +740,19 @@ def detect_mammogram_rois(image, *, marks_per_image=DEFAULT_MARKS_PER_IMAGE, lev
     4. Each candidate is described by the segmentation's CAR features
        (local parameters and prediction-error energy inside against a ring
        of breast around it, how much of the ring is other segments), its
-       grey level and contrast against the ring, its size and shape; a
-       logistic model of those descriptors, fitted on mini-MIAS and shipped
+       grey level and contrast against the ring, its size and shape, and
+       where it lies in the breast; a model of those descriptors (boosted
+       trees), fitted on 1,231 CBIS-DDSM films and shipped
        (``roi_model.json``), scores it in (0, 1).
     5. Findings, best score first: a candidate whose centroid lies in a
        kept finding or that holds its centroid is that finding (it joins it
-       within 10 % of its score). Those scoring at least the threshold of
+       within the model's ``merge_tie`` of its score, shipped: never). Those scoring at least the threshold of
        ``marks_per_image`` are painted at full resolution.
 
-    The cross-validated sensitivity on mini-MIAS at each operating point is
-    in :data:`OPERATING_POINTS` (``benchmarks/bench_froc.py``); with 13
-    mass findings in all it is a rough figure. A research tool, never a
-    screening aid.
+    The sensitivity at each operating point, cross-validated by patient on
+    the CBIS-DDSM films, is in :data:`OPERATING_POINTS` and
+    :func:`operating_point` (``benchmarks/bench_froc.py``). A research tool,
+    never a screening aid.
 
     Parameters
     ----------
