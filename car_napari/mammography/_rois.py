@@ -746,7 +746,8 @@ def detect_mammogram_rois(image, *, marks_per_image=DEFAULT_MARKS_PER_IMAGE, lev
        (``roi_model.json``), scores it in (0, 1).
     5. Findings, best score first: a candidate whose centroid lies in a
        kept finding or that holds its centroid is that finding (it joins it
-       within the model's ``merge_tie`` of its score, shipped: never). Those scoring at least the threshold of
+       within the model's ``merge_tie`` of its score; the shipped model's
+       is 0: never). Those scoring at least the threshold of
        ``marks_per_image`` are painted at full resolution.
 
     The sensitivity at each operating point, cross-validated by patient on
