@@ -19,7 +19,7 @@ from ..restoration import (
 )
 from ._base import JobWidget
 from ._jobs import Job
-from ._layers import layer_array
+from ._layers import grey_alpha, layer_array
 
 SINGLE = "single image"
 FRAMES = "each frame (lazy clip)"  # a dask/zarr clip restored frame by frame into zarr
@@ -186,7 +186,7 @@ class RestorationWidget(JobWidget):
         non-colour axes, those the viewer does not show as the image plane
         (its slider steps through them); none otherwise."""
         spatial = layer.ndim  # napari's count leaves out the colour axis
-        if spatial != 3:
+        if spatial != 3 or grey_alpha(layer):  # its alpha is dropped: one image
             return []
         dims = self._viewer.dims
         shift = dims.ndim - spatial  # a layer's axes are the viewer's last ones

@@ -324,3 +324,21 @@ def test_display_by_bands_is_the_whole_result_as_shown(monkeypatch, kappa):
     np.testing.assert_array_equal(restored, result.restored(kappa).astype(np.float32))
     np.testing.assert_array_equal(changed, result.changed(kappa).astype(np.uint8))
     np.testing.assert_array_equal(probability, result.probability.astype(np.float32))
+
+
+def test_grey_alpha_png_is_one_grey_image(widget, qtbot, last_notification):
+    """Issue 32 item 9: a grey + alpha PNG (napari opens it as (H, W, 2)) is
+    one grey image without its alpha, as the CLI reads it, with a note."""
+    viewer, w = widget
+    grey = noisy_camera(48)
+    data = np.stack([grey, np.ones_like(grey)], axis=-1)  # grey + opaque alpha
+    layer = viewer.add_image(data, name="la")
+    assert not layer.rgb and layer.data.shape == (48, 48, 2)
+    w._image.value = layer
+    assert list(w._axis.choices) == ["single image"]  # not 48 versions of 48 x 2 images
+    job = w.start()
+    qtbot.waitUntil(lambda: job.done, timeout=120000)
+    assert "alpha" in last_notification() and "'la'" in last_notification()
+    out = viewer.layers["la restored"].data
+    assert out.shape == (48, 48) and not viewer.layers["la restored"].rgb
+    np.testing.assert_array_equal(layer.data, data)  # input untouched
