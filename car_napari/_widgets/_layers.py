@@ -117,6 +117,56 @@ def rectangle_bounds(shapes, shape):
     return slice(int(lo[0]), int(hi[0])), slice(int(lo[1]), int(hi[1]))
 
 
+def beside(layer, ndim, *, gap=0.05):
+    """Where a layer of ``ndim`` non-colour axes made from ``layer`` goes so
+    that it sits to the right of it, not over it: ``{"scale": ...,
+    "translate": ...}`` for ``viewer.add_image``.
+
+    The new layer keeps the source's scale and its offset on every axis but
+    the columns, where it starts one gap after the source's last column (a
+    gap of ``gap`` times the source's width, at least 4 pixels).
+
+    Parameters
+    ----------
+    layer : napari.layers.Image or None
+        The source layer (None: no placement).
+    ndim : int
+        The new layer's number of non-colour axes (its last ones are
+        matched with the source's; a grey + alpha source's plane is its
+        first two axes).
+    gap : float, optional
+        The gap, as a fraction of the source's width.
+
+    Returns
+    -------
+    dict
+        ``scale`` and ``translate`` (length ``ndim``); empty when there is
+        no source or it has fewer axes.
+
+    Examples
+    --------
+    >>> from types import SimpleNamespace
+    >>> layer = SimpleNamespace(data=np.zeros((10, 100)), rgb=False, multiscale=False,
+    ...                         ndim=2, scale=(2.0, 0.5), translate=(3.0, 1.0))
+    >>> beside(layer, 2)
+    {'scale': (2.0, 0.5), 'translate': (3.0, 53.5)}
+    """
+    if layer is None:
+        return {}
+    shape = np.shape(layer.data[0] if getattr(layer, "multiscale", False) else layer.data)
+    axes = list(range(layer.ndim))  # napari's count leaves out the colour axis
+    if grey_alpha(layer):
+        axes = axes[:2]  # the alpha axis is no axis of the image
+    if len(axes) < ndim:
+        return {}
+    axes = axes[-ndim:]
+    scale = [float(layer.scale[k]) for k in axes]
+    translate = [float(layer.translate[k]) for k in axes]
+    width = shape[axes[-1]]
+    translate[-1] += (width + max(4.0, gap * width)) * scale[-1]
+    return {"scale": tuple(scale), "translate": tuple(translate)}
+
+
 def value_range(data):
     """(min, max) of ``data`` in the core's float units (integers scaled as
     the core scales them: :func:`car_napari._validation.float_range`), to
