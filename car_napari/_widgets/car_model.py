@@ -79,8 +79,12 @@ class CARModelWidget(ModelWidget):
         self._range = None
         self._max_order = SpinBox(value=5, min=1, max=8, label="max order",
                                   tooltip="candidates 1..max for the decision rule (14.6)")
-        self._fit = self.action("Fit", self.start_fit)
-        self._report = TextEdit(value="", label="model")
+        self._fit = self.action("Fit", self.start_fit,
+                                tooltip="fit a CAR model to the image (or inside the "
+                                        "rectangle), choosing its order automatically")
+        self._report = TextEdit(value="", label="model",
+                                tooltip="the fitted model: the score of each order, the "
+                                        "chosen support and the parameters")
         self._report.native.setReadOnly(True)
         self.arrange([self._max_order, self._fit],
                      after=[self._report, Label(value="synthesis"), self._height,

@@ -162,13 +162,20 @@ class RestorationWidget(JobWidget):
                                tooltip="order of the causal neighbourhood: 1 (the default) "
                                        "uses the nearest neighbours, higher orders reach "
                                        "further (slower)")
-        self._keep_edges = CheckBox(value=True, text="keep edges (14.40)")
-        self._run = self.action("Restore", self.start)
+        self._keep_edges = CheckBox(value=True, text="keep edges",
+                                    tooltip="keep the observed value where the prediction "
+                                            "error is larger than the noise explains, so that "
+                                            "edges stay sharp (eq. 14.40)")
+        self._run = self.action("Restore", self.start,
+                                tooltip="restore the image (or the sharpest version of the "
+                                        "stack); the result fills in live")
         self._kappa = FloatSlider(value=0.0, min=0.0, max=0.99, step=0.01, label="kappa",
                                   enabled=False,
                                   tooltip="pixels whose prediction probability is at most "
                                           "kappa keep their observed value (14.50)")
-        self._show_changed = CheckBox(value=False, text="show changed pixels", enabled=False)
+        self._show_changed = CheckBox(value=False, text="show changed pixels", enabled=False,
+                                      tooltip="show the pixels the restoration changed as a "
+                                              "labels layer")
         self.arrange([self._axis, self._order, self._keep_edges, self._run],
                      after=[self._kappa, self._show_changed])
         self._image.changed.connect(self._guess_axis)

@@ -103,12 +103,21 @@ class TextureSynthesisWidget(ModelWidget):
         self._mode = ComboBox(value=SINGLE, choices=[SINGLE, BTF, DYNAMIC], label="input",
                               tooltip="a stack is a BTF (one material, many illuminations) "
                                       "or a dynamic texture (frames of a video)")
-        self._levels = SpinBox(value=3, min=1, max=6, label="pyramid levels")
-        self._subspaces = SpinBox(value=4, min=1, max=64, label="BTF subspaces")
-        self._frames = SpinBox(value=10, min=1, max=1000, label="frames (dynamic)")
-        self._fit = self.action("Fit", self.start_fit)
+        self._levels = SpinBox(value=3, min=1, max=6, label="pyramid levels",
+                               tooltip="resolution levels of the model: more levels "
+                                       "reproduce larger structures")
+        self._subspaces = SpinBox(value=4, min=1, max=64, label="BTF subspaces",
+                                  tooltip="a BTF: groups of similar illuminations, one model "
+                                          "each (at most the number of images)")
+        self._frames = SpinBox(value=10, min=1, max=1000, label="frames (dynamic)",
+                               tooltip="a dynamic texture: number of frames to synthesise")
+        self._fit = self.action("Fit", self.start_fit,
+                                tooltip="fit a texture model to the image (or inside the "
+                                        "rectangle), or to the stack")
         self._model_info = Label(value="no model")
-        self._tileable = CheckBox(value=False, text="tileable (wraps seamlessly)")
+        self._tileable = CheckBox(value=False, text="tileable (wraps seamlessly)",
+                                  tooltip="a single texture: copies placed side by side "
+                                          "show no seam")
         self._folder = Path.cwd()  # where the model dialogs start
         self._save = self.action("Save model...", self.save_model_as,
                                  when=lambda: isinstance(self.model, TextureModel),
