@@ -483,6 +483,49 @@ def float_range(image):
     return float(ends[0]), float(ends[1])
 
 
+def unit_dtype(dtype):
+    """The dtype :func:`from_unit` gives for ``dtype``: uint8 and uint16
+    kept, anything else float32.
+
+    Examples
+    --------
+    >>> unit_dtype(np.uint16), unit_dtype(np.float64)
+    (dtype('uint16'), dtype('float32'))
+    """
+    return np.dtype(dtype) if dtype in (np.uint8, np.uint16) else np.dtype(np.float32)
+
+
+def from_unit(values, dtype):
+    """Float values on the core's [0, 1] scale back as ``dtype``, the
+    reverse of the scaling of :func:`as_channel_last_float`: uint8 and
+    uint16 scaled to their range and rounded (clipped to it), anything else
+    float32 as it is. The command line writes its results with it, and the
+    widgets show them with it, in the input's dtype and range.
+
+    Parameters
+    ----------
+    values : array_like of float
+        Values in the core's units.
+    dtype : dtype
+        The input's dtype.
+
+    Returns
+    -------
+    ndarray
+        Of :func:`unit_dtype` ``(dtype)``.
+
+    Examples
+    --------
+    >>> from_unit(np.array([0.0, 0.5, 1.2]), np.uint8)
+    array([  0, 128, 255], dtype=uint8)
+    >>> from_unit(np.array([-0.1, 0.5]), np.float64)
+    array([-0.1,  0.5], dtype=float32)
+    """
+    if dtype in (np.uint8, np.uint16):
+        return np.round(np.clip(values, 0.0, 1.0) * np.iinfo(dtype).max).astype(dtype)
+    return np.asarray(values).astype(np.float32)
+
+
 def check_real(value, name, *, low=None, high=None, low_open=False, high_open=False,
                integer=False, strict=False):
     """``value`` as a float (an int with ``integer``) within its range, or a

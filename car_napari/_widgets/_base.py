@@ -61,6 +61,8 @@ class JobWidget(Container):
         The viewer the widget reads layers from and writes results to.
     image_label : str, optional
         The label of the image picker.
+    image_tooltip : str, optional
+        Its tooltip.
     region : bool, optional
         Add an optional Shapes picker: the job reads only the bounding box
         of its first shape.
@@ -74,20 +76,25 @@ class JobWidget(Container):
 
     control_labels: dict = {}
 
-    def __init__(self, napari_viewer, *, image_label="image", region=False):
+    def __init__(self, napari_viewer, *, image_label="image", region=False,
+                 image_tooltip="the image layer to work on (grey or colour; an alpha "
+                               "channel is not used)"):
         super().__init__(labels=True)
         self._viewer = napari_viewer
         self.record = RunRecord(napari_viewer)
         self._job = None
         self._actions = []  # (button, when): enabled when idle and when()
-        self._image = create_widget(annotation="napari.layers.Image", label=image_label)
+        self._image = create_widget(annotation="napari.layers.Image", label=image_label,
+                                    options={"tooltip": image_tooltip})
         self._region = None
         if region:
             self._region = create_widget(
                 annotation="napari.layers.Shapes", label="rectangle",
                 options={"nullable": True, "tooltip": "optional: only inside its first shape"},
             )
-        self._cancel = PushButton(text="Cancel", enabled=False)
+        self._cancel = PushButton(text="Cancel", enabled=False,
+                                  tooltip="stop the running job: the layers are put back as "
+                                          "they were before it")
         self._progress = ProgressBar(value=0, min=0, max=100, label="progress")
         self._status = Label(value="")
         self._cancel.changed.connect(self.cancel)
@@ -396,11 +403,17 @@ class ModelWidget(JobWidget):
     def __init__(self, napari_viewer, *, size=256, min_size=1):
         super().__init__(napari_viewer, region=True)
         self.model = None
-        self._height = SpinBox(value=size, min=min_size, max=8192, label="height")
-        self._width = SpinBox(value=size, min=min_size, max=8192, label="width")
-        self._seed = SpinBox(value=0, min=0, max=2**31 - 1, label="seed")
+        self._height = SpinBox(value=size, min=min_size, max=8192, label="height",
+                               tooltip="rows of the synthesised image, in pixels")
+        self._width = SpinBox(value=size, min=min_size, max=8192, label="width",
+                              tooltip="columns of the synthesised image, in pixels")
+        self._seed = SpinBox(value=0, min=0, max=2**31 - 1, label="seed",
+                             tooltip="the random seed: the same seed gives the same image, "
+                                     "another seed another one")
         self._synth = self.action("Synthesize", self.start_synthesis,
-                                  when=lambda: self.model is not None)
+                                  when=lambda: self.model is not None,
+                                  tooltip="make a new image from the fitted model; it is "
+                                          "placed beside the fitted layer")
 
     start_fit = JobWidget.start
 

@@ -4,6 +4,7 @@ writes into the viewer (so that a cancelled or failed run can be undone)."""
 from __future__ import annotations
 
 import numpy as np
+from napari.utils.notifications import show_info
 
 from .._validation import float_range
 
@@ -11,7 +12,25 @@ NO_LAYER = "no image layer selected: open an image (or a sample) first."
 NOT_2D = "choose a 2-D grey or RGB layer (for a stack, split it or pick one plane)."
 
 
-def layer_array(layer, region=None, *, ndims=(2,), hint=NOT_2D, copy=True):
+def grey_alpha(layer):
+    """``layer`` is a grey image with an alpha channel, as napari opens a
+    grey + alpha PNG: not RGB, shape ``(H, W, 2)``.
+
+    Examples
+    --------
+    >>> from types import SimpleNamespace
+    >>> grey_alpha(SimpleNamespace(data=np.zeros((8, 9, 2)), rgb=False))
+    True
+    >>> grey_alpha(SimpleNamespace(data=np.zeros((2, 8, 9)), rgb=False))
+    False
+    """
+    if layer is None or bool(getattr(layer, "rgb", False)):
+        return False
+    shape = tuple(layer.data.shape)
+    return len(shape) == 3 and shape[2] == 2 and min(shape[:2]) > 2
+
+
+def layer_array(layer, region=None, *, ndims=(2,), hint=NOT_2D, copy=True, on_note=show_info):
     """The data of an image layer as a fresh array (or a view), and its channel axis.
 
     Parameters
@@ -29,12 +48,15 @@ def layer_array(layer, region=None, *, ndims=(2,), hint=NOT_2D, copy=True):
         False: the layer's data itself (sliced, not converted: a job that
         reads it in its worker and never writes it needs no copy, and the
         viewer's thread makes none).
+    on_note : callable or None, optional
+        Called with a one-line note when an alpha channel is dropped (by
+        default a napari info notification; None: silent).
 
     Returns
     -------
     data : ndarray
         A copy of the data (a view with ``copy=False``); an RGBA layer loses
-        its alpha.
+        its alpha, a grey + alpha layer (:func:`grey_alpha`) is grey.
     channel_axis : int or None
         -1 for an RGB(A) layer, None (grey) otherwise.
 
@@ -58,6 +80,9 @@ def layer_array(layer, region=None, *, ndims=(2,), hint=NOT_2D, copy=True):
     if data.size == 0:
         raise ValueError(f"layer {layer.name!r} is empty.")
     rgb = bool(getattr(layer, "rgb", False))
+    alpha = grey_alpha(layer) or (rgb and data.shape[-1] == 4)
+    if grey_alpha(layer):
+        data = data[..., 0]  # the models see grey or colour only, as the CLI's read_image
     spatial = data.ndim - rgb
     if spatial not in ndims:
         raise ValueError(f"layer {layer.name!r} has shape {data.shape} ({spatial} non-colour "
@@ -69,6 +94,9 @@ def layer_array(layer, region=None, *, ndims=(2,), hint=NOT_2D, copy=True):
         data = data[(Ellipsis, rows, cols) + ((slice(None),) if rgb else ())]
         if min(data.shape[spatial - 2:spatial]) < 2:
             raise ValueError(f"the rectangle in {region.name!r} hardly overlaps the image.")
+    if alpha and on_note is not None:
+        on_note(f"layer {layer.name!r}: its alpha (transparency) channel is not used; "
+                f"the image is read as {'colour' if rgb else 'grey'}.")
     return (np.array(data, copy=True) if copy else data), (-1 if rgb else None)
 
 
@@ -87,6 +115,56 @@ def rectangle_bounds(shapes, shape):
     lo = np.clip(np.floor(vertices.min(axis=0)).astype(int), 0, shape)
     hi = np.clip(np.ceil(vertices.max(axis=0)).astype(int), 0, shape)
     return slice(int(lo[0]), int(hi[0])), slice(int(lo[1]), int(hi[1]))
+
+
+def beside(layer, ndim, *, gap=0.05):
+    """Where a layer of ``ndim`` non-colour axes made from ``layer`` goes so
+    that it sits to the right of it, not over it: ``{"scale": ...,
+    "translate": ...}`` for ``viewer.add_image``.
+
+    The new layer keeps the source's scale and its offset on every axis but
+    the columns, where it starts one gap after the source's last column (a
+    gap of ``gap`` times the source's width, at least 4 pixels).
+
+    Parameters
+    ----------
+    layer : napari.layers.Image or None
+        The source layer (None: no placement).
+    ndim : int
+        The new layer's number of non-colour axes (its last ones are
+        matched with the source's; a grey + alpha source's plane is its
+        first two axes).
+    gap : float, optional
+        The gap, as a fraction of the source's width.
+
+    Returns
+    -------
+    dict
+        ``scale`` and ``translate`` (length ``ndim``); empty when there is
+        no source or it has fewer axes.
+
+    Examples
+    --------
+    >>> from types import SimpleNamespace
+    >>> layer = SimpleNamespace(data=np.zeros((10, 100)), rgb=False, multiscale=False,
+    ...                         ndim=2, scale=(2.0, 0.5), translate=(3.0, 1.0))
+    >>> beside(layer, 2)
+    {'scale': (2.0, 0.5), 'translate': (3.0, 53.5)}
+    """
+    if layer is None:
+        return {}
+    shape = np.shape(layer.data[0] if getattr(layer, "multiscale", False) else layer.data)
+    axes = list(range(layer.ndim))  # napari's count leaves out the colour axis
+    if grey_alpha(layer):
+        axes = axes[:2]  # the alpha axis is no axis of the image
+    if len(axes) < ndim:
+        return {}
+    axes = axes[-ndim:]
+    scale = [float(layer.scale[k]) for k in axes]
+    translate = [float(layer.translate[k]) for k in axes]
+    width = shape[axes[-1]]
+    translate[-1] += (width + max(4.0, gap * width)) * scale[-1]
+    return {"scale": tuple(scale), "translate": tuple(translate)}
 
 
 def value_range(data):

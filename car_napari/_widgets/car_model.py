@@ -8,7 +8,7 @@ from magicgui.widgets import Label, SpinBox, TextEdit
 
 from ..model import iter_fit_car, iter_synthesize, spectral_radius
 from ._base import ModelWidget
-from ._layers import value_range
+from ._layers import beside, value_range
 
 
 def describe(model):
@@ -75,11 +75,16 @@ class CARModelWidget(ModelWidget):
     def __init__(self, napari_viewer):
         super().__init__(napari_viewer, size=256, min_size=4)
         self._source = None
+        self._source_layer = None  # the fitted layer: the samples go to its right
         self._range = None
         self._max_order = SpinBox(value=5, min=1, max=8, label="max order",
                                   tooltip="candidates 1..max for the decision rule (14.6)")
-        self._fit = self.action("Fit", self.start_fit)
-        self._report = TextEdit(value="", label="model")
+        self._fit = self.action("Fit", self.start_fit,
+                                tooltip="fit a CAR model to the image (or inside the "
+                                        "rectangle), choosing its order automatically")
+        self._report = TextEdit(value="", label="model",
+                                tooltip="the fitted model: the score of each order, the "
+                                        "chosen support and the parameters")
         self._report.native.setReadOnly(True)
         self.arrange([self._max_order, self._fit],
                      after=[self._report, Label(value="synthesis"), self._height,
@@ -90,7 +95,7 @@ class CARModelWidget(ModelWidget):
         # the layer's data itself, read in the worker only (the core never writes its
         # input): no copy and no scan of a large image in the viewer's thread
         data, channel_axis = self.input_array(copy=False)
-        self._fitting = self._image.value.name
+        self._fitting = self._image.value
         orders = range(1, int(self._max_order.value) + 1)
         job = _with_range(iter_fit_car(data, "auto", orders=orders, channel_axis=channel_axis),
                           data)
@@ -98,8 +103,9 @@ class CARModelWidget(ModelWidget):
 
     def _fitted(self, fitted):
         model, value_range_ = fitted
-        # what the samples are named after and clipped to
-        self._source, self._range = self._fitting, value_range_
+        # what the samples are named after (and placed beside) and clipped to
+        self._source_layer = self._fitting
+        self._source, self._range = self._fitting.name, value_range_
         self.model = model
         self._report.value = describe(model)
         self._status.value = f"order {model.order} chosen"
@@ -119,8 +125,12 @@ class CARModelWidget(ModelWidget):
         """Show the sample (a generator: the job runs it a step per event-loop turn)."""
         # the model lives in the core's float units (integers scaled to [0, 1])
         rgb = sample.ndim == 3 and sample.shape[2] == 3
+        # beside the fitted layer, not over it (while it is in the viewer)
+        source = self._source_layer if self._source_layer in self._viewer.layers else None
+        place = beside(source, sample.ndim - rgb)
         self.record.add(lambda: self._viewer.add_image(sample, name=f"{self._source} CAR sample",
-                                                       rgb=rgb, contrast_limits=self._range))
+                                                       rgb=rgb, contrast_limits=self._range,
+                                                       **place))
         # The layer is made (napari's cost, whatever the size); its first paint (the
         # texture upload, growing with the size) comes on the next turn, not in this one.
         yield

@@ -94,7 +94,9 @@ class InpaintingWidget(JobWidget):
     control_labels = {"temporal": "use the previous frame", "mask": "scratch mask"}
 
     def __init__(self, napari_viewer):
-        super().__init__(napari_viewer, image_label="image or clip")
+        super().__init__(napari_viewer, image_label="image or clip",
+                         image_tooltip="the damaged image, or a clip of frames (an alpha "
+                                       "channel is not used)")
         self.updates = 0
         self._new_mask = self.action("New mask layer", self.mask_layer,
                                      tooltip="an empty 'scratch mask' Labels layer, ready to "
@@ -105,10 +107,15 @@ class InpaintingWidget(JobWidget):
             label="scratch mask", choices=self._mask_choices, nullable=True,
             tooltip="the damage: a Labels or Image layer, non-zero = damaged (a mask of "
                     "another size is resized to the frame)")
-        self._temporal = CheckBox(value=True, text="use the previous frame (clips)")
+        self._temporal = CheckBox(value=True, text="use the previous frame (clips)",
+                                  tooltip="a clip: fill the damage from the previous frame "
+                                          "as well as from the frame itself")
         self._follow = CheckBox(value=False, text="follow progress (show each frame as "
-                                                  "it is restored)")
-        self._run = self.action("Restore", self.start)
+                                                  "it is restored)",
+                                tooltip="a clip: move the viewer to each frame as it is "
+                                        "restored")
+        self._run = self.action("Restore", self.start,
+                                tooltip="fill in the damaged pixels of the mask")
         self.arrange([self._new_mask, self._detect, self._mask, self._temporal,
                       self._follow, self._run])
         self._image.changed.connect(self._source_changed)

@@ -113,7 +113,9 @@ class MammogramWidget(JobWidget):
     control_labels = {"marks_per_image": "marks per image"}
 
     def __init__(self, napari_viewer):
-        super().__init__(napari_viewer, image_label="mammogram")
+        super().__init__(napari_viewer, image_label="mammogram",
+                         image_tooltip="the mammogram layer to search for regions of "
+                                       "interest")
         self.table = None  # the marks' table (dict of columns)
         self._found = None  # (every finding's MammogramROIs, their outlines)
         self._found_for = None  # (the image layer's name, its scale and translate)
@@ -125,7 +127,9 @@ class MammogramWidget(JobWidget):
                                tooltip="cross-validated by patient on CBIS-DDSM screening films "
                                        "(95 % interval over patients), at the nearest tabled "
                                        "operating point at or below the control's value")
-        self._run = self.action("Detect", self.start)
+        self._run = self.action("Detect", self.start,
+                                tooltip="find and mark candidate regions of interest in the "
+                                        "breast")
         self._table = QTableWidget(0, len(SHOWN_COLUMNS))
         self._table.setMinimumHeight(140)
         self._table.setEditTriggers(QTableWidget.NoEditTriggers)

@@ -11,6 +11,7 @@ from magicgui.widgets import CheckBox, ComboBox, FloatSlider
 
 from .._frames import lazy_output
 from .._progress import Progress
+from .._validation import from_unit, unit_dtype
 from ..restoration import (
     DEFAULT_KAPPA,
     iter_restore,
@@ -19,7 +20,7 @@ from ..restoration import (
 )
 from ._base import JobWidget
 from ._jobs import Job
-from ._layers import layer_array
+from ._layers import grey_alpha, layer_array
 
 SINGLE = "single image"
 FRAMES = "each frame (lazy clip)"  # a dask/zarr clip restored frame by frame into zarr
@@ -43,23 +44,25 @@ def _decimated(image, budget=None):
     return (image, 1) if f == 1 else (np.ascontiguousarray(image[::f, ::f]), f)
 
 
-def _preview(image, rgb):
+def _preview(image, rgb, dtype=np.float32):
     """A core preview as a layer shows it (:func:`_shown`), decimated
     (:func:`_decimated`) before it is converted: on 4000x4000 RGB the
     conversion of the whole image took 0.3-0.5 s between two records."""
     image = np.asarray(image)
     shown, f = _decimated(image)
-    return _shown(shown, rgb), f
+    return _shown(shown, rgb, dtype), f
 
 
-def _shown(image, rgb):
-    """What a layer shows of a core image: float32 (napari converts float64
-    for the screen anyway: done here, in the worker, not in the viewer's
-    thread), a grey image without its channel axis."""
+def _shown(image, rgb, dtype=np.float32):
+    """What a layer shows of a core image: back in the input's ``dtype`` and
+    range as the command line writes it (:func:`~car_napari._validation.from_unit`:
+    uint8 and uint16 kept, anything else float32, which napari draws without
+    converting it), done here, in the worker, not in the viewer's thread;
+    a grey image without its channel axis."""
     image = np.asarray(image)
     if not rgb and image.ndim == 3:
         image = image[..., 0]
-    return image.astype(np.float32)
+    return from_unit(image, dtype)
 
 
 # The result is turned into what the layers show by bands of this many rows, a
@@ -68,7 +71,7 @@ def _shown(image, rgb):
 DISPLAY_ROWS = 256
 
 
-def _for_display(job, rgb, show_changed):
+def _for_display(job, rgb, show_changed, dtype=np.float32):
     """``job`` run for the viewer, in the worker: its records with previews
     as :func:`_shown`, and its result with what the viewer shows of it:
     (result, restored, probability, changed pixels as uint8 or None)."""
@@ -80,11 +83,12 @@ def _for_display(job, rgb, show_changed):
                 result = stop.value
                 break
             if record.preview is not None:  # decimated here, in the worker
-                record = replace(record, preview=_preview(record.preview, rgb))
+                record = replace(record, preview=_preview(record.preview, rgb, dtype))
             yield record
     finally:
         job.close()
-    restored, changed, probability = yield from _iter_recut(result, None, rgb, show_changed)
+    restored, changed, probability = yield from _iter_recut(result, None, rgb, show_changed,
+                                                            dtype)
     return result, restored, probability, changed
 
 
@@ -97,7 +101,7 @@ def _rows(result, rows):
                    probability=part(result.probability), weight=part(result.weight))
 
 
-def _iter_recut(result, kappa, rgb, show_changed):
+def _iter_recut(result, kappa, rgb, show_changed, dtype=np.float32):
     """What the layers show of ``result`` at ``kappa`` (None: the result's
     own), by bands of :data:`DISPLAY_ROWS` rows with a record after each:
     (restored as :func:`_shown`, changed pixels as uint8 or None,
@@ -107,9 +111,10 @@ def _iter_recut(result, kappa, rgb, show_changed):
     probability = np.empty(result.probability.shape, np.float32)
     for start in range(0, H, DISPLAY_ROWS):
         rows = slice(start, min(start + DISPLAY_ROWS, H))
-        band_restored, band_changed = _recut(_rows(result, rows), kappa, rgb, show_changed)
+        band_restored, band_changed = _recut(_rows(result, rows), kappa, rgb, show_changed,
+                                             dtype)
         if restored is None:
-            restored = np.empty((H, *band_restored.shape[1:]), np.float32)
+            restored = np.empty((H, *band_restored.shape[1:]), band_restored.dtype)
             changed = None if band_changed is None else np.empty((H, *band_changed.shape[1:]),
                                                                  np.uint8)
         restored[rows] = band_restored
@@ -120,11 +125,11 @@ def _iter_recut(result, kappa, rgb, show_changed):
     return restored, changed, probability
 
 
-def _recut(result, kappa, rgb, show_changed):
+def _recut(result, kappa, rgb, show_changed, dtype=np.float32):
     """The restored image as shown (and the changed pixels as uint8, or
     None) of ``result`` at ``kappa`` (None: the result's own)."""
     changed = result.changed(kappa).astype(np.uint8) if show_changed else None
-    return _shown(result.restored(kappa), rgb), changed
+    return _shown(result.restored(kappa), rgb, dtype), changed
 
 
 class RestorationWidget(JobWidget):
@@ -149,6 +154,7 @@ class RestorationWidget(JobWidget):
     def __init__(self, napari_viewer):
         super().__init__(napari_viewer)
         self.result = None  # the last RestorationResult
+        self._dtype = np.dtype(np.float32)  # the restored layer's (the input's, as the CLI)
         self.updates = 0
         self._preview_layer = None  # a large image's decimated preview, while it runs
         self._preview_owned = False  # ... in the result's own layer (made by this run)
@@ -162,13 +168,20 @@ class RestorationWidget(JobWidget):
                                tooltip="order of the causal neighbourhood: 1 (the default) "
                                        "uses the nearest neighbours, higher orders reach "
                                        "further (slower)")
-        self._keep_edges = CheckBox(value=True, text="keep edges (14.40)")
-        self._run = self.action("Restore", self.start)
+        self._keep_edges = CheckBox(value=True, text="keep edges",
+                                    tooltip="keep the observed value where the prediction "
+                                            "error is larger than the noise explains, so that "
+                                            "edges stay sharp (eq. 14.40)")
+        self._run = self.action("Restore", self.start,
+                                tooltip="restore the image (or the sharpest version of the "
+                                        "stack); the result fills in live")
         self._kappa = FloatSlider(value=0.0, min=0.0, max=0.99, step=0.01, label="kappa",
                                   enabled=False,
                                   tooltip="pixels whose prediction probability is at most "
                                           "kappa keep their observed value (14.50)")
-        self._show_changed = CheckBox(value=False, text="show changed pixels", enabled=False)
+        self._show_changed = CheckBox(value=False, text="show changed pixels", enabled=False,
+                                      tooltip="show the pixels the restoration changed as a "
+                                              "labels layer")
         self.arrange([self._axis, self._order, self._keep_edges, self._run],
                      after=[self._kappa, self._show_changed])
         self._image.changed.connect(self._guess_axis)
@@ -186,7 +199,7 @@ class RestorationWidget(JobWidget):
         non-colour axes, those the viewer does not show as the image plane
         (its slider steps through them); none otherwise."""
         spatial = layer.ndim  # napari's count leaves out the colour axis
-        if spatial != 3:
+        if spatial != 3 or grey_alpha(layer):  # its alpha is dropped: one image
             return []
         dims = self._viewer.dims
         shift = dims.ndim - spatial  # a layer's axes are the viewer's last ones
@@ -277,9 +290,11 @@ class RestorationWidget(JobWidget):
         self._preview_layer = None
         self._out = self._names(self._source.name)
         self._rgb = channel_axis is not None
+        self._dtype = unit_dtype(data.dtype)  # the restored layer's: the input's, as the CLI
         self.updates = 0
         self._kappa.enabled = self._show_changed.enabled = False
-        return self.run(_for_display(job, self._rgb, bool(self._show_changed.value)),
+        return self.run(_for_display(job, self._rgb, bool(self._show_changed.value),
+                                     self._dtype),
                         preview=self._show_running, done=self._finished)
 
     def _start_frames(self):
@@ -298,6 +313,7 @@ class RestorationWidget(JobWidget):
                                   neighbourhood=int(self._order.value))
         self._stop_recut()
         self.result = None  # nothing to re-threshold: the clip is on disk
+        self._dtype = np.dtype(np.float32)  # the zarr stores'
         self._source = layer
         self._out = self._names(layer.name)
         self._rgb = channel_axis is not None
@@ -368,10 +384,15 @@ class RestorationWidget(JobWidget):
     def _names(base):
         return (f"{base} restored", f"{base} prediction probability", f"{base} changed pixels")
 
+    def _limits(self):
+        """The restored layer's contrast limits: the core's [0, 1] in the
+        input's dtype (0-65535 for uint16), as the source shows it."""
+        return tuple(float(v) for v in from_unit(np.array([0.0, 1.0]), self._dtype))
+
     def _add_restored(self, data, name, scale=None):
-        # values are on the core's [0, 1] scale, not the source's: limits given,
-        # no pass over the data in the viewer's thread
-        kwargs = dict(name=name, rgb=self._rgb, contrast_limits=(0.0, 1.0))
+        # values are the core's [0, 1] in the input's dtype: limits given, no
+        # pass over the data in the viewer's thread
+        kwargs = dict(name=name, rgb=self._rgb, contrast_limits=self._limits())
         if scale is not None:
             kwargs.update(scale=scale, translate=(0.0, 0.0))
         if not self._rgb:
@@ -435,7 +456,8 @@ class RestorationWidget(JobWidget):
         if new and shown in layers:  # just below the restored layer, which stays on top
             layers.move(layers.index(probability), layers.index(shown))
         self.result = result
-        self._recut_target = self._out, self._rgb  # what the kappa slider re-thresholds
+        # what the kappa slider re-thresholds
+        self._recut_target = self._out, self._rgb, self._dtype
         with self._kappa.changed.blocked():
             self._kappa.value = result.kappa
         self._kappa.enabled = self._show_changed.enabled = True
@@ -469,7 +491,7 @@ class RestorationWidget(JobWidget):
         (kappa, show_changed), self._wanted = self._wanted, None
         result, shown = self.result, self._recut_target
         self._recut_job = Job(
-            _iter_recut(result, kappa, shown[1], show_changed),
+            _iter_recut(result, kappa, shown[1], show_changed, shown[2]),
             on_progress=lambda record: None,
             on_done=lambda cut: self._apply_recut(cut, result, shown),
             on_error=self.notify_error,
@@ -491,7 +513,7 @@ class RestorationWidget(JobWidget):
         if result is not self.result or self._running():
             return  # a newer run owns the layers
         restored, changed, _ = cut
-        (restored_name, _, changed_name), _ = shown
+        (restored_name, _, changed_name), _, _ = shown
         layers = self._viewer.layers
         if restored_name in layers:
             layers[restored_name].data = restored

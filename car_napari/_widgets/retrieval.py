@@ -82,12 +82,20 @@ class TextureRetrievalWidget(JobWidget):
     """
 
     def __init__(self, napari_viewer):
-        super().__init__(napari_viewer, image_label="query", region=True)
+        super().__init__(napari_viewer, image_label="query", region=True,
+                         image_tooltip="the texture to look for (or the part of it inside "
+                                       "the rectangle)")
         self.ranking = []  # (name, distance) nearest first
         self._entries = []  # gallery entries: ("layer", name) or ("file", path)
-        self._source = ComboBox(value=LAYERS, choices=[LAYERS, FOLDER], label="gallery")
-        self._folder = FileEdit(mode="d", label="folder")
-        self._run = self.action("Rank", self.start)
+        self._source = ComboBox(value=LAYERS, choices=[LAYERS, FOLDER], label="gallery",
+                                tooltip="where the textures to compare come from: the "
+                                        "viewer's image layers, or a folder of images")
+        self._folder = FileEdit(mode="d", label="folder",
+                                tooltip="the folder of images to compare (for a folder "
+                                        "gallery)")
+        self._run = self.action("Rank", self.start,
+                                tooltip="rank the gallery by likeness to the query, most "
+                                        "alike first")
         self._results = QListWidget()
         self._results.setIconSize(QSize(THUMBNAIL, THUMBNAIL))
         self._results.setMinimumHeight(200)

@@ -44,10 +44,16 @@ class SegmentationWidget(JobWidget):
                                  label="segments (0 = auto)",
                                  tooltip="0 = automatic: the merging finds the number; "
                                          "at most the initial K")
-        self._levels = SpinBox(value=3, min=1, max=5, label="resolutions")
-        self._order = SpinBox(value=2, min=1, max=5, label="order")
+        self._levels = SpinBox(value=3, min=1, max=5, label="resolutions",
+                               tooltip="number of resolution levels: coarser levels "
+                                       "segment faster, the finest one refines the borders")
+        self._order = SpinBox(value=2, min=1, max=5, label="order",
+                              tooltip="order of the neighbourhood of each texture model: "
+                                      "higher orders capture larger structures (slower)")
         self._n_init.changed.connect(self._bound_segments)
-        self._run = self.action("Run", self.start)
+        self._run = self.action("Run", self.start,
+                                tooltip="segment the image into textures; the merges are "
+                                        "shown as they happen")
         self._cut = Slider(value=1, min=1, max=1, label="show K", enabled=False,
                            tooltip="re-cut the merge history: no recomputation")
         self._threshold = FloatSlider(value=0.0, min=0.0, max=0.99, step=0.01,

@@ -18,6 +18,7 @@ from ..texture import (
     iter_fit_texture,
 )
 from ._base import ModelWidget, guarded
+from ._layers import beside
 
 SINGLE, BTF, DYNAMIC = "single texture", "BTF: stack of illuminations", "dynamic: frames"
 NOT_A_STACK = "it is not a stack (images along the first axis); choose 'single texture'."
@@ -97,16 +98,26 @@ class TextureSynthesisWidget(ModelWidget):
     def __init__(self, napari_viewer):
         super().__init__(napari_viewer, size=512)
         self._source_name = "texture"
+        self._source_layer = None  # the fitted layer: the syntheses go to its right
         self._input_shape = None
         self._mode = ComboBox(value=SINGLE, choices=[SINGLE, BTF, DYNAMIC], label="input",
                               tooltip="a stack is a BTF (one material, many illuminations) "
                                       "or a dynamic texture (frames of a video)")
-        self._levels = SpinBox(value=3, min=1, max=6, label="pyramid levels")
-        self._subspaces = SpinBox(value=4, min=1, max=64, label="BTF subspaces")
-        self._frames = SpinBox(value=10, min=1, max=1000, label="frames (dynamic)")
-        self._fit = self.action("Fit", self.start_fit)
+        self._levels = SpinBox(value=3, min=1, max=6, label="pyramid levels",
+                               tooltip="resolution levels of the model: more levels "
+                                       "reproduce larger structures")
+        self._subspaces = SpinBox(value=4, min=1, max=64, label="BTF subspaces",
+                                  tooltip="a BTF: groups of similar illuminations, one model "
+                                          "each (at most the number of images)")
+        self._frames = SpinBox(value=10, min=1, max=1000, label="frames (dynamic)",
+                               tooltip="a dynamic texture: number of frames to synthesise")
+        self._fit = self.action("Fit", self.start_fit,
+                                tooltip="fit a texture model to the image (or inside the "
+                                        "rectangle), or to the stack")
         self._model_info = Label(value="no model")
-        self._tileable = CheckBox(value=False, text="tileable (wraps seamlessly)")
+        self._tileable = CheckBox(value=False, text="tileable (wraps seamlessly)",
+                                  tooltip="a single texture: copies placed side by side "
+                                          "show no seam")
         self._folder = Path.cwd()  # where the model dialogs start
         self._save = self.action("Save model...", self.save_model_as,
                                  when=lambda: isinstance(self.model, TextureModel),
@@ -146,11 +157,12 @@ class TextureSynthesisWidget(ModelWidget):
                                levels=levels, channel_axis=channel_axis)
             else:
                 job = iter_fit_dynamic_texture(data, channel_axis=channel_axis)
-        self._fitting = self._image.value.name, data.shape
+        self._fitting = self._image.value, data.shape
         return self.run(job, done=self._fitted)
 
     def _fitted(self, model):
-        self._source_name, self._input_shape = self._fitting
+        self._source_layer, self._input_shape = self._fitting
+        self._source_name = self._source_layer.name
         self._set_model(model)
 
     def _set_model(self, model):
@@ -201,8 +213,11 @@ class TextureSynthesisWidget(ModelWidget):
         if name in layers and layers[name].data.shape == synthesis.shape:
             self.record.put(name, synthesis, None)
         else:
+            # beside the fitted layer, not over it (while it is in the viewer)
+            source = self._source_layer if self._source_layer in self._viewer.layers else None
+            place = beside(source, synthesis.ndim - rgb)
             self.record.replace(name, lambda name: self._viewer.add_image(
-                synthesis, name=name, rgb=rgb, contrast_limits=limits))
+                synthesis, name=name, rgb=rgb, contrast_limits=limits, **place))
         # the layer made or updated in this turn, its first paint (the texture
         # upload, growing with the size) on the next one
         yield
@@ -296,5 +311,6 @@ class TextureSynthesisWidget(ModelWidget):
         self._folder = Path(path).expanduser().parent
         self._input_shape = None
         self._source_name = "texture model"
+        self._source_layer = None
         self._set_model(model)
         return model

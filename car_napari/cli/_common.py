@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._validation import from_unit, unit_dtype  # noqa: F401 (the CLI's, from the core)
 from ..io.images import IMAGE_SUFFIXES, WRITE_SUFFIXES, is_colour, write_image
 
 _QUIET = {"on": False}
@@ -688,20 +689,6 @@ def add_quiet(parser):
     """The --quiet option: nothing but errors (:func:`quiet_mode`)."""
     parser.add_argument("--quiet", action="store_true",
                         help="print nothing but errors (no progress, notes or per-image lines)")
-
-
-def unit_dtype(dtype):
-    """The dtype :func:`from_unit` gives for ``dtype``: uint8 and uint16
-    kept, anything else float32."""
-    return np.dtype(dtype) if dtype in (np.uint8, np.uint16) else np.dtype(np.float32)
-
-
-def from_unit(values, dtype):
-    """Float values on the core's [0, 1] scale as ``dtype``: uint8 and uint16
-    scaled and rounded, anything else float32."""
-    if dtype in (np.uint8, np.uint16):
-        return np.round(np.clip(values, 0.0, 1.0) * np.iinfo(dtype).max).astype(dtype)
-    return np.asarray(values).astype(np.float32)
 
 
 #: The files a label image is written to (lossless, 8 or 16-bit).

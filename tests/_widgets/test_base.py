@@ -322,6 +322,32 @@ def test_layer_array_crops_and_copies(make_napari_viewer):
     assert layer_array(stack, ndims=(3,))[0].shape == (3, 8, 8)
 
 
+def test_alpha_is_dropped_with_a_note(docked, last_notification):
+    """Issue 32 item 9: every widget's input path drops the alpha channel of
+    a grey + alpha (H, W, 2) and an RGBA (H, W, 4) layer, and says so."""
+    viewer, w = docked(ShownInStepsWidget, "parts")
+    rng = np.random.default_rng(2)
+    la = rng.random((12, 16, 2))
+    w._image.value = viewer.add_image(la, name="grey alpha")
+    data, channel_axis = w.input_array()
+    assert channel_axis is None and data.shape == (12, 16)
+    np.testing.assert_array_equal(data, la[..., 0])
+    assert "alpha" in last_notification() and "grey" in last_notification()
+    rgba = rng.random((12, 16, 4))
+    w._image.value = viewer.add_image(rgba, name="rgba", rgb=True)
+    data, channel_axis = w.input_array()
+    assert channel_axis == -1 and data.shape == (12, 16, 3)
+    assert "'rgba'" in last_notification() and "colour" in last_notification()
+    notes = []
+    w._image.value = viewer.add_image(rng.random((12, 16)), name="grey")
+    assert layer_array(w._image.value, on_note=notes.append)[0].shape == (12, 16)
+    assert notes == []  # nothing dropped, nothing said
+    # a stack of two planes is no grey + alpha image
+    two = viewer.add_image(rng.random((2, 12, 16)), name="two")
+    assert layer_array(two, ndims=(3,), on_note=notes.append)[0].shape == (2, 12, 16)
+    assert notes == []
+
+
 class ShownInStepsWidget(JobWidget):
     """A widget whose result is shown in steps: three layers, one per event-loop turn."""
 

@@ -211,3 +211,33 @@ def test_fit_reads_the_layer_in_the_worker_and_shows_the_sample_in_two_turns(wid
     assert seen["adding"] == (True, False)  # the layer made; its paint on the next turn
     assert w._synth.enabled and not w._cancel.enabled
     assert viewer.layers["grass CAR sample"].data.shape == (24, 30, 3)
+
+
+def _right_edge(layer):
+    """The world column just right of a 2-D layer's last pixel."""
+    return layer.translate[-1] + (layer.data.shape[1] - 0.5) * layer.scale[-1]
+
+
+def _left_edge(layer):
+    return layer.translate[-1] - 0.5 * layer.scale[-1]
+
+
+def test_sample_is_placed_beside_its_source(widget, qtbot):
+    """Issue 32 item 11: the sample sits to the right of the fitted layer
+    (a small gap, the source's scale and rows), not over it."""
+    viewer, w = widget
+    layer = viewer.add_image(skdata.camera()[:64, :80], name="camera",
+                             scale=(2.0, 0.5), translate=(10.0, -3.0))
+    w._image.value = layer
+    w._max_order.value = 1
+    job = w.start_fit()
+    _wait(qtbot, job)
+    w._height.value, w._width.value = 30, 20
+    job = w.start_synthesis()
+    _wait(qtbot, job)
+    sample = viewer.layers["camera CAR sample"]
+    assert tuple(sample.scale) == (2.0, 0.5)
+    assert sample.translate[0] == 10.0  # the same top row
+    gap = _left_edge(sample) - _right_edge(layer)
+    assert 0 < gap <= 0.1 * 80 * 0.5  # beside it: a gap, and a small one
+    assert layer.visible

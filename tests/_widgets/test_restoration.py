@@ -324,3 +324,48 @@ def test_display_by_bands_is_the_whole_result_as_shown(monkeypatch, kappa):
     np.testing.assert_array_equal(restored, result.restored(kappa).astype(np.float32))
     np.testing.assert_array_equal(changed, result.changed(kappa).astype(np.uint8))
     np.testing.assert_array_equal(probability, result.probability.astype(np.float32))
+
+
+def test_grey_alpha_png_is_one_grey_image(widget, qtbot, last_notification):
+    """Issue 32 item 9: a grey + alpha PNG (napari opens it as (H, W, 2)) is
+    one grey image without its alpha, as the CLI reads it, with a note."""
+    viewer, w = widget
+    grey = noisy_camera(48)
+    data = np.stack([grey, np.ones_like(grey)], axis=-1)  # grey + opaque alpha
+    layer = viewer.add_image(data, name="la")
+    assert not layer.rgb and layer.data.shape == (48, 48, 2)
+    w._image.value = layer
+    assert list(w._axis.choices) == ["single image"]  # not 48 versions of 48 x 2 images
+    job = w.start()
+    qtbot.waitUntil(lambda: job.done, timeout=120000)
+    assert "alpha" in last_notification() and "'la'" in last_notification()
+    out = viewer.layers["la restored"].data
+    assert out.shape == (48, 48) and not viewer.layers["la restored"].rgb
+    np.testing.assert_array_equal(layer.data, data)  # input untouched
+
+
+@pytest.mark.parametrize("dtype", [np.uint16, np.uint8])
+def test_integer_layer_keeps_its_dtype_and_range(widget, qtbot, dtype):
+    """Issue 32 item 8: a uint16 (or uint8) layer is restored into a layer
+    of its dtype and range, as the CLI writes it, not float32 in 0-1; a
+    re-threshold keeps it."""
+    from car_napari._validation import from_unit
+
+    viewer, w = widget
+    top = np.iinfo(dtype).max
+    image = np.round(np.clip(noisy_camera(48), 0, 1) * top).astype(dtype)
+    layer = viewer.add_image(image, name="int")
+    w._image.value = layer
+    job = w.start()
+    qtbot.waitUntil(lambda: job.done, timeout=120000)
+    restored = viewer.layers["int restored"]
+    assert restored.data.dtype == dtype and restored.data.shape == image.shape
+    assert tuple(restored.contrast_limits) == (0.0, float(top))
+    assert restored.data.max() > 0.5 * top  # the input's range, not 0-1
+    np.testing.assert_array_equal(restored.data, from_unit(w.result.restored()[..., 0], dtype))
+    w._kappa.value = 0.3
+    qtbot.waitUntil(lambda: w._recut_job is None, timeout=30000)
+    after = viewer.layers["int restored"].data
+    assert after.dtype == dtype
+    np.testing.assert_array_equal(after, from_unit(w.result.restored(0.3)[..., 0], dtype))
+    np.testing.assert_array_equal(layer.data, image)

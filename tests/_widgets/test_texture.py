@@ -281,3 +281,37 @@ def test_fit_reads_the_layer_in_the_worker_and_shows_the_synthesis_in_two_turns(
     qtbot.waitUntil(lambda: job.done, timeout=120000)
     assert seen["adding"] == (True, False)  # the layer made; its paint on the next turn
     assert not w._cancel.enabled and viewer.layers["grass synthesis"].data.shape == (40, 50, 3)
+
+
+def test_synthesis_is_placed_beside_its_source(widget, qtbot):
+    """Issue 32 item 11: the synthesis sits to the right of the fitted layer
+    (a small gap, the source's scale), not over it; a stack's too."""
+    viewer, w = widget
+    layer = viewer.add_image(skdata.astronaut()[300:364, 0:96], name="grass", rgb=True,
+                             scale=(1.5, 1.5), translate=(4.0, 7.0))
+    w._image.value = layer
+    w._levels.value = 1
+    job = w.start_fit()
+    qtbot.waitUntil(lambda: job.done, timeout=120000)
+    w._height.value, w._width.value = 40, 50
+    job = w.start_synthesis()
+    qtbot.waitUntil(lambda: job.done, timeout=120000)
+    out = viewer.layers["grass synthesis"]
+    assert tuple(out.scale) == (1.5, 1.5) and out.translate[0] == 4.0
+    right = layer.translate[1] + (96 - 0.5) * 1.5
+    gap = out.translate[1] - 0.5 * 1.5 - right
+    assert 0 < gap <= 0.1 * 96 * 1.5
+    # a stack (BTF): the leading axis keeps the source's offset
+    from car_napari.io.sample_data import degraded_stack
+
+    (stack, meta, _), = degraded_stack()
+    burst = viewer.add_image(stack[:3, :64, :64], **meta)
+    w._image.value = burst
+    w._subspaces.value = 1
+    job = w.start_fit()
+    qtbot.waitUntil(lambda: job.done, timeout=120000)
+    job = w.start_synthesis()
+    qtbot.waitUntil(lambda: job.done, timeout=120000)
+    out = viewer.layers[f"{burst.name} synthesis"]
+    assert tuple(out.translate[:2]) == tuple(burst.translate[:2])
+    assert out.translate[2] > burst.translate[2] + (64 - 0.5) * burst.scale[2]
