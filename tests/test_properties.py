@@ -514,6 +514,7 @@ def test_texture_models_and_rank(image):
 def test_mammography(seed_):
     from car_napari import detect_breast, detect_mammogram_rois, segment_breast
     from car_napari.mammography import (
+        bit_depth,
         filter_regions,
         operating_point,
         region_outlines,
@@ -545,6 +546,8 @@ def test_mammography(seed_):
             rgb = _call(lambda got=got: roi_overlay(image, got.labels), image, got.labels)
             if rgb is not None:
                 assert rgb.shape == (*image.shape, 3) and rgb.dtype == np.uint8
+    depth = _call(lambda: bit_depth(np.round(image * rng.integers(1, 70000)).astype(np.uint32)))
+    assert depth is None or depth in (12, 32)
     rate = float(rng.uniform(0.1, 12))
     point = _call(lambda: operating_point(rate))
     assert point is None or 0 <= point["threshold"] <= 1

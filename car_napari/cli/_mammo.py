@@ -56,10 +56,10 @@ def run(args):
     from ..mammography import (
         DEFAULT_MARKS_PER_IMAGE,
         TABLE_COLUMNS,
+        bit_depth,
         iter_detect_mammogram_rois,
         roi_overlay,
     )
-    from ..mammography._images import bit_depth
 
     paths = expand_inputs(args.inputs)
     target = output_file(args.output, paths, suffixes=LABEL_SUFFIXES, what="a label image")

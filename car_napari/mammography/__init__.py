@@ -15,6 +15,7 @@ result. A research tool, never a screening aid.
 
 from ._breast import BreastDetection, detect_breast
 from ._candidates import shipped_model as _shipped_model
+from ._images import bit_depth
 from ._regions import (
     DEFAULT_MAX_REGIONS,
     MASS_RADIUS_RANGE,
@@ -57,6 +58,7 @@ __all__ = [
     "BreastDetection",
     "BreastSegmentation",
     "MammogramROIs",
+    "bit_depth",
     "detect_breast",
     "detect_mammogram_rois",
     "filter_regions",

@@ -95,9 +95,31 @@ _TWELVE_BIT_MAX = 4095
 
 
 def bit_depth(image):
-    """The bit depth an integer mammogram is read with: 8 for uint8, 12 for a
-    wider unsigned image whose maximum is at most 4,095, else the dtype's
-    width; None for float and bool images (their values are kept)."""
+    """The bit depth a mammogram is read with.
+
+    Integer images are scaled to [0, 1] by their range: 255 for 8 bits,
+    4095 for 12 bits (a wider unsigned image whose maximum is at most 4,095:
+    a digital mammogram's 12 bits in a 16-bit container), else the dtype's
+    maximum.
+
+    Parameters
+    ----------
+    image : array_like
+        The mammogram.
+
+    Returns
+    -------
+    int or None
+        8, 12, or the dtype's width in bits; None for float and bool images
+        (their values are kept as they are).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from car_napari.mammography import bit_depth
+    >>> bit_depth(np.full((4, 4), 3501, np.uint16)), bit_depth(np.zeros((4, 4), np.uint8))
+    (12, 8)
+    """
     arr = np.asarray(image)
     if arr.dtype.kind != "u" or arr.dtype.itemsize < 2:
         return 8 if arr.dtype == np.uint8 else (

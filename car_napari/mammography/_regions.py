@@ -503,7 +503,7 @@ def roi_overlay(image, labels, *, width=None, channel_axis=-1):
     >>> labels = np.zeros((64, 64), np.int32)
     >>> labels[20:40, 20:40] = 1
     >>> rgb = roi_overlay(image, labels, width=1)
-    >>> rgb.shape, rgb.dtype, rgb[20, 30].tolist(), rgb[30, 30, 0] == rgb[30, 30, 2]
+    >>> rgb.shape, rgb.dtype, rgb[20, 30].tolist(), bool(rgb[30, 30, 0] == rgb[30, 30, 2])
     ((64, 64, 3), dtype('uint8'), [255, 255, 0], True)
     """
     from scipy import ndimage

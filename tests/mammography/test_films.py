@@ -9,8 +9,7 @@ from skimage import io
 
 from car_fields import SHARED_DATA
 from car_napari.io.sample_data import resource_path
-from car_napari.mammography import detect_breast, detect_mammogram_rois
-from car_napari.mammography._images import bit_depth
+from car_napari.mammography import bit_depth, detect_breast, detect_mammogram_rois
 
 # Named films of ../shared/data/mammograms, each showing what the breast area
 # must leave out (rows and columns of the file's own pixels, read off the

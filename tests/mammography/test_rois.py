@@ -156,7 +156,8 @@ def test_iter_yields_progress_then_returns_the_rois(rois):
     stages = [r.stage for r in records]
     assert stages[0] == "breast" and stages[-1] == "regions"
     assert {"features", "mixture", "merging"} <= set(stages)
-    assert records[-1].message == f"{labels.max()} regions"
+    n = labels.max()
+    assert records[-1].message == f"{n} region{'' if n == 1 else 's'}"
 
 
 def test_closing_the_job_early_stops_it(sample):
