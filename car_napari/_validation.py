@@ -368,8 +368,8 @@ def check_forgetting(value, name="forgetting"):
     ValueError naming it and saying why smaller values are refused."""
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.number)):
         raise TypeError(f"{name} must be a number in [{MIN_FORGETTING}, 1]; got {value!r}.")
-    number = float(value) if not isinstance(value, (int, np.integer)) or abs(value) < 2 \
-        else 2.0
+    # a huge int would overflow float(); anything beyond 1 is refused anyway
+    number = float(value) if abs(value) <= 1 else 2.0
     if not (MIN_FORGETTING <= number <= 1.0):  # NaN too
         raise ValueError(
             f"{name} must be in [{MIN_FORGETTING}, 1]; got {value!r}. The local model's "

@@ -80,8 +80,9 @@ def layer_array(layer, region=None, *, ndims=(2,), hint=NOT_2D, copy=True, on_no
     if data.size == 0:
         raise ValueError(f"layer {layer.name!r} is empty.")
     rgb = bool(getattr(layer, "rgb", False))
-    alpha = grey_alpha(layer) or (rgb and data.shape[-1] == 4)
-    if grey_alpha(layer):
+    grey_with_alpha = grey_alpha(layer)
+    alpha = grey_with_alpha or (rgb and data.shape[-1] == 4)
+    if grey_with_alpha:
         data = data[..., 0]  # the models see grey or colour only, as the CLI's read_image
     spatial = data.ndim - rgb
     if spatial not in ndims:

@@ -148,8 +148,7 @@ def _grey01(image, name="image"):
     """(H, W) float64 grey image scaled like img_as_float (an 8-bit image
     carried in floats is read as the 8-bit image, :data:`_SNAP_LEVELS`);
     clear errors."""
-    arr = np.asarray(image) if isinstance(image, np.ndarray) else image
-    depth = bit_depth(arr) if isinstance(arr, np.ndarray) and arr.ndim == 2 else None
+    depth = bit_depth(image) if isinstance(image, np.ndarray) and image.ndim == 2 else None
     data = _to_float(image, depth, name)
     _check_contrast(data, name)
     if not _exact(np.asarray(image)) and _off_grid(data) <= _SNAP_LEVELS:
