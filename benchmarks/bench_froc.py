@@ -87,6 +87,11 @@ SCORERS = ("logistic", "trees")
 # how close to a finding's score a candidate joins it (``_merge``'s tie): the
 # package's 0.1, or never (the best candidate's own shape)
 TIES = (0.1, 0.0)
+# how findings are cleaned (``_findings``): as merged (None), or those less
+# than half visible dropped and each cut to its bright core at this quantile
+# (the core rule was looked at on folds 0-1 scored by a model of folds 2-4,
+# before this option was added; each training part chooses it or not)
+REFINES = (None, 0.5)
 SHIPPED = "CAR: all descriptors"
 CONTROL = "control (no CAR)"
 
@@ -185,6 +190,14 @@ def segmentation(ds, name, cache):
     tex = C._texture_grid(seg.features, seg.box, seg.factor, f, (h, w))
     np.savez(path, labellings=labs, texture=tex.astype(np.float16), seconds=seconds)
     return labs, tex, seconds
+
+
+def analysis_image(ds, name, cache):
+    """Cached: the grey image on the analysis grid (float32)."""
+    path = cache / ds.key / f"{name}_grid.npy"
+    if not path.exists():
+        np.save(path, analysis_grid(_grey01(ds.read(name)))[1].astype(np.float32))
+    return np.load(path)
 
 
 def _descriptor_key():
@@ -376,8 +389,8 @@ def trees_model(cols, spec, clf=None, X=None):
 
 
 def fit_model(d, names, cols, choice):
-    """The model of ``choice`` = (scorer, merge tie) fitted on ``names``."""
-    scorer, tie = choice
+    """The model of ``choice`` = (scorer, merge tie, refine) fitted on ``names``."""
+    scorer, tie, refine = choice
     X, groups = training_set(d, names, cols)
     if scorer == "logistic":
         model = model_of(cols, fit_lr(X, groups))
@@ -385,13 +398,19 @@ def fit_model(d, names, cols, choice):
         spec, clf = fit_trees(X, groups)
         model = trees_model(cols, spec, clf, X)
     model.tie = tie
+    set_refine(model, refine)
     return model
 
 
-def choose_scorer(ds, d, names, cols, shape):
-    """Logistic regression or trees, and the merge tie (:data:`TIES`), chosen
-    on ``names`` alone (a training part): fitted on all but one of its folds,
-    each scorer marks the held-out fold with each tie; the best mean strict
+def set_refine(model, refine):
+    model.min_visible, model.core = (0.0, None) if refine is None else (0.5, refine)
+
+
+def choose_scorer(ds, d, names, cols):
+    """Logistic regression or trees, the merge tie (:data:`TIES`) and the
+    refinement (:data:`REFINES`), chosen on ``names`` alone (a training
+    part): fitted on all but one of its folds, each scorer marks the
+    held-out fold with each tie and refinement; the best mean strict
     sensitivity at :data:`RATES` wins (ties: the first)."""
     folds = sorted({fold_of(ds, n) for n in names})
     held = folds[0]
@@ -399,14 +418,16 @@ def choose_scorer(ds, d, names, cols, shape):
     test = [n for n in names if fold_of(ds, n) == held]
     best = None
     for scorer in SCORERS:
-        model = fit_model(d, fit_on, cols, (scorer, TIES[0]))
+        model = fit_model(d, fit_on, cols, (scorer, TIES[0], REFINES[0]))
         for tie in TIES:
-            model.tie = tie
-            res = {n: match(marks_of(model, *d[n][:3], shape), ds.masses[n]) for n in test}
-            froc = Froc(ds, test, res, "strict")
-            value = float(np.mean([froc.at(r)[0] for r in RATES]))
-            if best is None or value > best[1] + 1e-12:
-                best = ((scorer, tie), value)
+            for refine in REFINES:
+                model.tie = tie
+                set_refine(model, refine)
+                res = {n: match(marks_of(model, *d[n][:4]), ds.masses[n]) for n in test}
+                froc = Froc(ds, test, res, "strict")
+                value = float(np.mean([froc.at(r)[0] for r in RATES]))
+                if best is None or value > best[1] + 1e-12:
+                    best = ((scorer, tie, refine), value)
     return best[0]
 
 
@@ -417,12 +438,12 @@ def training_set(d, names, cols):
     return X, groups
 
 
-def marks_of(model, kept, X, f, shape):
-    """(score, row, col, mask, (r0, c0), f) per finding, as the package merges them."""
+def marks_of(model, kept, X, f, small):
+    """(score, row, col, mask, (r0, c0), f) per finding, as the package makes
+    them from candidates on the analysis grid ``small``."""
     scores = model.score(X) if len(kept) else np.zeros(0)
     out = []
-    merged = C._merge(kept, scores, tie=model.tie)
-    for score, mask, (r0, _r1, c0, _c1), _best in C._visible(merged, shape):
+    for score, mask, (r0, _r1, c0, _c1), _best in C._findings(kept, scores, small, model):
         rr, cc = np.nonzero(mask)
         out.append((score, (rr.mean() + r0 + 0.5) * f - 0.5, (cc.mean() + c0 + 0.5) * f - 0.5,
                     mask, (r0, c0), f))
@@ -446,7 +467,7 @@ def match(marks, masses):
     return [m[0] for m in marks], strict, lenient
 
 
-def cv_fold(ds, d, names, cols, shape, k, scorer=None):
+def cv_fold(ds, d, names, cols, k, scorer=None):
     """Fold ``k``: the model fitted on the other folds (its scorer chosen on
     them, unless given) marks the fold's images: per image (scores, strict
     hits, lenient hits); and the scorer."""
@@ -454,9 +475,9 @@ def cv_fold(ds, d, names, cols, shape, k, scorer=None):
 
     with threadpool_limits(1):  # one process a core
         train = [n for n in names if fold_of(ds, n) != k]
-        kind = scorer or choose_scorer(ds, d, train, cols, shape)
+        kind = scorer or choose_scorer(ds, d, train, cols)
         model = fit_model(d, train, cols, kind)
-        return {n: match(marks_of(model, *d[n][:3], shape), ds.masses[n])
+        return {n: match(marks_of(model, *d[n][:4]), ds.masses[n])
                 for n in names if fold_of(ds, n) == k}, kind
 
 
@@ -465,18 +486,18 @@ _FORKED = {}  # what the forked workers read (copy on write)
 
 def _cv_task(task):
     label, k = task
-    ds, data, names, shape = (_FORKED[x] for x in ("ds", "data", "names", "shape"))
+    ds, data, names = (_FORKED[x] for x in ("ds", "data", "names"))
     mode, fams = VARIANTS[label]
-    return label, k, cv_fold(ds, data[mode], names, columns(fams), shape, k)
+    return label, k, cv_fold(ds, data[mode], names, columns(fams), k)
 
 
-def cross_validate(ds, data, names, shape, jobs):
+def cross_validate(ds, data, names, jobs):
     """Every variant's cross-validated marks (:func:`cv_fold`, the folds in
     ``jobs`` forked single-threaded processes); returns per variant the marks
     per image and the scorer of each fold."""
     import multiprocessing as mp
 
-    _FORKED.update(ds=ds, data=data, names=names, shape=shape)
+    _FORKED.update(ds=ds, data=data, names=names)
     tasks = [(label, k) for label in VARIANTS for k in range(FOLDS)]
     raw = {label: {} for label in VARIANTS}
     scorers = {label: [None] * FOLDS for label in VARIANTS}
@@ -563,14 +584,14 @@ def interval(samples):
 def load(ds, cache, names, mode):
     d = {}
     for n in names:
-        kept, X, f, secs = candidates(ds, n, cache, mode)
-        d[n] = (kept, X, f, secs, positives(kept, f, ds.masses[n]))
+        kept, X, f, _secs = candidates(ds, n, cache, mode)
+        d[n] = (kept, X, f, analysis_image(ds, n, cache), positives(kept, f, ds.masses[n]))
     return d
 
 
 def majority(fold_choices):
-    """The (scorer, tie) most folds chose (ties: the first of the choices)."""
-    options = [(s, t) for s in SCORERS for t in TIES]
+    """The (scorer, tie, refine) most folds chose (ties: the first of the choices)."""
+    options = [(s, t, r) for s in SCORERS for t in TIES for r in REFINES]
     return max(options, key=lambda k: (fold_choices.count(k), -options.index(k)))
 
 
@@ -579,11 +600,8 @@ def evaluate(ds, cache, names, n_boot, jobs, trained=None):
     model) fitted on another set), those models' marks too (an external
     test). Returns (frocs, boot, raw, data, scorers)."""
     data = {mode: load(ds, cache, names, mode) for mode in ("car", "control")}
-    first = ds.read(names[0])
-    f = max(1, round(max(first.shape) / _ANALYSIS_SIDE))
-    shape = (first.shape[0] // f + 2, first.shape[1] // f + 2)
     t0 = time.perf_counter()
-    raw, scorers = cross_validate(ds, data, names, shape, jobs)
+    raw, scorers = cross_validate(ds, data, names, jobs)
     for label in VARIANTS:
         print(f"{ds.key}: {label}: scorer chosen per fold {scorers[label]}")
     print(f"{ds.key}: cross-validation of {len(VARIANTS)} variants "
@@ -596,7 +614,7 @@ def evaluate(ds, cache, names, n_boot, jobs, trained=None):
     for label, (mode, model) in (trained or {}).items():
         d = data[mode]
         raw[f"{label}, trained on CBIS-DDSM"] = {
-            n: match(marks_of(model, *d[n][:3], shape), ds.masses[n]) for n in names}
+            n: match(marks_of(model, *d[n][:4]), ds.masses[n]) for n in names}
     frocs = {(k, rule): Froc(ds, names, res, rule) for k, res in raw.items()
              for rule in ("strict", "lenient")}
     boot = bootstrap(frocs, RATES, n_boot)
@@ -658,7 +676,7 @@ def write_model(ds, data, names, frocs, boot, fold_scorers, command):
     chose (ties: logistic)."""
     mode, fams = VARIANTS[SHIPPED]
     cols = columns(fams)
-    scorer, tie = majority(fold_scorers)
+    scorer, tie, refine = majority(fold_scorers)
     X, groups = training_set(data[mode], names, cols)
     if scorer == "logistic":
         mean, scale, coef, intercept = fit_lr(X, groups)
@@ -696,6 +714,8 @@ def write_model(ds, data, names, frocs, boot, fold_scorers, command):
                "share 1, the negatives together weigh as much as the positives",
         "descriptors": [C.DESCRIPTORS[c] for c in cols],
         "merge_tie": tie,
+        "min_visible": 0.0 if refine is None else 0.5,
+        "core_quantile": refine,
         **fitted,
         "operating_points_note": "threshold: where the pooled 5-fold cross-validated "
                                  "scores (folds by patient) make marks_per_image false "

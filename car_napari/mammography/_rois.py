@@ -25,10 +25,9 @@ from ._candidates import (
     DESCRIPTORS,
     FAMILIES,
     _describe,
+    _findings,
     _generate,
-    _merge,
     _texture_grid,
-    _visible,
     shipped_model,
 )
 from ._images import _STRIP, _block_mean, _iter_grey
@@ -550,7 +549,7 @@ def _iter_rank(grey, segmentation, model, *, threshold, max_regions, min_area, s
     if band is not None:
         ok = np.abs(X[:, DESCRIPTORS.index("mean_grey")] - band[0]) <= band[1]
         kept, X, scores = [c for c, k in zip(kept, ok, strict=True) if k], X[ok], scores[ok]
-    findings = _visible(_merge(kept, scores, tie=model.tie), (h, w))
+    findings = _findings(kept, scores, small, model)
     if threshold is not None:
         findings = [fnd for fnd in findings if fnd[0] >= threshold]
     if max_regions is not None:

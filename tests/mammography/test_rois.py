@@ -576,3 +576,49 @@ def test_host_contrast_against_the_rest_of_the_segment():
     assert got[1] == pytest.approx(diff / (grey[host].std() + 0.01))
     # a candidate that is its whole segment has no host
     assert _host(grey, seg == 2, seg, sums) == [0.0, 0.0]
+
+
+def test_visible_drops_findings_mostly_hidden_by_better_ones():
+    from car_napari.mammography._candidates import _visible
+
+    a = np.zeros((6, 6), bool)
+    a[:4, :4] = True
+    b = np.zeros((6, 6), bool)
+    b[1:5, 1:5] = True  # 9 of its 16 pixels under a: 7/16 visible
+    c = np.zeros((6, 6), bool)
+    c[4:, :] = True
+    found = [(0.9, a, (0, 6, 0, 6), 0), (0.8, b, (0, 6, 0, 6), 1), (0.7, c, (0, 6, 0, 6), 2)]
+    assert [f_[3] for f_ in _visible(found, (6, 6))] == [0, 1, 2]
+    kept = _visible(found, (6, 6), min_visible=0.5)
+    assert [f_[3] for f_ in kept] == [0, 2]
+    # b's 7 visible pixels stay claimed: c keeps 12 - 4 (row 4 under b)
+    assert kept[1][1].sum() == 8 and not kept[1][1][4, 1:5].any()
+
+
+def test_cores_keep_the_bright_connected_part_of_each_finding():
+    from scipy import ndimage
+
+    from car_napari.mammography._candidates import _CORE_SIGMA, _cores
+
+    rng = np.random.default_rng(3)
+    grey = rng.random((40, 50))
+    grey[10:16, 30:36] += 3.0  # a bright blob inside a big finding
+    grey[30:33, 5:8] += 2.0  # a second, dimmer blob in it
+    mask = np.zeros((36, 46), bool)
+    mask[2:34, 2:44] = True
+    [(score, core, box, best)] = _cores([(0.5, mask, (2, 38, 2, 48), 7)], grey, 0.9)
+    assert (score, box, best) == (0.5, (2, 38, 2, 48), 7)
+    # independently: threshold the smoothed image at the mask's 90th percentile,
+    # keep the 4-connected part holding the brightest pixel
+    smooth = ndimage.gaussian_filter(grey, _CORE_SIGMA)[2:38, 2:48]
+    above = mask & (smooth >= np.percentile(smooth[mask], 90))
+    seen = np.zeros_like(above)
+    stack = [np.unravel_index(np.argmax(np.where(above, smooth, -1)), smooth.shape)]
+    while stack:
+        r, c = stack.pop()
+        if 0 <= r < above.shape[0] and 0 <= c < above.shape[1] and above[r, c] and not seen[r, c]:
+            seen[r, c] = True
+            stack += [(r + 1, c), (r - 1, c), (r, c + 1), (r, c - 1)]
+    np.testing.assert_array_equal(core, seen)
+    rr, cc = np.nonzero(core)
+    assert 8 <= rr.mean() + 2 <= 18 and 28 <= cc.mean() + 2 <= 38
