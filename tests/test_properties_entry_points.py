@@ -282,7 +282,7 @@ def test_detect_breast_mirrors_and_ignores_grey_scaling(image, gain, offset):
 
 
 @seed(15)
-@FEW
+@settings(FEW, max_examples=5)
 @given(mammograms(), st.integers(2, 3), st.floats(0.3, 1.2), st.booleans())
 def test_segment_breast_labels_the_breast_only(image, k, gain, given_breast):
     options = dict(levels=1, n_segments=k, n_init=3, work_side=64)
@@ -374,7 +374,7 @@ def lit_stacks(draw):
 
 
 @seed(15)
-@FEW
+@settings(FEW, max_examples=5)
 @given(lit_stacks(), st.integers(1, 3), st.floats(0.5, 20), st.floats(-5, 5), _SEEDS)
 def test_btf_model_keeps_each_image_and_ignores_the_stack_scale(stack, k, gain, offset, seed_):
     n = len(stack)
