@@ -26,7 +26,9 @@ def add_parser(sub):
     p = sub.add_parser("retrieve", help="rank a folder of textures by illumination-invariant "
                                         "distance to a query")
     p.add_argument("query", help="query texture")
-    p.add_argument("gallery", help="folder of images")
+    p.add_argument("gallery", help="folder of images, compared with the query in its kind "
+                                   "(colour or grey; grey saved as RGB is grey), all in grey "
+                                   "when none is of the query's kind")
     p.add_argument("--top", type=positive_int, default=None, help="print only the N nearest")
     add_cluster(p, overwrite=False)
     p.set_defaults(run=run)
