@@ -3,6 +3,8 @@ documented domain the result is finite and of the documented shape, otherwise
 a ValueError or TypeError; the input is never modified; the same call gives
 the same result. Seeded and bounded (a few seconds each), so CI stays short."""
 
+import copy
+
 import numpy as np
 import pytest
 
@@ -624,31 +626,75 @@ def test_every_public_function_is_called():
     assert not missing, sorted(missing)
 
 
-@pytest.mark.parametrize("name", _ITER)
-def test_iter_forms_drain_to_the_function(name):
-    import car_napari as car
+def _progress_records(records):
+    """Well-formed records: Progress with a stage and a message, fractions
+    finite in [0, 1] and never going back."""
+    from car_napari import Progress
+
+    assert records
+    fractions = []
+    for r in records:
+        assert isinstance(r, Progress), r
+        assert isinstance(r.stage, str) and r.stage and isinstance(r.message, str), r
+        assert isinstance(r.fraction, (float, int)) and not isinstance(r.fraction, bool), r
+        assert 0.0 <= r.fraction <= 1.0, r  # (a NaN fails this too)
+        fractions.append(float(r.fraction))
+    assert fractions == sorted(fractions), fractions
+
+
+def _drained_and_direct(job, direct, *inputs):
+    """``drain(job())`` and ``direct()``, each leaving the inputs as they
+    were, the records checked; both results."""
     from car_napari import drain
 
-    rng = np.random.default_rng(0)
-    img = rng.random((32, 32))
+    def public(x):  # an object's public fields (a private cache may fill in)
+        if hasattr(x, "__dict__") and not isinstance(x, np.ndarray):
+            return {k: v for k, v in vars(x).items() if not k.startswith("_")}
+        return x
+
+    before = [copy.deepcopy(public(x)) for x in inputs]
+    records = []
+    got = drain(job(), records.append)
+    _progress_records(records)
+    for x, b in zip(inputs, before, strict=True):
+        _same(public(x), b)
+    want = direct()
+    for x, b in zip(inputs, before, strict=True):
+        _same(public(x), b)
+    return got, want
+
+
+@pytest.mark.parametrize("name", _ITER)
+@seed(15)
+@settings(LIGHT, max_examples=2)
+@given(st.integers(28, 40), st.integers(28, 40), st.integers(0, 2**16))
+def test_iter_forms_drain_to_the_function(name, h, w, seed_):
+    """drain(iter_x(...)) == x(...), bit for bit (models: every field), with
+    well-formed, non-decreasing progress records and the inputs untouched."""
+    import car_napari as car
+
+    rng = np.random.default_rng(seed_)
+    img = rng.random((h, w))
     clip = np.stack([img, np.roll(img, 1, axis=1), np.roll(img, 2, axis=1)])
     breast = np.zeros((96, 96))
     breast[:, :60] = 0.5 + 0.05 * rng.random((96, 60))
     model = car.fit_car(img, 1)
+    stack = [img, img[::-1]]
+    mask = img > 0.95
     args = {
         "compensate_motion": ((clip,), {"iterations": 1}),
         "detect_mammogram_rois": ((breast,), dict(levels=1, n_segments=3, n_init=3,
                                                   work_side=96, pool=(3,))),
         "detect_scratches": ((img,), {}),
         "estimate_motion": ((img, clip[1]), {"iterations": 1}),
-        "fit_btf": (([img, img[::-1]],), dict(levels=1, n_subspaces=1)),
+        "fit_btf": ((stack,), dict(levels=1, n_subspaces=1)),
         "fit_car": ((img, 1), {}),
         "fit_dynamic_texture": ((clip,), {"neighbourhood": 1}),
         "fit_texture": ((img,), {"levels": 1}),
-        "inpaint": ((img, img > 0.95), {}),
+        "inpaint": ((img, mask), {}),
         "local_features": ((img,), {"levels": 1}),
         "local_parameters": ((img, 1), {}),
-        "rank": ((img, [img, img[::-1]]), {"levels": 1}),
+        "rank": ((img, stack), {"levels": 1}),
         "restore": ((img,), {}),
         "restore_multichannel": ((clip,), {}),
         "segment": ((img,), dict(levels=1, n_segments=2, n_init=2)),
@@ -658,26 +704,25 @@ def test_iter_forms_drain_to_the_function(name):
     }
     base = name[len("iter_"):]
     positional, options = args[base]
-    job = getattr(car, name)(*positional, **options)
-    records = []
-    got = drain(job, records.append)
-    assert records and all(0.0 <= r.fraction <= 1.0 for r in records)
-    direct = {"fit_btf": lambda *a, **k: car.texture.BTFModel.fit(*a, **k),
-              "fit_texture": lambda *a, **k: car.texture.TextureModel.fit(*a, **k),
-              "fit_dynamic_texture": lambda *a, **k: car.texture.DynamicTextureModel.fit(
-                  *a, **k)}.get(base) or getattr(car, base)
-    want = direct(*positional, **options)
-    if base in ("fit_btf", "fit_texture", "fit_dynamic_texture", "fit_car"):
-        return  # models: compared by their synthesis elsewhere; here: it ran
+    direct = {"fit_btf": car.texture.BTFModel.fit,
+              "fit_texture": car.texture.TextureModel.fit,
+              "fit_dynamic_texture": car.texture.DynamicTextureModel.fit}.get(base) \
+        or getattr(car, base)
+    got, want = _drained_and_direct(lambda: getattr(car, name)(*positional, **options),
+                                    lambda: direct(*positional, **options),
+                                    positional, options)
     _same(got, want)
 
 
 @pytest.mark.parametrize("name", _ITER_FRAMES)
-def test_frame_iter_forms_drain_to_the_function(name):
-    from car_napari import drain, inpainting, restoration
+@seed(15)
+@settings(LIGHT, max_examples=2)
+@given(st.integers(20, 28), st.integers(20, 28), st.integers(0, 2**16))
+def test_frame_iter_forms_drain_to_the_function(name, h, w, seed_):
+    from car_napari import inpainting, restoration
 
-    rng = np.random.default_rng(0)
-    img = rng.random((24, 24))
+    rng = np.random.default_rng(seed_)
+    img = rng.random((h, w))
     clip = np.stack([img, np.roll(img, 1, axis=1)])
     mask = np.zeros(img.shape, bool)
     mask[5:7, 5:9] = True
@@ -689,9 +734,67 @@ def test_frame_iter_forms_drain_to_the_function(name):
             "inpaint_large": lambda f, out: f(clip, mask),
             "restore_tiled": lambda f, out: f(img, tile=16)}[base]
     out_iter, out_direct = np.zeros(clip.shape), np.zeros(clip.shape)
-    before = clip.copy()
-    got = drain(make(getattr(module, name), out_iter))
-    want = make(getattr(module, base), out_direct)
-    np.testing.assert_array_equal(clip, before)
+    got, want = _drained_and_direct(lambda: make(getattr(module, name), out_iter),
+                                    lambda: make(getattr(module, base), out_direct),
+                                    img, clip, mask)
     _same(got, want)
     _same(out_iter, out_direct)
+
+
+# the public classes' job methods: (class, method) -> its plain form
+_ITER_METHODS = ["BTFModel.iter_synthesize", "DynamicTextureModel.iter_synthesize",
+                 "SegmentationResult.iter_labels_at", "TextureModel.iter_synthesize"]
+
+
+@pytest.mark.parametrize("name", _ITER_METHODS)
+def test_iter_methods_drain_to_the_method(name):
+    import car_napari as car
+
+    rng = np.random.default_rng(0)
+    img = rng.random((32, 32))
+    make = {
+        "BTFModel": lambda: car.BTFModel.fit([img, 0.5 * img[::-1]], levels=1,
+                                             n_subspaces=2),
+        "DynamicTextureModel": lambda: car.DynamicTextureModel.fit(
+            np.stack([img, np.roll(img, 1, axis=1), img.T]), neighbourhood=1),
+        "SegmentationResult": lambda: car.segment(img, levels=1, n_init=4),
+        "TextureModel": lambda: car.TextureModel.fit(img, levels=1),
+    }
+    calls = {
+        "BTFModel": ((9, 11),), "DynamicTextureModel": (2, (9, 11)),
+        "SegmentationResult": (3,), "TextureModel": ((9, 11),),
+    }
+    options = {"SegmentationResult": {"threshold": 0.9}}
+    cls, method = name.split(".")
+    obj, other = make[cls](), make[cls]()  # two: a re-cut is cached in its result
+    positional = calls[cls]
+    keywords = options.get(cls, {"seed": 3})
+    got, want = _drained_and_direct(
+        lambda: getattr(obj, method)(*positional, **keywords),
+        lambda: getattr(other, method[len("iter_"):])(*positional, **keywords),
+        obj, other)
+    _same(got, want)
+
+
+def test_every_public_job_is_checked_above():
+    """Every public iter_ function and method has its drain test above."""
+    import importlib
+    import inspect
+    import pkgutil
+
+    import car_napari
+
+    modules = ["car_napari"] + [f"car_napari.{m.name}" for m in
+                                pkgutil.iter_modules(car_napari.__path__)
+                                if not m.name.startswith("_")]
+    functions, methods = set(), set()
+    for name in modules:
+        module = importlib.import_module(name)
+        for attr in getattr(module, "__all__", []):
+            obj = getattr(module, attr)
+            if attr.startswith("iter_"):
+                functions.add(attr)
+            if inspect.isclass(obj):
+                methods |= {f"{attr}.{m}" for m in vars(obj) if m.startswith("iter_")}
+    assert functions == set(_ITER + _ITER_FRAMES)
+    assert methods == set(_ITER_METHODS)

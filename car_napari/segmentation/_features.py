@@ -693,7 +693,9 @@ def iter_local_features(
                 result[start:stop, :, components + 1] = np.log(err[start:stop] + floor)
             del err
         for c in range(d):
-            result[..., per_level - d + c] = planes[c]
+            # centred before the float32 store (every feature is standardised
+            # at the end): an image far from zero keeps its contrast's precision
+            result[..., per_level - d + c] = planes[c] - planes[c].mean()
         del planes, current
         level_results.append(result)
         if m + 1 < levels:

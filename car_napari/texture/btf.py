@@ -91,7 +91,10 @@ def cumulative_histograms(stack, *, bins=HISTOGRAM_BINS, channel_axis=-1):
 def _kmeans(features, k, seed):
     from scipy.cluster.vq import kmeans2
 
-    _, labels = kmeans2(features, k, seed=seed, minit="++")
+    distinct = len(np.unique(features, axis=0))
+    if min(k, distinct) == 1:  # kmeans2 would divide by zero and warn of empty clusters
+        return np.zeros(len(features), int)
+    _, labels = kmeans2(features, min(k, distinct), seed=seed, minit="++")
     # empty clusters: renumber to 0..k'-1 in order of first appearance
     _, labels = np.unique(labels, return_inverse=True)
     return labels
@@ -162,10 +165,14 @@ def iter_fit_btf(stack, *, n_subspaces=4, levels=3, neighbourhood="auto", channe
     n_subspaces = check_real(n_subspaces, f"n_subspaces (an int from 1 to the number of "
                              f"images, {n})", low=1, high=n, integer=True)
     _check_texture_size(images.shape[1:3], levels, name="each image of the stack")
+    # the histograms' bins span the stack's range (per channel): one subspace per
+    # illumination however the stack is scaled (floats beyond [0, 1], radiances)
+    low, high = images.min(axis=(0, 1, 2)), images.max(axis=(0, 1, 2))
+    span = np.where(high > low, high - low, 1.0)
     features = []
     for i, image in enumerate(images):
         yield Progress("histograms", _HISTOGRAM_SHARE * i / n, f"histogram {i + 1}/{n}")
-        features.append(_cumulative_histogram(image, HISTOGRAM_BINS))
+        features.append(_cumulative_histogram((image - low) / span, HISTOGRAM_BINS))
     features = np.stack(features)
     assignment = _kmeans(features, int(n_subspaces), seed) if n_subspaces > 1 \
         else np.zeros(n, int)
@@ -240,7 +247,11 @@ class BTFModel:
             seed=0):
         """Cluster a stack into subspaces and fit one texture model per subspace.
 
-        The same as running :func:`iter_fit_btf` to its end.
+        The same as running :func:`iter_fit_btf` to its end. The images are
+        clustered by K-means on their cumulative histograms, binned over the
+        stack's range per channel: the subspaces do not change when the whole
+        stack is scaled by a positive gain and an offset (float radiances
+        cluster as the stack scaled to [0, 1] does).
 
         Parameters
         ----------

@@ -153,6 +153,16 @@ def test_the_default_features_of_a_grey_mosaic_equal_the_reference():
     np.testing.assert_allclose(local_features(image), _reference(image), rtol=0, atol=2e-5)
 
 
+def test_an_image_far_from_zero_keeps_its_local_mean_feature():
+    # found by tests/test_properties_entry_points.py: the local mean was
+    # stored in float32 before it was standardised, so an image of small
+    # contrast on a large offset (x / 1000 - 3) lost it to rounding
+    image = np.random.default_rng(0).random((24, 20))
+    want = local_features(image, levels=1)
+    np.testing.assert_allclose(local_features(image / 1000 - 3, levels=1), want, atol=2e-3)
+    np.testing.assert_allclose(local_features(image + 1e4, levels=1), want, atol=2e-3)
+
+
 # --- the blocked steps against their one-call forms ----------------------------------
 
 

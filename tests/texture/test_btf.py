@@ -137,3 +137,22 @@ def test_synthesis_job_is_bit_identical_and_reports_every_image(grey):
     assert [r.preview for r in records if r.preview is not None][-1] is got
     with pytest.raises(ValueError, match="positive"):
         next(btf.iter_synthesize((0, 5)))
+
+
+def test_a_stack_beyond_0_1_clusters_as_the_stack_scaled_to_it():
+    # found by tests/test_properties_entry_points.py: the histograms' bins
+    # were fixed on [0, 1], so radiances (say 3 x + 1) fell in one bin: one
+    # subspace for every illumination, and K-means warned of empty clusters
+    import warnings
+
+    stack, group = _lit_stack()
+    stack = stack[:, :48, :48]
+    want = BTFModel.fit(stack, n_subspaces=2, levels=1).assignment
+    assert len(set(want.tolist())) == 2
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        got = BTFModel.fit(3 * stack + 1, n_subspaces=2, levels=1).assignment
+        np.testing.assert_array_equal(got, want)
+        # identical images: one subspace, without a word from K-means
+        same = BTFModel.fit(np.stack([stack[0]] * 3), n_subspaces=2, levels=1)
+    assert same.assignment.tolist() == [0, 0, 0] and len(same.models) == 1
