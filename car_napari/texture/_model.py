@@ -54,7 +54,7 @@ from ..model.directions import DIRECTIONS
 from ..model.estimation import CARModel, iter_fit_car
 from ..model.neighbourhood import as_offsets
 from ..model.synthesis import cached_radius, iter_synthesize, spectral_radius
-from . import _spectral
+from . import _palette, _spectral
 
 __all__ = [
     "TextureModel", "iter_fit_texture", "laplacian_pyramid", "collapse_pyramid", "FORMAT_NAME",
@@ -1013,6 +1013,16 @@ class TextureModel:
         share no frequency (what :meth:`fit` makes; see
         ``car_napari/texture/_spectral.py``): independently generated bands
         then keep the texture's spectrum, which overlapping bands lose.
+    palette : (k, d) ndarray or None
+        Colours of the input (k-means centres, ``k`` at most 32); with
+        ``palette_radius`` they bound the synthesis's colours: a pixel
+        farther from its nearest palette colour than that colour's radius is
+        moved onto the radius, after the histogram restore (see
+        ``car_napari/texture/_palette.py``). None for grey models and for
+        files before version 3.
+    palette_radius : (k,) ndarray or None
+        Per palette colour, the distance that holds 95 % of the input's
+        (sampled) pixels nearest to it.
 
     Examples
     --------
@@ -1036,6 +1046,8 @@ class TextureModel:
     band_quantiles: np.ndarray = field(default=None)
     quantiles: np.ndarray = field(default=None)
     pyramid: str = "gaussian"
+    palette: np.ndarray = field(default=None)
+    palette_radius: np.ndarray = field(default=None)
 
     # ------------------------------------------------------------------ fit
     @classmethod
@@ -1165,6 +1177,9 @@ class TextureModel:
                 arrays[f"band{k}_quantiles"] = self.band_quantiles[k]
         if self.quantiles is not None:
             arrays["quantiles"] = self.quantiles
+        if self.palette is not None:
+            arrays["palette"] = self.palette
+            arrays["palette_radius"] = self.palette_radius
         return arrays
 
     @property
@@ -1383,7 +1398,13 @@ class TextureModel:
                                 preview=shown)
         else:
             final = _iter_clip(out, self.value_range, out=result, preview=shown)
-        yield from stage(final, middle, 1.0, name="restore", prefix="histogram, ")
+        end = 1.0 if self.palette is None else middle + 0.8 * (1.0 - middle)
+        yield from stage(final, middle, end, name="restore", prefix="histogram, ")
+        if self.palette is not None:
+            for a, b in _row_chunks(h, w):
+                _palette.snap(result[a:b], self.palette, self.palette_radius, out=result[a:b])
+                yield Progress("restore", end + (1.0 - end) * b / h, f"colours, rows {b}/{h}",
+                               shown)
         return shown
 
     # ---------------------------------------------------------- persistence
@@ -1401,7 +1422,9 @@ class TextureModel:
           ``band{k}_mean`` (d,), ``band{k}_offsets`` (eta, 2) int16,
           ``band{k}_range`` (2, d), ``band{k}_quantiles`` (32, d);
           ``quantiles`` (64, d) (the quantiles at equally spaced
-          probabilities from 0 to 1, see :attr:`band_quantiles`).
+          probabilities from 0 to 1, see :attr:`band_quantiles`); from
+          version 3, for colour models, ``palette`` (k, d) and
+          ``palette_radius`` (k,) (see :attr:`palette`).
 
         The header's ``pyramid`` names the kind of pyramid
         (``{"kind": "spectral"}`` or ``{"kind": "gaussian", ...}``, see
@@ -1569,6 +1592,10 @@ class TextureModel:
             fallbacks=tuple(header.get("fallbacks", ())),
             band_quantiles=np.stack(band_quantiles) if version >= 2 else None,
             quantiles=quantiles, pyramid=_pyramid_kind(header, version),
+            palette=(np.asarray(arrays["palette"], float).reshape(-1, d)
+                     if "palette" in arrays else None),
+            palette_radius=(np.asarray(arrays["palette_radius"], float).reshape(-1)
+                            if "palette" in arrays else None),
         )
 
 
@@ -1594,6 +1621,7 @@ MAX_FILE_CHANNELS = 64
 MAX_FILE_REACH = 16  # largest |di| or |dj| of a neighbour offset
 MAX_FILE_OFFSETS = 256  # largest number of offsets per band
 _MAX_FILE_QUANTILES = 4096
+_MAX_FILE_PALETTE = 4096  # colours of a palette
 _HEADER_BYTES = 1 << 16  # the JSON header's largest size
 _NPY_HEADER_BYTES = 1 << 12  # room for an .npy member's own header
 
@@ -1703,6 +1731,11 @@ def _check_parameters(arrays, path, levels, d):
                              "infinite values.")
     if np.any(arrays["std"] < 0):
         raise ValueError(f"{path} is a damaged texture model: std is negative.")
+    if "palette" in arrays and (arrays["palette"].size % d
+                                or np.any(arrays["palette_radius"] < 0)):
+        raise ValueError(f"{path} is a damaged texture model: the palette has "
+                         f"{arrays['palette'].size} values for {d} channels or a negative "
+                         "radius.")
     keys = ["value_range"] + [f"band{k}_range" for k in range(levels)]
     for key in keys:
         lo, hi = arrays[key].reshape(2, d)
@@ -1789,6 +1822,10 @@ def _read_members(archive, path):
     if version >= 2:
         arrays["quantiles"] = read("quantiles", kinds=floats,
                                    max_count=_MAX_FILE_QUANTILES * d)
+    if version >= 3 and "palette.npy" in archive.namelist():
+        arrays["palette"] = read("palette", kinds=floats, max_count=_MAX_FILE_PALETTE * d)
+        arrays["palette_radius"] = read("palette_radius", kinds=floats,
+                                        count=arrays["palette"].size // d)
     for k in range(levels):
         offsets = read(f"band{k}_offsets", kinds="iu", max_count=2 * MAX_FILE_OFFSETS)
         arrays[f"band{k}_offsets"] = offsets
@@ -1894,6 +1931,10 @@ def iter_fit_texture(image, *, levels=None, model="3d", neighbourhood="auto", ch
     quantiles, _, _ = yield from stage(
         _iter_quantiles(data, _OUT_QUANTILES), edges[1], edges[2],
         prefix="texture, ")
+    palette = radius = None
+    if data.shape[2] >= 2:  # the colours a synthesis may use
+        palette, radius = (_f32(a) for a in _palette.fit_palette(data))
+        yield Progress("quantiles", edges[2], "texture, palette")
     if pyramid == "spectral":
         bands = yield from stage(_spectral.iter_pyramid(data, levels), edges[2], edges[3])
     else:
@@ -1929,5 +1970,5 @@ def iter_fit_texture(image, *, levels=None, model="3d", neighbourhood="auto", ch
         std=_f32(np.sqrt(np.asarray(summary.var, float))),
         value_range=_f32(np.stack([summary.min, summary.max])), grey=grey,
         model=model, fallbacks=tuple(fallbacks), band_quantiles=band_quantiles,
-        quantiles=quantiles, pyramid=pyramid,
+        quantiles=quantiles, pyramid=pyramid, palette=palette, palette_radius=radius,
     )

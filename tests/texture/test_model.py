@@ -301,7 +301,8 @@ def test_compression_ratio_at_512x512x3():
     # 64 quantiles x d
     d = 3
     expected = sum(d * d * m.eta + d * d + d + 2 * d + 2 * m.eta + 32 * d for m in model.models)
-    expected = 4 * (expected + d + d + 2 * d + 64 * d)
+    k = model.palette.shape[0]  # the palette: k colours and their radii
+    expected = 4 * (expected + d + d + 2 * d + 64 * d + k * d + k)
     assert model.nbytes == expected
     assert model.compression_ratio((512, 512, 3)) >= 500
     assert model.compression_ratio((512, 512)) == model.compression_ratio((512, 512, 3))
@@ -489,7 +490,42 @@ def _reference_synthesis(self, shape, seed, tileable=False):
     if self.quantiles is not None:
         out = _reference_match(out, self.quantiles)
     out = np.clip(out, self.value_range[0], self.value_range[1])
+    if self.palette is not None:  # (its numbers against plain NumPy: test_palette_snap_...)
+        from car_napari.texture import _palette
+
+        out = _palette.snap(out, self.palette, self.palette_radius)
     return out[..., 0] if self.grey else out
+
+
+def _reference_snap(values, centres, radius):
+    """Plain NumPy: every pixel farther from its nearest centre than that
+    centre's radius, moved onto the radius along the line to it."""
+    flat = values.reshape(-1, values.shape[-1])
+    dist = np.sqrt(((flat[:, None, :] - centres[None]) ** 2).sum(-1))
+    near = np.argmin(dist, axis=1)
+    d = dist[np.arange(len(flat)), near]
+    r = radius[near]
+    factor = np.where(d > r, r / np.where(d > 0, d, 1.0), 1.0)
+    out = centres[near] + (flat - centres[near]) * factor[:, None]
+    return out.reshape(values.shape)
+
+
+def test_palette_snap_equals_plain_numpy_and_keeps_inliers():
+    from car_napari.texture import _palette
+
+    rng = np.random.default_rng(4)
+    image = np.concatenate([rng.normal(0.2, 0.03, (40, 50, 3)),
+                            rng.normal(0.7, 0.05, (40, 50, 3))], axis=1)
+    centres, radius = _palette.fit_palette(image, 4)
+    assert centres.shape == (4, 3) and (radius > 0).all()
+    # every centre sits in one of the two clusters
+    assert np.all((np.abs(centres - 0.2) < 0.1).all(1) | (np.abs(centres - 0.7) < 0.1).all(1))
+    values = rng.random((30, 20, 3))
+    np.testing.assert_allclose(_palette.snap(values, centres, radius),
+                               _reference_snap(values, centres, radius), atol=1e-12)
+    inside = image[:5, :5]  # pixels near a centre: most stay
+    moved = np.any(_palette.snap(inside, centres, radius) != inside, axis=-1)
+    assert moved.mean() < 0.2
 
 
 @pytest.mark.parametrize("tileable", [False, True])
@@ -559,3 +595,26 @@ def test_blocked_sums_are_numpys_mean_and_std(pixels, monkeypatch):
         spread = centred.std(axis=(0, 1))
         want = mean + centred * (std / spread)
         np.testing.assert_array_equal(drain(_model._iter_restore(values, mean, std)), want)
+
+
+def test_version_2_files_load_as_the_gaussian_pyramid_they_were(tmp_path):
+    texture = skdata.astronaut()[300:428, 30:158]
+    old = TextureModel.fit(texture, levels=2, pyramid="gaussian")
+    path = tmp_path / "new.npz"
+    old.save(path)
+    with np.load(path) as archive:
+        arrays = {k: archive[k] for k in archive.files if not k.startswith("palette")}
+    header = json.loads(str(arrays["header"]))
+    header = {**header, "version": 2, "pyramid": {"blur_sigma": 1.0}}  # as version 2 wrote it
+    v2 = tmp_path / "v2.npz"
+    np.savez(v2, **{**arrays, "header": np.array(json.dumps(header))})
+    loaded = TextureModel.load(v2)
+    assert loaded.pyramid == "gaussian" and loaded.palette is None
+    no_palette = TextureModel(**{**old.__dict__, "palette": None, "palette_radius": None})
+    np.testing.assert_array_equal(loaded.synthesize((40, 30), seed=2),
+                                  no_palette.synthesize((40, 30), seed=2))
+    bad = tmp_path / "bad.npz"
+    header = {**header, "version": 3, "pyramid": {"kind": "wavelet"}}
+    np.savez(bad, **{**arrays, "header": np.array(json.dumps(header))})
+    with pytest.raises(ValueError, match="format-version-3 .* 'wavelet'"):
+        TextureModel.load(bad)
