@@ -17,6 +17,7 @@ from ..texture import (
     iter_fit_dynamic_texture,
     iter_fit_texture,
 )
+from ..texture._model import _auto_levels
 from ._base import ModelWidget, guarded
 from ._layers import beside
 
@@ -103,9 +104,11 @@ class TextureSynthesisWidget(ModelWidget):
         self._mode = ComboBox(value=SINGLE, choices=[SINGLE, BTF, DYNAMIC], label="input",
                               tooltip="a stack is a BTF (one material, many illuminations) "
                                       "or a dynamic texture (frames of a video)")
-        self._levels = SpinBox(value=3, min=1, max=6, label="pyramid levels",
+        self._levels = SpinBox(value=5, min=1, max=6, label="pyramid levels",
                                tooltip="resolution levels of the model: more levels "
-                                       "reproduce larger structures")
+                                       "reproduce larger structures (at most as many as "
+                                       "the image's size allows: the coarsest level "
+                                       "keeps 16 pixels a side)")
         self._subspaces = SpinBox(value=4, min=1, max=64, label="BTF subspaces",
                                   tooltip="a BTF: groups of similar illuminations, one model "
                                           "each (at most the number of images)")
@@ -148,6 +151,9 @@ class TextureSynthesisWidget(ModelWidget):
         # its input): no copy of a large image in the viewer's thread
         if mode == SINGLE:
             data, channel_axis = self.input_array(copy=False)
+            plane = data.shape if data.ndim == 2 or channel_axis is None else [
+                n for axis, n in enumerate(data.shape) if axis != channel_axis % data.ndim]
+            levels = _auto_levels(plane, levels)  # fewer for a small image
             job = iter_fit_texture(data, levels=levels, channel_axis=channel_axis)
         else:
             data, channel_axis = self.input_array(region=False, ndims=(3,), hint=NOT_A_STACK,

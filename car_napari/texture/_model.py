@@ -931,12 +931,13 @@ def _check_options(levels, model, neighbourhood):
     return levels
 
 
-def _auto_levels(shape):
-    """The levels of ``levels=None``: :data:`_AUTO_LEVELS`, fewer when the
-    coarsest band would be smaller than :data:`_MIN_TOP` (at least 1)."""
+def _auto_levels(shape, most=_AUTO_LEVELS):
+    """The levels of ``levels=None``: ``most`` (:data:`_AUTO_LEVELS`), fewer
+    when the coarsest band would be smaller than :data:`_MIN_TOP` (at least
+    1) for a texture of ``shape`` (height, width)."""
     side = min(int(n) for n in shape)
     levels = 1
-    while levels < _AUTO_LEVELS and _MIN_TOP * 2 ** levels <= side:
+    while levels < most and _MIN_TOP * 2 ** levels <= side:
         levels += 1
     return levels
 
