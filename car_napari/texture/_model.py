@@ -1033,7 +1033,7 @@ class TextureModel:
     >>> model.synthesize((40, 50), seed=0).shape
     (40, 50)
     >>> model.nbytes
-    776
+    728
     """
 
     models: tuple
@@ -1195,7 +1195,7 @@ class TextureModel:
         >>> from car_napari.texture import TextureModel
         >>> model = TextureModel.fit(np.random.default_rng(0).random((64, 64)), levels=2)
         >>> model.nbytes
-        776
+        728
         """
         return 4 * sum(int(np.size(a)) for a in self._parameter_arrays().values())
 
@@ -1224,7 +1224,7 @@ class TextureModel:
         >>> from car_napari.texture import TextureModel
         >>> model = TextureModel.fit(np.random.default_rng(0).random((64, 64)), levels=2)
         >>> round(model.compression_ratio((512, 512)), 1)
-        1351.3
+        1440.4
         """
         shape = check_shape(input_shape, "input_shape ((H, W) or (H, W, C))")
         values = math.prod(shape) * (self.n_channels if len(shape) == 2 else 1)
