@@ -33,7 +33,7 @@ median and the range (min-max over all textures and repeats), and random-phase
 noise's time measured in the same run as the baseline for the machine's load.
 
 The PNG grid (``--grid``) has one row per texture: input, ours, random-phase
-noise (each downscaled to 256 x 256).
+noise (each downscaled to 128 x 128).
 """
 
 from __future__ import annotations
@@ -184,7 +184,7 @@ def report(rows, times, split):
           f"RPN; spurious colours above RPN's on {beaten}/{n} textures")
 
 
-def write_grid(rows, path, side=256):
+def write_grid(rows, path, side=128):
     from skimage.io import imsave
     from skimage.transform import resize
 

@@ -17,7 +17,6 @@ from ..texture import (
     iter_fit_dynamic_texture,
     iter_fit_texture,
 )
-from ..texture._model import _auto_levels
 from ._base import ModelWidget, guarded
 from ._layers import beside
 
@@ -153,7 +152,7 @@ class TextureSynthesisWidget(ModelWidget):
             data, channel_axis = self.input_array(copy=False)
             plane = data.shape if data.ndim == 2 or channel_axis is None else [
                 n for axis, n in enumerate(data.shape) if axis != channel_axis % data.ndim]
-            levels = _auto_levels(plane, levels)  # fewer for a small image
+            levels = TextureModel.levels_for(plane, levels)  # fewer for a small image
             job = iter_fit_texture(data, levels=levels, channel_axis=channel_axis)
         else:
             data, channel_axis = self.input_array(region=False, ndims=(3,), hint=NOT_A_STACK,

@@ -1121,6 +1121,33 @@ class TextureModel:
                                       neighbourhood=neighbourhood, channel_axis=channel_axis,
                                       pyramid=pyramid))
 
+    @staticmethod
+    def levels_for(shape, most=_AUTO_LEVELS):
+        """The pyramid levels ``fit(levels=None)`` uses for a texture of ``shape``.
+
+        Parameters
+        ----------
+        shape : tuple of int
+            (height, width) of the texture.
+        most : int, optional
+            The most levels wanted (5, the default of :meth:`fit`).
+
+        Returns
+        -------
+        int
+            ``most``, or fewer so that the coarsest band keeps at least 16
+            pixels a side; at least 1.
+
+        Examples
+        --------
+        >>> from car_napari.texture import TextureModel
+        >>> TextureModel.levels_for((512, 640)), TextureModel.levels_for((64, 96))
+        (5, 3)
+        >>> TextureModel.levels_for((512, 512), 2)
+        2
+        """
+        return _auto_levels(shape, most)
+
     # ----------------------------------------------------------- properties
     @property
     def levels(self):
