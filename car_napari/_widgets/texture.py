@@ -103,9 +103,11 @@ class TextureSynthesisWidget(ModelWidget):
         self._mode = ComboBox(value=SINGLE, choices=[SINGLE, BTF, DYNAMIC], label="input",
                               tooltip="a stack is a BTF (one material, many illuminations) "
                                       "or a dynamic texture (frames of a video)")
-        self._levels = SpinBox(value=3, min=1, max=6, label="pyramid levels",
+        self._levels = SpinBox(value=5, min=1, max=6, label="pyramid levels",
                                tooltip="resolution levels of the model: more levels "
-                                       "reproduce larger structures")
+                                       "reproduce larger structures (at most as many as "
+                                       "the image's size allows: the coarsest level "
+                                       "keeps 16 pixels a side)")
         self._subspaces = SpinBox(value=4, min=1, max=64, label="BTF subspaces",
                                   tooltip="a BTF: groups of similar illuminations, one model "
                                           "each (at most the number of images)")
@@ -148,6 +150,9 @@ class TextureSynthesisWidget(ModelWidget):
         # its input): no copy of a large image in the viewer's thread
         if mode == SINGLE:
             data, channel_axis = self.input_array(copy=False)
+            plane = data.shape if data.ndim == 2 or channel_axis is None else [
+                n for axis, n in enumerate(data.shape) if axis != channel_axis % data.ndim]
+            levels = TextureModel.levels_for(plane, levels)  # fewer for a small image
             job = iter_fit_texture(data, levels=levels, channel_axis=channel_axis)
         else:
             data, channel_axis = self.input_array(region=False, ndims=(3,), hint=NOT_A_STACK,

@@ -54,6 +54,7 @@ from ..model.directions import DIRECTIONS
 from ..model.estimation import CARModel, iter_fit_car
 from ..model.neighbourhood import as_offsets
 from ..model.synthesis import cached_radius, iter_synthesize, spectral_radius
+from . import _palette, _spectral
 
 __all__ = [
     "TextureModel", "iter_fit_texture", "laplacian_pyramid", "collapse_pyramid", "FORMAT_NAME",
@@ -61,7 +62,9 @@ __all__ = [
 ]
 
 FORMAT_NAME = "car-napari texture model"
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3
+PYRAMIDS = ("spectral", "gaussian")  # the kinds of pyramid a model can use
+_AUTO_LEVELS = 5  # levels=None: this many when the texture is large enough
 
 _BLUR_SIGMA = 1.0  # pyramid smoothing before 2x2 decimation, in pixels
 _MIN_TOP = 16  # smallest side of the coarsest level: the order-5 decision rule needs it
@@ -83,6 +86,7 @@ _SHARE_READ, _SHARE_QUANTILES, _SHARE_PYRAMID, _SHARE_FIT = 0.3, 1.0, 0.5, 20.0
 # and crop; the kernel adds its parameters a pixel), the tiling, a histogram
 # matching, the collapse, the restore of the mean and contrast
 _COST_FIELD, _COST_TORUS, _COST_MATCH, _COST_COLLAPSE, _COST_RESTORE = 30, 10, 75, 14, 25
+_COST_SPLIT = 20  # a band's projection onto its frequencies (two transforms), estimated
 # float64 arrays of the output's size a synthesis holds at its peak (the
 # bands, the finest field with its margin, the collapse and the result)
 _SYNTHESIS_COPIES = 6
@@ -927,6 +931,17 @@ def _check_options(levels, model, neighbourhood):
     return levels
 
 
+def _auto_levels(shape, most=_AUTO_LEVELS):
+    """The levels of ``levels=None``: ``most`` (:data:`_AUTO_LEVELS`), fewer
+    when the coarsest band would be smaller than :data:`_MIN_TOP` (at least
+    1) for a texture of ``shape`` (height, width)."""
+    side = min(int(n) for n in shape)
+    levels = 1
+    while levels < most and _MIN_TOP * 2 ** levels <= side:
+        levels += 1
+    return levels
+
+
 def _check_texture_size(shape, levels, *, name="the texture"):
     """The coarsest band must be at least ``_MIN_TOP`` pixels a side."""
     h, w = shape
@@ -993,6 +1008,22 @@ class TextureModel:
         collapsed output is mapped onto them (the histogram restore, after
         the mean and contrast restore). None for version-1 files (then only
         the mean, contrast and range are restored).
+    pyramid : {'gaussian', 'spectral'}
+        How the bands split the texture: 'gaussian', the Gaussian-Laplacian
+        pyramid (models of format versions 1 and 2); 'spectral', bands that
+        share no frequency (what :meth:`fit` makes; see
+        ``car_napari/texture/_spectral.py``): independently generated bands
+        then keep the texture's spectrum, which overlapping bands lose.
+    palette : (k, d) ndarray or None
+        Colours of the input (k-means centres, ``k`` at most 32); with
+        ``palette_radius`` they bound the synthesis's colours: a pixel
+        farther from its nearest palette colour than that colour's radius is
+        moved onto the radius, after the histogram restore (see
+        ``car_napari/texture/_palette.py``). None for grey models and for
+        files before version 3.
+    palette_radius : (k,) ndarray or None
+        Per palette colour, the distance that holds 95 % of the input's
+        (sampled) pixels nearest to it.
 
     Examples
     --------
@@ -1002,7 +1033,7 @@ class TextureModel:
     >>> model.synthesize((40, 50), seed=0).shape
     (40, 50)
     >>> model.nbytes
-    776
+    728
     """
 
     models: tuple
@@ -1015,10 +1046,14 @@ class TextureModel:
     fallbacks: tuple = field(default=())
     band_quantiles: np.ndarray = field(default=None)
     quantiles: np.ndarray = field(default=None)
+    pyramid: str = "gaussian"
+    palette: np.ndarray = field(default=None)
+    palette_radius: np.ndarray = field(default=None)
 
     # ------------------------------------------------------------------ fit
     @classmethod
-    def fit(cls, image, *, levels=3, model="3d", neighbourhood="auto", channel_axis=-1):
+    def fit(cls, image, *, levels=None, model="3d", neighbourhood="auto", channel_axis=-1,
+            pyramid="spectral"):
         """Fit a multiresolution CAR model to a texture.
 
         The same as running :func:`iter_fit_texture` to its end.
@@ -1029,9 +1064,11 @@ class TextureModel:
             The texture; any dtype (integer images are scaled to [0, 1]).
             Every side must be at least ``16 * 2**(levels - 1)`` pixels
             (64 for 3 levels), so that the coarsest band can be modelled.
-        levels : int, optional
+        levels : int or None, optional
             Number of pyramid bands: ``levels - 1`` band-pass (Laplacian)
-            bands plus the low-pass residual. 1 means no pyramid.
+            bands plus the low-pass residual. 1 means no pyramid. None (the
+            default): 5, or as many as the texture's size allows (see
+            above), at least 1.
         model : {'3d', '2d'}, optional
             '3d': one 3DCAR per band with full colour matrices. '2d': per band,
             a spectral PCA and one 2DCAR per factor.
@@ -1042,6 +1079,12 @@ class TextureModel:
         channel_axis : int or None, optional
             Axis of the channels of a 3-D image (default the last). A 2-D
             image is always grey; None requires one.
+        pyramid : {'spectral', 'gaussian'}, optional
+            The bands: 'spectral' (default) splits the frequencies so that no
+            two bands share one; 'gaussian' is the Gaussian-Laplacian
+            pyramid of :func:`laplacian_pyramid` (the models of format
+            versions 1 and 2; its bands overlap, and their independent
+            synthesis loses the texture's autocorrelation).
 
         Returns
         -------
@@ -1075,7 +1118,35 @@ class TextureModel:
         (2, 1, True)
         """
         return drain(iter_fit_texture(image, levels=levels, model=model,
-                                      neighbourhood=neighbourhood, channel_axis=channel_axis))
+                                      neighbourhood=neighbourhood, channel_axis=channel_axis,
+                                      pyramid=pyramid))
+
+    @staticmethod
+    def levels_for(shape, most=_AUTO_LEVELS):
+        """The pyramid levels ``fit(levels=None)`` uses for a texture of ``shape``.
+
+        Parameters
+        ----------
+        shape : tuple of int
+            (height, width) of the texture.
+        most : int, optional
+            The most levels wanted (5, the default of :meth:`fit`).
+
+        Returns
+        -------
+        int
+            ``most``, or fewer so that the coarsest band keeps at least 16
+            pixels a side; at least 1.
+
+        Examples
+        --------
+        >>> from car_napari.texture import TextureModel
+        >>> TextureModel.levels_for((512, 640)), TextureModel.levels_for((64, 96))
+        (5, 3)
+        >>> TextureModel.levels_for((512, 512), 2)
+        2
+        """
+        return _auto_levels(shape, most)
 
     # ----------------------------------------------------------- properties
     @property
@@ -1134,6 +1205,9 @@ class TextureModel:
                 arrays[f"band{k}_quantiles"] = self.band_quantiles[k]
         if self.quantiles is not None:
             arrays["quantiles"] = self.quantiles
+        if self.palette is not None:
+            arrays["palette"] = self.palette
+            arrays["palette_radius"] = self.palette_radius
         return arrays
 
     @property
@@ -1148,7 +1222,7 @@ class TextureModel:
         >>> from car_napari.texture import TextureModel
         >>> model = TextureModel.fit(np.random.default_rng(0).random((64, 64)), levels=2)
         >>> model.nbytes
-        776
+        728
         """
         return 4 * sum(int(np.size(a)) for a in self._parameter_arrays().values())
 
@@ -1177,7 +1251,7 @@ class TextureModel:
         >>> from car_napari.texture import TextureModel
         >>> model = TextureModel.fit(np.random.default_rng(0).random((64, 64)), levels=2)
         >>> round(model.compression_ratio((512, 512)), 1)
-        1351.3
+        1440.4
         """
         shape = check_shape(input_shape, "input_shape ((H, W) or (H, W, C))")
         values = math.prod(shape) * (self.n_channels if len(shape) == 2 else 1)
@@ -1291,6 +1365,7 @@ class TextureModel:
             raise TypeError(f"tileable must be True or False; got {tileable!r}.")
         check_memory(_SYNTHESIS_COPIES * 8 * h * w * self.n_channels, f"shape {(h, w)}")
         rng = check_seed(seed)
+        spectral = self.pyramid == "spectral"
         # one independent stream per band, fixed by the seed
         streams = [np.random.default_rng(s) for s in rng.integers(0, 2**63, size=self.levels)]
         shapes = _level_shapes((h, w), self.levels)
@@ -1299,9 +1374,12 @@ class TextureModel:
         # the shares of the work, in values times their measured cost a value
         d = self.n_channels
         parts = []
-        for model, (hk, wk), (gh, gw) in zip(self.models, shapes, made, strict=True):
+        for k, (model, (hk, wk), (gh, gw)) in enumerate(
+                zip(self.models, shapes, made, strict=True)):
+            split = spectral and k < self.levels - 1  # a band-pass band's projection
             parts += [gh * gw * (_COST_FIELD * d + model.gamma.size + d * d + 8),
                       _COST_TORUS * hk * wk * d if tileable else 0.0,
+                      _COST_SPLIT * hk * wk * d if split else 0.0,
                       (_COST_MATCH if self.band_quantiles is not None else 1.0) * hk * wk * d]
         parts += [_COST_COLLAPSE * sum(hk * wk for hk, wk in shapes[:-1]) * d,
                   (_COST_RESTORE + (_COST_MATCH if self.quantiles is not None else 1.0))
@@ -1311,23 +1389,31 @@ class TextureModel:
         for k, (model, (hk, wk), (gh, gw)) in enumerate(
                 zip(self.models, shapes, made, strict=True)):
             part = f"band {k + 1}/{self.levels}, "
-            e = edges[3 * k : 3 * k + 4]
+            e = edges[4 * k : 4 * k + 5]
             field = yield from stage(iter_synthesize(model, (gh, gw), seed=streams[k]), e[0],
                                      e[1], prefix=part, name="synthesis")
             band = field.reshape(gh, gw, -1)
             if tileable:
                 band = yield from stage(_iter_torus(band, (hk, wk), model.mean), e[1], e[2],
                                         prefix=part, name="synthesis")
+            if spectral and k < self.levels - 1:
+                # a CAR field covers every frequency: keep its band's only
+                band = yield from stage(_spectral.iter_highpass(band, wrap=bool(tileable)),
+                                        e[2], e[3], prefix=part, name="synthesis")
             bounds = self.band_ranges[k]
             if self.band_quantiles is not None:
                 band = yield from stage(_iter_match(band, self.band_quantiles[k], clip=bounds),
-                                        e[2], e[3], prefix=part + "matching, ",
+                                        e[3], e[4], prefix=part + "matching, ",
                                         name="synthesis")
             else:
-                band = yield from stage(_iter_clip(band, bounds), e[2], e[3], prefix=part,
+                band = yield from stage(_iter_clip(band, bounds), e[3], e[4], prefix=part,
                                         name="synthesis")
             bands.append(band)
-        out = yield from stage(_iter_collapse(bands, bool(tileable)), edges[-3], edges[-2])
+        if spectral:
+            out = yield from stage(_spectral.iter_collapse(bands, wrap=bool(tileable)),
+                                   edges[-3], edges[-2])
+        else:
+            out = yield from stage(_iter_collapse(bands, bool(tileable)), edges[-3], edges[-2])
         del bands
         result = np.zeros((h, w, d))
         shown = result[..., 0] if self.grey else result
@@ -1340,17 +1426,23 @@ class TextureModel:
                                 preview=shown)
         else:
             final = _iter_clip(out, self.value_range, out=result, preview=shown)
-        yield from stage(final, middle, 1.0, name="restore", prefix="histogram, ")
+        end = 1.0 if self.palette is None else middle + 0.8 * (1.0 - middle)
+        yield from stage(final, middle, end, name="restore", prefix="histogram, ")
+        if self.palette is not None:
+            for a, b in _row_chunks(h, w):
+                _palette.snap(result[a:b], self.palette, self.palette_radius, out=result[a:b])
+                yield Progress("restore", end + (1.0 - end) * b / h, f"colours, rows {b}/{h}",
+                               shown)
         return shown
 
     # ---------------------------------------------------------- persistence
     def save(self, path):
         """Write the model to an ``.npz`` file.
 
-        Format (version 2): a compressed NumPy ``.npz`` archive (no pickles) holding
+        Format (version 3): a compressed NumPy ``.npz`` archive (no pickles) holding
 
         - ``header``: a JSON string ``{"format": "car-napari texture model",
-          "version": 2, "levels": L, "n_channels": d, "grey": bool,
+          "version": 3, "levels": L, "n_channels": d, "grey": bool,
           "model": "3d"|"2d", "direction": [...], "order": [...], "beta": [...],
           "n_pixels": [...], "fallbacks": [...], "pyramid": {...}}``;
         - ``mean`` (d,), ``std`` (d,), ``value_range`` (2, d) and, per band ``k``,
@@ -1358,10 +1450,16 @@ class TextureModel:
           ``band{k}_mean`` (d,), ``band{k}_offsets`` (eta, 2) int16,
           ``band{k}_range`` (2, d), ``band{k}_quantiles`` (32, d);
           ``quantiles`` (64, d) (the quantiles at equally spaced
-          probabilities from 0 to 1, see :attr:`band_quantiles`).
+          probabilities from 0 to 1, see :attr:`band_quantiles`); from
+          version 3, for colour models, ``palette`` (k, d) and
+          ``palette_radius`` (k,) (see :attr:`palette`).
 
-        Version 1 is the same without the quantiles; :meth:`load` still
-        reads it (such a model synthesises without histogram matching).
+        The header's ``pyramid`` names the kind of pyramid
+        (``{"kind": "spectral"}`` or ``{"kind": "gaussian", ...}``, see
+        :attr:`pyramid`). Version 2 is the same with a Gaussian pyramid
+        always (its ``pyramid`` has no ``kind``); version 1 is version 2
+        without the quantiles. :meth:`load` reads all three (a version-1
+        model synthesises without histogram matching).
 
         Numbers are stored as float32 (offsets as int16); :meth:`fit` rounds
         the parameters to float32 already, so a loaded model synthesises
@@ -1410,10 +1508,11 @@ class TextureModel:
             "beta": [float(m.beta) for m in self.models],
             "n_pixels": [int(m.n_pixels) for m in self.models],
             "fallbacks": list(self.fallbacks),
-            "pyramid": {
-                "blur_sigma": _BLUR_SIGMA,
-                "expand": "Keys cubic convolution, pixel extents aligned",
-            },
+            "pyramid": ({"kind": "spectral", "split": "lowest ceil(n/2) cosine (DCT-II) "
+                         "frequencies per axis; Fourier ones when tileable"}
+                        if self.pyramid == "spectral" else
+                        {"kind": "gaussian", "blur_sigma": _BLUR_SIGMA,
+                         "expand": "Keys cubic convolution, pixel extents aligned"}),
         }
         check_path(path)
         if os.path.isdir(path):  # np.savez would write "<folder>.npz" beside it
@@ -1432,7 +1531,7 @@ class TextureModel:
         Parameters
         ----------
         path : str or path-like
-            An ``.npz`` file of format version 1 or 2.
+            An ``.npz`` file of format version 1, 2 or 3.
 
         Returns
         -------
@@ -1520,8 +1619,25 @@ class TextureModel:
             model=str(header.get("model", "3d")),
             fallbacks=tuple(header.get("fallbacks", ())),
             band_quantiles=np.stack(band_quantiles) if version >= 2 else None,
-            quantiles=quantiles,
+            quantiles=quantiles, pyramid=_pyramid_kind(header, version),
+            palette=(np.asarray(arrays["palette"], float).reshape(-1, d)
+                     if "palette" in arrays else None),
+            palette_radius=(np.asarray(arrays["palette_radius"], float).reshape(-1)
+                            if "palette" in arrays else None),
         )
+
+
+def _pyramid_kind(header, version):
+    """The pyramid of a model file: 'gaussian' before version 3, else the
+    header's ``pyramid.kind``."""
+    if version < 3:
+        return "gaussian"
+    kind = header.get("pyramid", {}).get("kind") if isinstance(header.get("pyramid"),
+                                                                dict) else None
+    if kind not in PYRAMIDS:
+        raise ValueError(f"the format-version-{version} header names pyramid kind {kind!r}, "
+                         f"not one of {PYRAMIDS}")
+    return kind
 
 
 # ------------------------------------------------------------ model files
@@ -1533,6 +1649,7 @@ MAX_FILE_CHANNELS = 64
 MAX_FILE_REACH = 16  # largest |di| or |dj| of a neighbour offset
 MAX_FILE_OFFSETS = 256  # largest number of offsets per band
 _MAX_FILE_QUANTILES = 4096
+_MAX_FILE_PALETTE = 4096  # colours of a palette
 _HEADER_BYTES = 1 << 16  # the JSON header's largest size
 _NPY_HEADER_BYTES = 1 << 12  # room for an .npy member's own header
 
@@ -1642,6 +1759,11 @@ def _check_parameters(arrays, path, levels, d):
                              "infinite values.")
     if np.any(arrays["std"] < 0):
         raise ValueError(f"{path} is a damaged texture model: std is negative.")
+    if "palette" in arrays and (arrays["palette"].size % d
+                                or np.any(arrays["palette_radius"] < 0)):
+        raise ValueError(f"{path} is a damaged texture model: the palette has "
+                         f"{arrays['palette'].size} values for {d} channels or a negative "
+                         "radius.")
     keys = ["value_range"] + [f"band{k}_range" for k in range(levels)]
     for key in keys:
         lo, hi = arrays[key].reshape(2, d)
@@ -1728,6 +1850,10 @@ def _read_members(archive, path):
     if version >= 2:
         arrays["quantiles"] = read("quantiles", kinds=floats,
                                    max_count=_MAX_FILE_QUANTILES * d)
+    if version >= 3 and "palette.npy" in archive.namelist():
+        arrays["palette"] = read("palette", kinds=floats, max_count=_MAX_FILE_PALETTE * d)
+        arrays["palette_radius"] = read("palette_radius", kinds=floats,
+                                        count=arrays["palette"].size // d)
     for k in range(levels):
         offsets = read(f"band{k}_offsets", kinds="iu", max_count=2 * MAX_FILE_OFFSETS)
         arrays[f"band{k}_offsets"] = offsets
@@ -1743,7 +1869,8 @@ def _read_members(archive, path):
     return arrays, header, version
 
 
-def iter_fit_texture(image, *, levels=3, model="3d", neighbourhood="auto", channel_axis=-1):
+def iter_fit_texture(image, *, levels=None, model="3d", neighbourhood="auto", channel_axis=-1,
+                     pyramid="spectral"):
     """Fit a multiresolution CAR texture model, as a job reporting progress.
 
     The generator form of :meth:`TextureModel.fit` (same arguments, same
@@ -1758,14 +1885,16 @@ def iter_fit_texture(image, *, levels=3, model="3d", neighbourhood="auto", chann
     ----------
     image : (H, W) or (H, W, C) array
         The texture; see :meth:`TextureModel.fit`.
-    levels : int, optional
-        Number of pyramid bands.
+    levels : int or None, optional
+        Number of pyramid bands (None: as many as the size allows, up to 5).
     model : {'3d', '2d'}, optional
         The CAR variant of every band.
     neighbourhood : 'auto', int or (eta, 2) array, optional
         The support of every band; 'auto' chooses it per band.
     channel_axis : int or None, optional
         Axis of the channels of a 3-D image; a 2-D image is always grey.
+    pyramid : {'spectral', 'gaussian'}, optional
+        The kind of pyramid (see :meth:`TextureModel.fit`).
 
     Returns
     -------
@@ -1805,12 +1934,16 @@ def iter_fit_texture(image, *, levels=3, model="3d", neighbourhood="auto", chann
     >>> records[-1].message, records[-1].fraction
     ('2 levels fitted', 1.0)
     """
-    levels = _check_options(levels, model, neighbourhood)
+    if pyramid not in PYRAMIDS:
+        raise ValueError(f"pyramid must be one of {PYRAMIDS}; got {pyramid!r}.")
     grey = np.ndim(image) == 2
     plane = _plane_shape(image, channel_axis)
     if plane is None or np.asarray(image).dtype.kind not in "biuf" or 0 in plane:
         # an input the reading refuses: its error, before any record
         plane = as_channel_last_float(image, channel_axis=channel_axis).shape[:2]
+    if levels is None:
+        levels = _auto_levels(plane)
+    levels = _check_options(levels, model, neighbourhood)
     _check_texture_size(plane, levels)
     # shares of the whole: every part costs about its passes over the pixels
     shapes = _level_shapes(plane, levels)
@@ -1826,7 +1959,15 @@ def iter_fit_texture(image, *, levels=3, model="3d", neighbourhood="auto", chann
     quantiles, _, _ = yield from stage(
         _iter_quantiles(data, _OUT_QUANTILES), edges[1], edges[2],
         prefix="texture, ")
-    bands = yield from stage(_iter_pyramid(data, levels, overwrite=True), edges[2], edges[3])
+    palette = radius = None
+    if data.shape[2] >= 2:  # the colours a synthesis may use
+        palette, radius = (_f32(a) for a in _palette.fit_palette(data))
+        yield Progress("quantiles", edges[2], "texture, palette")
+    if pyramid == "spectral":
+        bands = yield from stage(_spectral.iter_pyramid(data, levels), edges[2], edges[3])
+    else:
+        bands = yield from stage(_iter_pyramid(data, levels, overwrite=True), edges[2],
+                                 edges[3])
     del data
     fit_edges = edges[3] + (edges[4] - edges[3]) * np.concatenate(
         [[0.0], np.cumsum(pixels)]) / pixels.sum()
@@ -1857,5 +1998,5 @@ def iter_fit_texture(image, *, levels=3, model="3d", neighbourhood="auto", chann
         std=_f32(np.sqrt(np.asarray(summary.var, float))),
         value_range=_f32(np.stack([summary.min, summary.max])), grey=grey,
         model=model, fallbacks=tuple(fallbacks), band_quantiles=band_quantiles,
-        quantiles=quantiles,
+        quantiles=quantiles, pyramid=pyramid, palette=palette, palette_radius=radius,
     )

@@ -90,10 +90,11 @@ def test_save_model_asks_for_a_file_and_refuses_a_folder(widget, qtbot, tmp_path
 
 def test_too_small_texture_is_a_notification(widget, qtbot, last_notification):
     viewer, w = widget
-    w._image.value = viewer.add_image(np.random.default_rng(0).random((20, 20)), name="tiny")
+    # the levels shrink to what the size allows (here 1), and even 1 needs 16x16
+    w._image.value = viewer.add_image(np.random.default_rng(0).random((10, 10)), name="tiny")
     job = w.start_fit()
     qtbot.waitUntil(lambda: job.done, timeout=60000)
-    assert "at least 64x64" in last_notification()
+    assert "at least 16x16" in last_notification()
     assert w.model is None
 
 
@@ -315,3 +316,15 @@ def test_synthesis_is_placed_beside_its_source(widget, qtbot):
     out = viewer.layers[f"{burst.name} synthesis"]
     assert tuple(out.translate[:2]) == tuple(burst.translate[:2])
     assert out.translate[2] > burst.translate[2] + (64 - 0.5) * burst.scale[2]
+
+
+def test_default_levels_shrink_to_what_a_small_layer_allows(widget, qtbot):
+    """Issue 34: 5 levels by default (the spectral pyramid's), fewer when the
+    layer is too small for them (the coarsest level keeps 16 pixels)."""
+    viewer, w = widget
+    assert w._levels.value == 5
+    layer = viewer.add_image(skdata.astronaut()[300:364, 0:96], name="grass", rgb=True)
+    w._image.value = layer
+    job = w.start_fit()
+    qtbot.waitUntil(lambda: job.done, timeout=120000)
+    assert w.model.levels == 3 and w.model.pyramid == "spectral"  # 64 px: 64, 32, 16

@@ -11,6 +11,7 @@ from car_napari._progress import drain
 from car_napari.texture import (
     FORMAT_VERSION,
     TextureModel,
+    _spectral,
     collapse_pyramid,
     iter_fit_texture,
     laplacian_pyramid,
@@ -85,10 +86,11 @@ def test_iter_fit_texture_yields_often_on_a_large_texture(monkeypatch):
     from car_napari.texture import _model
 
     texture = skdata.gravel()[:256, :256]
-    whole = TextureModel.fit(texture, levels=3, neighbourhood=2)
+    whole = TextureModel.fit(texture, levels=3, neighbourhood=2, pyramid="gaussian")
     monkeypatch.setattr(_model, "_CHUNK_PIXELS", 4096)
     records = []
-    chunked = drain(iter_fit_texture(texture, levels=3, neighbourhood=2), records.append)
+    chunked = drain(iter_fit_texture(texture, levels=3, neighbourhood=2, pyramid="gaussian"),
+                    records.append)
     by_stage = {s: sum(r.stage == s for r in records) for s in ("reading", "quantiles",
                                                                  "pyramid")}
     assert by_stage["reading"] >= 16 and by_stage["quantiles"] >= 3 * 16, by_stage
@@ -130,7 +132,7 @@ def test_pyramid_by_blocks_is_the_same(monkeypatch):
 
 def test_iter_fit_texture_validates_before_the_first_record_and_can_be_closed():
     with pytest.raises(ValueError, match="64x64"):
-        next(iter_fit_texture(np.random.default_rng(0).random((60, 200))))
+        next(iter_fit_texture(np.random.default_rng(0).random((60, 200)), levels=3))
     job = iter_fit_texture(skdata.gravel()[:64, :64], levels=2)
     assert next(job).stage == "reading"
     job.close()  # a cancel: no error, no further work
@@ -141,9 +143,11 @@ def test_iter_fit_texture_validates_before_the_first_record_and_can_be_closed():
 @pytest.mark.parametrize("name, other", [("gravel", "brick"), ("brick", "gravel")])
 def test_refit_of_synthesis_matches_the_fit(name, other):
     # Order 1 everywhere so the bands' parameters are directly comparable.
-    fits = {n: TextureModel.fit(getattr(skdata, n)(), neighbourhood=1) for n in (name, other)}
+    fits = {n: TextureModel.fit(getattr(skdata, n)(), neighbourhood=1, levels=3,
+                                pyramid="gaussian") for n in (name, other)}
     sample = fits[name].synthesize((512, 512), seed=0)
-    refit = TextureModel.fit(sample, neighbourhood=1, channel_axis=None)
+    refit = TextureModel.fit(sample, neighbourhood=1, channel_axis=None, levels=3,
+                             pyramid="gaussian")
     diff = [np.abs(a.gamma - b.gamma).max()
             for a, b in zip(fits[name].models, refit.models, strict=True)]
     # The coarse bands come back closely; the finest band less so, because the
@@ -167,7 +171,7 @@ def test_output_restores_mean_contrast_and_range(gravel_model):
 
 
 def test_each_band_gets_its_own_decision_rule_support(gravel_model):
-    bands = laplacian_pyramid(skdata.gravel()[..., None] / 255.0, levels=3)
+    bands = _spectral.pyramid(skdata.gravel()[..., None] / 255.0, gravel_model.levels)
     for band, model in zip(bands, gravel_model.models, strict=True):
         assert model.order == fit_car(band, "auto").order
         assert spectral_radius(model) < 1
@@ -233,10 +237,10 @@ def test_histograms_of_bands_and_output_are_restored(gravel_model):
     out = gravel_model.synthesize((512, 512), seed=0)
     probs = np.linspace(0.05, 0.95, 19)
     assert np.abs(np.quantile(out, probs) - np.quantile(texture, probs)).max() < 0.02
-    assert gravel_model.band_quantiles.shape == (3, 32, 1)
+    assert gravel_model.band_quantiles.shape == (gravel_model.levels, 32, 1)
     assert gravel_model.quantiles.shape == (64, 1)
     # the stored quantiles are those of the analysed bands, ends at min and max
-    bands = laplacian_pyramid(texture[..., None], levels=3)
+    bands = _spectral.pyramid(texture[..., None], gravel_model.levels)
     stored = zip(bands, gravel_model.band_quantiles, gravel_model.band_ranges, strict=True)
     for band, q, r in stored:
         np.testing.assert_allclose(q[[0, -1]], r, atol=1e-6)
@@ -297,7 +301,8 @@ def test_compression_ratio_at_512x512x3():
     # 64 quantiles x d
     d = 3
     expected = sum(d * d * m.eta + d * d + d + 2 * d + 2 * m.eta + 32 * d for m in model.models)
-    expected = 4 * (expected + d + d + 2 * d + 64 * d)
+    k = model.palette.shape[0]  # the palette: k colours and their radii
+    expected = 4 * (expected + d + d + 2 * d + 64 * d + k * d + k)
     assert model.nbytes == expected
     assert model.compression_ratio((512, 512, 3)) >= 500
     assert model.compression_ratio((512, 512)) == model.compression_ratio((512, 512, 3))
@@ -305,12 +310,12 @@ def test_compression_ratio_at_512x512x3():
 
 def test_unstable_band_falls_back_and_says_so():
     # brick's order-1 model of band 1 is (just) unstable, and so would explode
-    model = TextureModel.fit(skdata.brick(), neighbourhood=1)
+    model = TextureModel.fit(skdata.brick(), neighbourhood=1, levels=3, pyramid="gaussian")
     assert model.fallbacks and "band 1" in model.fallbacks[0]
     assert all(spectral_radius(m) < 1 for m in model.models)
     out = model.synthesize((128, 128), seed=0)
     assert np.isfinite(out).all()
-    auto = TextureModel.fit(skdata.brick(), neighbourhood=2)
+    auto = TextureModel.fit(skdata.brick(), neighbourhood=2, levels=3, pyramid="gaussian")
     assert auto.fallbacks and all(spectral_radius(m) < 1 for m in auto.models)
 
 
@@ -467,12 +472,17 @@ def _reference_synthesis(self, shape, seed, tileable=False):
             band = _reference_torus(big.reshape(hk + bh, wk + bw, -1), (hk, wk), model.mean)
         else:
             band = synthesize(model, (hk, wk), seed=streams[k]).reshape(hk, wk, -1)
+        if self.pyramid == "spectral" and k < self.levels - 1:
+            band = drain(_spectral.iter_highpass(band, wrap=bool(tileable)))
         if self.band_quantiles is not None:
             band = _reference_match(band, self.band_quantiles[k])
         bands.append(np.clip(band, self.band_ranges[k, 0], self.band_ranges[k, 1]))
-    out = bands[-1]
-    for band in bands[-2::-1]:
-        out = band + _expand(out, band.shape[:2], wrap=bool(tileable))
+    if self.pyramid == "spectral":
+        out = _spectral.collapse(bands, wrap=bool(tileable))
+    else:
+        out = bands[-1]
+        for band in bands[-2::-1]:
+            out = band + _expand(out, band.shape[:2], wrap=bool(tileable))
     centred = out - out.mean(axis=(0, 1))
     spread = centred.std(axis=(0, 1))
     gain = np.where(spread > 0, self.std / np.where(spread > 0, spread, 1.0), 1.0)
@@ -480,7 +490,42 @@ def _reference_synthesis(self, shape, seed, tileable=False):
     if self.quantiles is not None:
         out = _reference_match(out, self.quantiles)
     out = np.clip(out, self.value_range[0], self.value_range[1])
+    if self.palette is not None:  # (its numbers against plain NumPy: test_palette_snap_...)
+        from car_napari.texture import _palette
+
+        out = _palette.snap(out, self.palette, self.palette_radius)
     return out[..., 0] if self.grey else out
+
+
+def _reference_snap(values, centres, radius):
+    """Plain NumPy: every pixel farther from its nearest centre than that
+    centre's radius, moved onto the radius along the line to it."""
+    flat = values.reshape(-1, values.shape[-1])
+    dist = np.sqrt(((flat[:, None, :] - centres[None]) ** 2).sum(-1))
+    near = np.argmin(dist, axis=1)
+    d = dist[np.arange(len(flat)), near]
+    r = radius[near]
+    factor = np.where(d > r, r / np.where(d > 0, d, 1.0), 1.0)
+    out = centres[near] + (flat - centres[near]) * factor[:, None]
+    return out.reshape(values.shape)
+
+
+def test_palette_snap_equals_plain_numpy_and_keeps_inliers():
+    from car_napari.texture import _palette
+
+    rng = np.random.default_rng(4)
+    image = np.concatenate([rng.normal(0.2, 0.03, (40, 50, 3)),
+                            rng.normal(0.7, 0.05, (40, 50, 3))], axis=1)
+    centres, radius = _palette.fit_palette(image, 4)
+    assert centres.shape == (4, 3) and (radius > 0).all()
+    # every centre sits in one of the two clusters
+    assert np.all((np.abs(centres - 0.2) < 0.1).all(1) | (np.abs(centres - 0.7) < 0.1).all(1))
+    values = rng.random((30, 20, 3))
+    np.testing.assert_allclose(_palette.snap(values, centres, radius),
+                               _reference_snap(values, centres, radius), atol=1e-12)
+    inside = image[:5, :5]  # pixels near a centre: most stay
+    moved = np.any(_palette.snap(inside, centres, radius) != inside, axis=-1)
+    assert moved.mean() < 0.2
 
 
 @pytest.mark.parametrize("tileable", [False, True])
@@ -550,3 +595,26 @@ def test_blocked_sums_are_numpys_mean_and_std(pixels, monkeypatch):
         spread = centred.std(axis=(0, 1))
         want = mean + centred * (std / spread)
         np.testing.assert_array_equal(drain(_model._iter_restore(values, mean, std)), want)
+
+
+def test_version_2_files_load_as_the_gaussian_pyramid_they_were(tmp_path):
+    texture = skdata.astronaut()[300:428, 30:158]
+    old = TextureModel.fit(texture, levels=2, pyramid="gaussian")
+    path = tmp_path / "new.npz"
+    old.save(path)
+    with np.load(path) as archive:
+        arrays = {k: archive[k] for k in archive.files if not k.startswith("palette")}
+    header = json.loads(str(arrays["header"]))
+    header = {**header, "version": 2, "pyramid": {"blur_sigma": 1.0}}  # as version 2 wrote it
+    v2 = tmp_path / "v2.npz"
+    np.savez(v2, **{**arrays, "header": np.array(json.dumps(header))})
+    loaded = TextureModel.load(v2)
+    assert loaded.pyramid == "gaussian" and loaded.palette is None
+    no_palette = TextureModel(**{**old.__dict__, "palette": None, "palette_radius": None})
+    np.testing.assert_array_equal(loaded.synthesize((40, 30), seed=2),
+                                  no_palette.synthesize((40, 30), seed=2))
+    bad = tmp_path / "bad.npz"
+    header = {**header, "version": 3, "pyramid": {"kind": "wavelet"}}
+    np.savez(bad, **{**arrays, "header": np.array(json.dumps(header))})
+    with pytest.raises(ValueError, match="format-version-3 .* 'wavelet'"):
+        TextureModel.load(bad)

@@ -1,0 +1,121 @@
+"""The colours a synthesis may use: a palette of the input's colours.
+
+A CAR band model is Gaussian in the colour channels jointly, and the
+histogram restore maps every channel on its own; together they can make
+colours that occur nowhere in the input (the dark blue-green blobs in a brown
+stone, issue 34). The palette keeps ``k`` colours of the input (k-means
+centres of a fixed sample of its pixels) and, per colour, the radius that
+holds 95 % of the sampled pixels nearest to it. After the histogram restore
+every synthesised pixel farther from its nearest palette colour than that
+colour's radius is moved along the line to it onto the radius; pixels within
+it are left alone. The move is per pixel, so a tileable texture stays
+periodic; the new colour lies between two colours within the input's range,
+so the value range holds.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+__all__ = ["fit_palette", "snap"]
+
+PALETTE_COLOURS = 32  # colours kept (chosen on the TUNING textures)
+_SAMPLE = 20000  # pixels the k-means sees
+_ITERATIONS = 15  # Lloyd iterations
+_COVER = 0.95  # share of a colour's nearest sampled pixels within its radius
+
+
+def _nearest(values, centres):
+    """Index of and squared distance to the nearest centre, per row."""
+    dist = (values * values).sum(1)[:, None] - 2 * values @ centres.T \
+        + (centres * centres).sum(1)[None, :]
+    index = np.argmin(dist, axis=1)
+    return index, np.maximum(dist[np.arange(len(values)), index], 0.0)
+
+
+def fit_palette(image, k=PALETTE_COLOURS, *, seed=0):
+    """Palette of a channel-last (h, w, d) image.
+
+    Parameters
+    ----------
+    image : (h, w, d) ndarray
+        The texture.
+    k : int, optional
+        Number of colours.
+    seed : int, optional
+        Seed of the pixel sample and of the k-means++ start (fixed: the same
+        image gives the same palette).
+
+    Returns
+    -------
+    centres : (k2, d) ndarray
+        The colours (``k2 <= k``: fewer when the image has fewer distinct
+        colours).
+    radius : (k2,) ndarray
+        Per colour, the distance within which lie 95 % of the sampled
+        pixels nearest to it.
+    """
+    rng = np.random.default_rng(seed)
+    pixels = image.reshape(-1, image.shape[-1])
+    n = len(pixels)
+    sample = pixels[np.sort(rng.choice(n, _SAMPLE, replace=False))] if n > _SAMPLE else pixels
+    centres = sample[[int(rng.integers(len(sample)))]]
+    for _ in range(k - 1):  # k-means++
+        _, d2 = _nearest(sample, centres)
+        total = d2.sum()
+        if total <= 0:
+            break
+        centres = np.vstack([centres, sample[rng.choice(len(sample), p=d2 / total)]])
+    for _ in range(_ITERATIONS):
+        index, _ = _nearest(sample, centres)
+        counts = np.bincount(index, minlength=len(centres))
+        sums = np.zeros_like(centres)
+        np.add.at(sums, index, sample)
+        filled = counts > 0
+        centres[filled] = sums[filled] / counts[filled, None]
+    index, d2 = _nearest(sample, centres)
+    radius = np.zeros(len(centres))
+    for c in range(len(centres)):
+        mine = d2[index == c]
+        if mine.size:
+            radius[c] = np.sqrt(np.quantile(mine, _COVER))
+    return centres, radius
+
+
+@numba.njit(cache=True, nogil=True)
+def _snap_kernel(values, centres, radius, out):
+    n, d = values.shape
+    k = centres.shape[0]
+    for p in range(n):
+        best, which = np.inf, 0
+        for c in range(k):
+            s = 0.0
+            for j in range(d):
+                t = values[p, j] - centres[c, j]
+                s += t * t
+            if s < best:
+                best, which = s, c
+        r = radius[which]
+        if best > r * r:
+            f = r / np.sqrt(best)
+            for j in range(d):
+                out[p, j] = centres[which, j] + (values[p, j] - centres[which, j]) * f
+        else:
+            for j in range(d):
+                out[p, j] = values[p, j]
+
+
+def snap(values, centres, radius, *, out=None):
+    """Move every pixel of (h, w, d) ``values`` that lies farther from its
+    nearest palette colour than that colour's radius onto the radius, along
+    the line to the colour (see the module); into ``out`` (may be
+    ``values``)."""
+    h, w, d = values.shape
+    out = np.empty_like(values) if out is None else out
+    flat = np.ascontiguousarray(values.reshape(h * w, d), dtype=np.float64)
+    result = np.empty_like(flat)
+    _snap_kernel(flat, np.ascontiguousarray(centres, np.float64),
+                 np.ascontiguousarray(radius, np.float64), result)
+    out[...] = result.reshape(h, w, d)
+    return out
