@@ -56,8 +56,11 @@ class _FitWidth(QObject):
 
     def eventFilter(self, watched, event):
         if event.type() == QEvent.LayoutRequest:
-            bar = self._scroll.verticalScrollBar().sizeHint().width()
-            self._scroll.setMinimumWidth(watched.minimumSizeHint().width() + bar)
+            bar = self._scroll.verticalScrollBar()
+            bar.ensurePolished()  # its width as styled (napari's theme)
+            self._scroll.setMinimumWidth(watched.minimumSizeHint().width()
+                                         + bar.sizeHint().width()
+                                         + 2 * self._scroll.frameWidth())
         return False
 
 
