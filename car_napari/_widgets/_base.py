@@ -180,6 +180,39 @@ class JobWidget(Container):
         self._actions.append((button, when))
         return button
 
+    def folded(self, controls, text="more options"):
+        """Options few need to change, folded away under a button.
+
+        Parameters
+        ----------
+        controls : sequence of magicgui widgets
+            The options: hidden until the button is pressed, shown until it
+            is pressed again (their values are used all the same).
+        text : str, optional
+            What the button says, after a disclosure triangle.
+
+        Returns
+        -------
+        list of magicgui widgets
+            The button and the options, to put in :meth:`arrange`'s list.
+        """
+        controls = list(controls)
+        names = ", ".join(str(control.label or getattr(control, "text", ""))
+                          for control in controls)
+        closed, opened = f"\u25b8 {text}", f"\u25be {text}"  # a disclosure triangle
+        button = PushButton(text=closed, tooltip=f"show or hide: {names}")
+
+        def toggle(*_):
+            show = button.text == closed
+            button.text = opened if show else closed
+            for control in controls:
+                control.visible = show
+
+        for control in controls:
+            control.visible = False
+        button.changed.connect(toggle)
+        return [button, *controls]
+
     def arrange(self, controls, after=(), fill=None):
         """Lay out the pickers, ``controls``, Cancel and progress, status, ``after``.
 

@@ -1,6 +1,7 @@
 """Issue 32 item 10: all seven docks open at once fit a 1280x1024 screen, and
 every control of every dock stays reachable (each dock scrolls)."""
 
+import pytest
 from magicgui.widgets import Container
 
 from car_napari._widgets.car_model import CARModelWidget
@@ -84,3 +85,20 @@ def test_every_control_of_every_dock_is_reachable(make_napari_viewer, qtbot):
             if control.native.visibleRegion().isEmpty():
                 problems.append(f"{dock.name}: {control!r} cannot be scrolled to")
     assert not problems, "; ".join(problems)
+
+
+@pytest.mark.parametrize("widget_class", [SegmentationWidget, RestorationWidget, InpaintingWidget],
+                         ids=lambda cls: cls.__name__)
+def test_options_few_change_are_folded_away_and_one_click_shows_them(docked, widget_class,
+                                                                     qtbot):
+    _, w = docked(widget_class, widget_class.__name__)
+    buttons = [b for b in leaves(w) if str(getattr(b, "text", "")).startswith("\u25b8")]
+    assert len(buttons) == 1
+    button = buttons[0]
+    folded = [c for c in leaves(w) if c.native.isHidden()]
+    assert folded and all(str(c.label or c.text) in button.tooltip for c in folded)
+    button.native.click()
+    assert button.text.startswith("\u25be")
+    assert not any(c.native.isHidden() for c in folded)
+    button.native.click()
+    assert all(c.native.isHidden() for c in folded)
