@@ -229,6 +229,9 @@ class JobWidget(Container):
         """
         pickers = [self._image] + ([self._region] if self._region is not None else [])
         self.extend([*pickers, *controls, self._busy, self._status, *after])
+        for widget in self:
+            if isinstance(widget, Label):  # a long text wraps: it does not widen the dock
+                widget.native.setWordWrap(True)
         layout = self.body.layout()
         if fill is not None:
             layout.addWidget(fill)

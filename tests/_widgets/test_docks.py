@@ -65,6 +65,8 @@ def test_seven_docks_fit_a_1280x1024_screen(make_napari_viewer):
         assert dock.widget() is widget.native is widget.root_native_widget
         assert dock.widget().verticalScrollBarPolicy() == Qt.ScrollBarAsNeeded
         assert not dock.visibleRegion().isEmpty(), f"{dock.name} is not shown"
+        # a long text wraps: no dock takes more than a third of the window's width
+        assert widget.native.minimumWidth() <= SCREEN[0] // 3, dock.name
 
 
 def test_every_control_of_every_dock_is_reachable(make_napari_viewer, qtbot):
