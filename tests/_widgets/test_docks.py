@@ -63,6 +63,7 @@ def test_seven_docks_fit_a_1280x1024_screen(make_napari_viewer):
     assert sum(dock.minimumSizeHint().height() for dock, _ in docks) <= available
     for dock, widget in docks:
         assert dock.widget() is widget.native is widget.root_native_widget
+        assert dock.inner_widget() is widget  # napari finds the widget behind its dock
         assert dock.widget().verticalScrollBarPolicy() == Qt.ScrollBarAsNeeded
         assert not dock.visibleRegion().isEmpty(), f"{dock.name} is not shown"
         # a long text wraps: no dock takes more than a third of the window's width
