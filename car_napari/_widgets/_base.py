@@ -11,6 +11,8 @@ import re
 
 from magicgui.widgets import Container, Label, ProgressBar, PushButton, SpinBox, create_widget
 from napari.utils.notifications import show_error
+from qtpy.QtCore import QEvent, QObject
+from qtpy.QtWidgets import QFrame, QSizePolicy
 
 from ._jobs import Job
 from ._layers import RunRecord, layer_array
@@ -43,6 +45,25 @@ def guarded(method):
     return guarded_method
 
 
+class _FitWidth(QObject):
+    """Keeps a vertical scroll area as wide as its contents need (it never
+    scrolls sideways): updated whenever the contents' layout changes."""
+
+    def __init__(self, scroll):
+        super().__init__(scroll)
+        self._scroll = scroll
+        scroll.widget().installEventFilter(self)
+
+    def eventFilter(self, watched, event):
+        if event.type() == QEvent.LayoutRequest:
+            bar = self._scroll.verticalScrollBar()
+            bar.ensurePolished()  # its width as styled (napari's theme)
+            self._scroll.setMinimumWidth(watched.minimumSizeHint().width()
+                                         + bar.sizeHint().width()
+                                         + 2 * self._scroll.frameWidth())
+        return False
+
+
 class JobWidget(Container):
     """A dock widget that runs core jobs on an image layer.
 
@@ -72,14 +93,27 @@ class JobWidget(Container):
     control_labels : dict
         The core's argument names -> this widget's control labels, so that
         the core's validation messages speak of the controls.
+
+    Notes
+    -----
+    The docked widget is a scroll area holding the controls (:attr:`native`):
+    napari docks ``widget.native``, so that every dock scrolls when the
+    window is too short for all of them, and several docks open at once
+    share the window's height instead of growing it beyond the screen.
     """
 
     control_labels: dict = {}
+    #: The smallest height of a dock's scroll area, in lines of text.
+    min_lines = 5
 
     def __init__(self, napari_viewer, *, image_label="image", region=False,
                  image_tooltip="the image layer to work on (grey or colour; an alpha "
                                "channel is not used)"):
-        super().__init__(labels=True)
+        super().__init__(labels=True, scrollable=True)
+        scroll = self.root_native_widget
+        scroll.setFrameShape(QFrame.NoFrame)
+        scroll.setMinimumHeight(self.min_lines * scroll.fontMetrics().height())
+        _FitWidth(scroll)
         self._viewer = napari_viewer
         self.record = RunRecord(napari_viewer)
         self._job = None
@@ -95,9 +129,28 @@ class JobWidget(Container):
         self._cancel = PushButton(text="Cancel", enabled=False,
                                   tooltip="stop the running job: the layers are put back as "
                                           "they were before it")
-        self._progress = ProgressBar(value=0, min=0, max=100, label="progress")
+        self._progress = ProgressBar(value=0, min=0, max=100)
+        # one row for both (a compact dock): "progress  [Cancel] [====   ]"
+        self._busy = Container(widgets=[self._cancel, self._progress], layout="horizontal",
+                               labels=False, label="progress")
+        self._busy.margins = (0, 0, 0, 0)
         self._status = Label(value="")
         self._cancel.changed.connect(self.cancel)
+
+    @property
+    def native(self):
+        """The scroll area holding the controls: what napari docks.
+
+        magicgui's ``native`` of a scrollable container is the widget inside
+        the scroll area, and napari docks ``native``: the scroll area would
+        be left behind. The controls' own widget is :attr:`body`.
+        """
+        return self.root_native_widget
+
+    @property
+    def body(self):
+        """The Qt widget holding the controls (inside the scroll area)."""
+        return self.root_native_widget.widget()
 
     # --- building -----------------------------------------------------------------
 
@@ -127,8 +180,41 @@ class JobWidget(Container):
         self._actions.append((button, when))
         return button
 
-    def arrange(self, controls, after=()):
-        """Lay out the pickers, ``controls``, Cancel, progress, status, ``after``.
+    def folded(self, controls, text="more options"):
+        """Options few need to change, folded away under a button.
+
+        Parameters
+        ----------
+        controls : sequence of magicgui widgets
+            The options: hidden until the button is pressed, shown until it
+            is pressed again (their values are used all the same).
+        text : str, optional
+            What the button says, after a disclosure triangle.
+
+        Returns
+        -------
+        list of magicgui widgets
+            The button and the options, to put in :meth:`arrange`'s list.
+        """
+        controls = list(controls)
+        names = ", ".join(str(control.label or getattr(control, "text", ""))
+                          for control in controls)
+        closed, opened = f"\u25b8 {text}", f"\u25be {text}"  # a disclosure triangle
+        button = PushButton(text=closed, tooltip=f"show or hide: {names}")
+
+        def toggle(*_):
+            show = button.text == closed
+            button.text = opened if show else closed
+            for control in controls:
+                control.visible = show
+
+        for control in controls:
+            control.visible = False
+        button.changed.connect(toggle)
+        return [button, *controls]
+
+    def arrange(self, controls, after=(), fill=None):
+        """Lay out the pickers, ``controls``, Cancel and progress, status, ``after``.
 
         Parameters
         ----------
@@ -136,9 +222,23 @@ class JobWidget(Container):
             The widget's parameters and action buttons, in order.
         after : sequence of magicgui widgets, optional
             What comes below the status line.
+        fill : QWidget, optional
+            A Qt widget at the bottom (a table of results) that takes the
+            dock's remaining height. Without it, and without a control that
+            grows (a text box), the controls keep to the top of the dock.
         """
         pickers = [self._image] + ([self._region] if self._region is not None else [])
-        self.extend([*pickers, *controls, self._cancel, self._progress, self._status, *after])
+        self.extend([*pickers, *controls, self._busy, self._status, *after])
+        for widget in self:
+            if isinstance(widget, Label):  # a long text wraps: it does not widen the dock
+                widget.native.setWordWrap(True)
+        layout = self.body.layout()
+        if fill is not None:
+            layout.addWidget(fill)
+            return
+        grows = {QSizePolicy.Expanding, QSizePolicy.MinimumExpanding, QSizePolicy.Ignored}
+        if not any(widget.native.sizePolicy().verticalPolicy() in grows for widget in self):
+            layout.addStretch(1)
 
     def refresh_actions(self):
         """Enable the action buttons that may be enabled now (no job running).

@@ -116,8 +116,9 @@ class InpaintingWidget(JobWidget):
                                         "restored")
         self._run = self.action("Restore", self.start,
                                 tooltip="fill in the damaged pixels of the mask")
-        self.arrange([self._new_mask, self._detect, self._mask, self._temporal,
-                      self._follow, self._run])
+        self.arrange([self._new_mask, self._detect, self._mask,
+                      *self.folded([self._temporal, self._follow], "clip options"),
+                      self._run])
         self._image.changed.connect(self._source_changed)
         self._default_mask()
 

@@ -141,8 +141,7 @@ class MammogramWidget(JobWidget):
             item = QTableWidgetItem(title)
             item.setToolTip(tip)
             self._table.setHorizontalHeaderItem(j, item)
-        self.arrange([self._marks, self._expected, self._run])
-        self.native.layout().addWidget(self._table)
+        self.arrange([self._marks, self._expected, self._run], fill=self._table)
 
     def _start(self):
         """Detect and score every region of interest of the picked layer."""

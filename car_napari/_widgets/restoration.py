@@ -182,7 +182,7 @@ class RestorationWidget(JobWidget):
         self._show_changed = CheckBox(value=False, text="show changed pixels", enabled=False,
                                       tooltip="show the pixels the restoration changed as a "
                                               "labels layer")
-        self.arrange([self._axis, self._order, self._keep_edges, self._run],
+        self.arrange([self._axis, *self.folded([self._order, self._keep_edges]), self._run],
                      after=[self._kappa, self._show_changed])
         self._image.changed.connect(self._guess_axis)
         dims = napari_viewer.dims.events

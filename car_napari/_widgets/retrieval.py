@@ -99,8 +99,7 @@ class TextureRetrievalWidget(JobWidget):
         self._results = QListWidget()
         self._results.setIconSize(QSize(THUMBNAIL, THUMBNAIL))
         self._results.setMinimumHeight(200)
-        self.arrange([self._source, self._folder, self._run])
-        self.native.layout().addWidget(self._results)
+        self.arrange([self._source, self._folder, self._run], fill=self._results)
         self._results.itemClicked.connect(lambda item: self.show(self._results.row(item)))
 
     def _gallery(self, query_layer, query_colour, use_region):

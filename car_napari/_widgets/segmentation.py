@@ -59,7 +59,8 @@ class SegmentationWidget(JobWidget):
         self._threshold = FloatSlider(value=0.0, min=0.0, max=0.99, step=0.01,
                                       label="min probability", enabled=False,
                                       tooltip="pixels less probable than this are unclassified")
-        self.arrange([self._segments, self._levels, self._order, self._n_init, self._run],
+        self.arrange([self._segments,
+                      *self.folded([self._levels, self._order, self._n_init]), self._run],
                      after=[self._cut, self._threshold])
         self._cut.changed.connect(self._recut)
         self._threshold.changed.connect(self._recut)
