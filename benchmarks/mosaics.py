@@ -34,6 +34,22 @@ def voronoi_layout(shape, n_regions, seed, roughness=25.0, amplitude=40.0):
     return dist.argmin(axis=0) + 1
 
 
+def strips_layout(shape, n_regions, seed, min_share=0.5):
+    """``n_regions`` straight strips, vertical or horizontal (by the seed),
+    each at least ``min_share`` of an equal strip's width; labels 1..n."""
+    rng = np.random.default_rng(seed)
+    h, w = shape
+    vertical = bool(rng.integers(2))
+    side = w if vertical else h
+    widths = min_share + (1 - min_share) * rng.dirichlet(np.ones(n_regions)) * n_regions
+    edges = np.round(np.cumsum(widths) / widths.sum() * side).astype(int)
+    strip = np.searchsorted(edges, np.arange(side), side="right") + 1
+    return np.broadcast_to(strip[None, :] if vertical else strip[:, None], shape).copy()
+
+
+LAYOUTS = {"voronoi": voronoi_layout, "strips": strips_layout}
+
+
 def _read_texture(path):
     """A texture as (H, W, C) uint8-valued array, C = 1 or 3 (a grey image
     with an alpha channel keeps only its grey)."""
@@ -47,13 +63,16 @@ def _read_texture(path):
     return tex[..., :3]
 
 
-def make_mosaic(files, shape=(512, 512), seed=0, grey=False):
+def make_mosaic(files, shape=(512, 512), seed=0, grey=False, layout="voronoi"):
     """A mosaic of the textures in ``files`` and its (H, W) ground truth 1..K.
+
+    ``layout``: "voronoi" (irregular cells, the default) or "strips"
+    (straight strips, :func:`strips_layout`).
 
     ``grey=True`` turns colour textures grey (the mean of R, G, B, as the
     grey Brodatz files stored as RGB are). A texture smaller than the mosaic
     is mirror-tiled to its size first."""
-    layout = voronoi_layout(shape, len(files), seed)
+    layout = LAYOUTS[layout](shape, len(files), seed)
     rng = np.random.default_rng(seed + 1000)
     textures = [_read_texture(f) for f in files]
     # a set is grey unless one of its textures really has colour (some grey

@@ -274,12 +274,40 @@ def _merge_closest(mix):
     return _merge(mix, i, j), float(kl[i, j])
 
 
-def _choose_k(history, threshold):
-    """Automatic number of segments: keep merging while a merge costs less
+def _choose_k(history, threshold, relative=0.0):
+    """Automatic number of segments, read off the merge history.
+
+    Merging stops at the first merge (from ``K_ini`` down) that costs more
     than ``threshold`` nats of mean log-likelihood per pixel (the
     likelihood-gain stop of the KL merging, section 14.4,
-    docs/segmentation.md); the first costlier merge stops it."""
-    for prev, nxt in pairwise(history):
-        if prev.loglik - nxt.loglik > threshold:
-            return prev.k
-    return history[-1].k
+    docs/segmentation.md) and more than ``relative`` times the costliest
+    merge of the whole history; the state before that merge is kept.
+
+    Parameters
+    ----------
+    history : sequence of Mixture
+        The merge states, ``K_ini`` components down to 1 (their ``loglik``).
+    threshold : float
+        The absolute stop, in nats per pixel.
+    relative : float, optional
+        The relative stop, a fraction of the costliest merge (0: none).
+
+    Returns
+    -------
+    int
+        The number of components ``k`` of the state kept.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from car_napari.segmentation import Mixture
+    >>> history = [Mixture(np.ones(k) / k, np.zeros((k, 1)), np.ones((k, 1)),
+    ...                    np.arange(1, k + 1), loglik) for k, loglik in
+    ...            [(4, -1.0), (3, -2.5), (2, -3.0), (1, -9.0)]]
+    >>> _choose_k(history, 1.0), _choose_k(history, 1.0, relative=0.3)
+    (4, 2)
+    """
+    costs = [prev.loglik - nxt.loglik for prev, nxt in pairwise(history)]
+    limit = max(threshold, relative * max(costs, default=0.0))
+    return next((history[i].k for i, cost in enumerate(costs) if cost > limit),
+                history[-1].k)

@@ -70,6 +70,13 @@ _LABEL_STEP_SIDE = 256
 # grey / colour. Chosen with the variance floor (0.2) on the TUNING mosaics of
 # seeds 1-3 (docs/segmentation.md)
 MERGE_NATS_PER_FEATURE = 0.06
+# ... and, since issue 32, more than this fraction of the costliest merge of
+# the history (the last merges, between textures): on mosaics of 2 or 3
+# textures their regions are larger, so a merge inside one texture costs
+# more nats per pixel than 0.06 per feature and stopped the merging too
+# early. Chosen on the TUNING mosaics of benchmarks/bench_auto_k.py (the
+# largest fraction that changed no 5-texture TUNING mosaic; docs/segmentation.md)
+MERGE_RELATIVE = 0.22
 
 
 @dataclass
@@ -444,7 +451,8 @@ min_area : int, optional
 merge_threshold : float or None, optional
     Automatic stop: the largest loss of mean log-likelihood per pixel (nats)
     a merge may cost. None: 0.06 per feature dimension (1.08 for the 18
-    features of a grey image, 1.44 for the 24 of a colour one; chosen on the
+    features of a grey image, 1.44 for the 24 of a colour one) and 0.22 of
+    the costliest merge of the history, whichever is larger (chosen on the
     TUNING mosaics, docs/segmentation.md).
 grey : {'grey', 'pseudo_colour'}, optional
     How a grey image is segmented: as it is (one channel, d = 1), or as
@@ -580,8 +588,9 @@ def iter_segment(
     h, w, D = features.shape
     if min_area is None:
         min_area = max(16, (h * w) // 2000)
+    relative = 0.0  # the relative stop is the default's only
     if merge_threshold is None:
-        merge_threshold = MERGE_NATS_PER_FEATURE * D
+        merge_threshold, relative = MERGE_NATS_PER_FEATURE * D, MERGE_RELATIVE
 
     # EM runs on a random sample of the (masked) pixels
     rng = np.random.default_rng(seed)
@@ -632,7 +641,7 @@ def iter_segment(
                         prior_iterations=prior_iterations),
             at(), at(share), name=stage_name, prefix=f"K = {mix_i.k}: ")
         if i > 0 and result._final is None and _is_final(history, i - 1, n_segments,
-                                                         merge_threshold):
+                                                         merge_threshold, relative):
             result._final = i - 1
         result._store(i, labels, prob if result._final is None else None)
         work[0] += share
@@ -650,11 +659,11 @@ def iter_segment(
         yield from label_state("merging")
 
     if n_segments is None:
-        n_segments = _choose_k(history, merge_threshold)
+        n_segments = _choose_k(history, merge_threshold, relative)
     final = result._index(n_segments)
     labels, prob = result._cut(final), result._probs.get(final)
     result._final = final
-    if prob is None:  # not kept (the rule of _is_final keeps it): label again
+    if prob is None:  # not kept (_is_final was wrong, or n_segments missing): label again
         labels, prob = yield from stage(
             _iter_label(features, history[final], smoothing=smoothing, min_area=min_area,
                         step=result.label_step, prior=prior,
@@ -668,13 +677,18 @@ def iter_segment(
     return result
 
 
-def _is_final(history, i, n_segments, merge_threshold):
-    """Whether state ``i`` is the one :meth:`SegmentationResult.mixture_at`
-    will pick, now that state ``i + 1`` exists: the first state whose merge
-    costs more than ``merge_threshold`` (automatic K, as :func:`_choose_k`),
-    or the last state with at least ``n_segments`` components."""
+def _is_final(history, i, n_segments, merge_threshold, relative=0.0):
+    """Whether state ``i`` is likely the one
+    :meth:`SegmentationResult.mixture_at` will pick, now that state ``i + 1``
+    exists (its probabilities are then kept): automatic K (as
+    :func:`_choose_k`), the first state whose merge costs more than
+    ``merge_threshold`` and than ``relative`` times the costliest merge so
+    far (a later, costlier merge may still move the stop: the state is then
+    labelled again); else the last state with at least ``n_segments``
+    components."""
     if n_segments is None:
-        return history[i].loglik - history[i + 1].loglik > merge_threshold
+        costs = [history[j].loglik - history[j + 1].loglik for j in range(i + 1)]
+        return costs[i] > max(merge_threshold, relative * max(costs))
     return history[i + 1].k < min(n_segments, history[0].k)
 
 

@@ -3,6 +3,7 @@ the merge history, bad input."""
 
 import inspect
 import time
+from itertools import pairwise
 
 import numpy as np
 import pytest
@@ -129,18 +130,60 @@ def test_labels_at_recuts_the_history():
 
 @pytest.mark.parametrize("rate", [None, 0.0, 0.02])
 def test_automatic_k_is_the_first_merge_costlier_than_the_rate_times_the_features(rate):
-    """The default stop is 0.06 nats per pixel per feature dimension; the
-    state kept is the one before the first costlier merge (read off the
-    history here, by hand)."""
+    """The default stop is 0.06 nats per pixel per feature dimension and
+    0.22 of the costliest merge (issue 32); a merge_threshold given is the
+    stop alone. The state kept is the one before the first costlier merge
+    (read off the history here, by hand)."""
     image, _ = _two_textures()
     features = local_features(image, levels=2)
     options = {} if rate is None else {"merge_threshold": rate * features.shape[2]}
     result = segment(image, features=features, n_init=8, **options)
-    threshold = (0.06 if rate is None else rate) * features.shape[2]
     logliks = [m.loglik for m in result.history]
-    first = next((i for i in range(len(logliks) - 1)
-                  if logliks[i] - logliks[i + 1] > threshold), len(logliks) - 1)
+    costs = [a - b for a, b in pairwise(logliks)]
+    threshold = (0.06 if rate is None else rate) * features.shape[2]
+    if rate is None:
+        threshold = max(threshold, 0.22 * max(costs))
+    first = next((i for i, cost in enumerate(costs) if cost > threshold), len(logliks) - 1)
     np.testing.assert_array_equal(result.labels, result.labels_at(result.history[first].k))
+
+
+def _strips(names, size=192):
+    """``names`` skimage textures side by side in vertical strips, and the truth."""
+    width = size // len(names)
+    image = np.concatenate([getattr(skdata, name)()[:size, :width] / 255.0 for name in names],
+                           axis=1)
+    return image, np.repeat(np.arange(len(names)), width)[None].repeat(size, axis=0)
+
+
+def test_automatic_k_does_not_over_split_two_strips():
+    """Issue 32: two textures side by side gave 4 segments (the absolute
+    stop alone: a merge inside one large texture costs more nats per pixel
+    than inside one of five); the relative stop finds 2."""
+    from car_napari.segmentation._mixture import _choose_k
+
+    image, truth = _strips(("brick", "grass"))
+    result = segment(image)
+    assert _choose_k(result.history, 0.06 * result.features.shape[2]) > 2  # the old stop
+    assert result.n_segments == 2
+    agree = np.mean((result.labels == result.labels[0, 0]) == (truth == 0))
+    assert agree > 0.9
+
+
+def test_relative_stop_reads_the_costliest_merge():
+    from car_napari.segmentation._mixture import _choose_k
+
+    def history(logliks):
+        k = len(logliks)
+        return [Mixture(np.ones(k - i) / (k - i), np.zeros((k - i, 1)), np.ones((k - i, 1)),
+                        np.arange(1, k - i + 1), ll) for i, ll in enumerate(logliks)]
+
+    # merge costs 0.5, 2.0, 1.0, 10.0 (from 5 components down to 1)
+    states = history([0.0, -0.5, -2.5, -3.5, -13.5])
+    assert _choose_k(states, 1.0) == 4  # 2.0 > 1.0: the state before it
+    assert _choose_k(states, 1.0, relative=0.15) == 4  # 2.0 > 1.5
+    assert _choose_k(states, 1.0, relative=0.25) == 2  # only 10.0 > 2.5
+    assert _choose_k(states, 20.0) == 1  # no merge costlier: down to one
+    assert _choose_k(states[:1], 1.0, relative=0.5) == 5  # no merge at all
 
 
 def test_grey_modes():
