@@ -708,7 +708,8 @@ def write_model(ds, data, names, frocs, boot, fold_scorers, command):
                 f"800x800, {sum(len(ds.masses[n]) for n in names)} boxed masses, "
                 f"{len({ds.patient(n) for n in names})} patients",
         "bit_depth": "8-bit JPEG films; 12-bit uint16 input is read as value / 4095",
-        "fit": f"{how}, fitted on all images; the scorer and merge tie are those most "
+        "fit": f"{how}, fitted on all images; the scorer, merge tie and refinement "
+               "(min_visible, core_quantile) are those most "
                f"cross-validation folds chose inside their training part ({fold_scorers}); "
                "positive = candidate centroid inside a mass box; weights: each mass's positives "
                "share 1, the negatives together weigh as much as the positives",
