@@ -121,7 +121,7 @@ class TissueResult(NamedTuple):
     >>> from car_napari.mammography import segment_tissue
     >>> image = np.zeros((64, 64))
     >>> image[4:60, 20:] = np.random.default_rng(0).uniform(0.5, 0.9, (56, 44))
-    >>> tissue = segment_tissue(image, levels=1, n_init=4)
+    >>> tissue = segment_tissue(image, n_init=4)
     >>> tissue.tissue_class in ("F", "G", "D"), 0.0 <= tissue.density <= 100.0
     (True, True)
     """
@@ -151,7 +151,7 @@ class MammogramAnalysis(NamedTuple):
     >>> from car_napari.mammography import analyse_mammogram
     >>> image = np.zeros((64, 64))
     >>> image[4:60, 20:] = np.random.default_rng(0).uniform(0.5, 0.9, (56, 44))
-    >>> rois, tissue = analyse_mammogram(image, levels=1, n_init=4, pool=(2, 3))
+    >>> rois, tissue = analyse_mammogram(image, n_init=4, pool=(2, 3))
     >>> rois.labels.shape == tissue.fibroglandular.shape
     True
     """
@@ -427,6 +427,10 @@ def _check_segmentation(segmentation, shape):
     if segmentation.segments.shape != tuple(shape):
         raise ValueError(f"segmentation is of a {segmentation.segments.shape} image; the "
                          f"mammogram is {tuple(shape)}.")
+    if segmentation.features.shape[-1] < 8 * _LEVELS:
+        raise ValueError(f"segmentation has CAR features of fewer than {_LEVELS} resolutions; "
+                         f"the tissue model needs {_LEVELS} (segment_breast(..., levels="
+                         f"{_LEVELS}, keep_features=True)).")
 
 
 _TISSUE_PARAMETERS = """
@@ -438,7 +442,8 @@ image : (H, W) array_like
 breast : (H, W) array_like of bool, optional
     The breast mask (pectoral muscle excluded); default :func:`detect_breast`.
 levels : int, optional
-    Resolutions of the segmentation's features.
+    Resolutions of the segmentation's features (at least 3: the tissue
+    model's).
 neighbourhood : int or (eta, 2) array_like, optional
     Causal neighbourhood of the segmentation's local models.
 n_init : int, optional
@@ -465,6 +470,9 @@ def _check_tissue_options(levels, work_side, seed, pool):
     from ._rois import _check_segment_options
 
     _check_segment_options(levels, work_side, seed, pool)
+    if levels < _LEVELS:
+        raise ValueError(f"levels must be at least {_LEVELS} for the tissue model (fitted on "
+                         f"{_LEVELS} resolutions of CAR features); got {levels}.")
 
 
 @shared_parameters(_TISSUE_PARAMETERS)
@@ -505,7 +513,7 @@ def iter_segment_tissue(image, *, breast=None, levels=3, neighbourhood=2, n_init
     >>> from car_napari.mammography import iter_segment_tissue
     >>> image = np.zeros((64, 64))
     >>> image[4:60, 20:] = np.random.default_rng(0).uniform(0.5, 0.9, (56, 44))
-    >>> records = list(iter_segment_tissue(image, levels=1, n_init=4))
+    >>> records = list(iter_segment_tissue(image, n_init=4))
     >>> records[0].stage, records[-1].stage, records[-1].fraction
     ('breast', 'tissue', 1.0)
     """
@@ -589,7 +597,7 @@ def segment_tissue(image, *, breast=None, levels=3, neighbourhood=2, n_init=16, 
     >>> from car_napari.mammography import segment_tissue
     >>> image = np.zeros((64, 64))
     >>> image[4:60, 20:] = np.random.default_rng(0).uniform(0.5, 0.9, (56, 44))
-    >>> tissue = segment_tissue(image, levels=1, n_init=4)
+    >>> tissue = segment_tissue(image, n_init=4)
     >>> tissue.fibroglandular.shape, bool((tissue.fibroglandular & ~tissue.breast).any())
     ((64, 64), False)
     """
@@ -615,7 +623,8 @@ tolerance : float or None, optional
 breast : (H, W) array_like of bool, optional
     The breast mask; default :func:`detect_breast`.
 levels : int, optional
-    Resolutions of the segmentation's features.
+    Resolutions of the segmentation's features (at least 3: the tissue
+    model's).
 neighbourhood : int or (eta, 2) array_like, optional
     Causal neighbourhood of the segmentation's local models.
 n_init : int, optional
@@ -668,7 +677,7 @@ def iter_analyse_mammogram(image, *, marks_per_image=DEFAULT_MARKS_PER_IMAGE, ma
     >>> from car_napari.mammography import iter_analyse_mammogram
     >>> image = np.zeros((64, 64))
     >>> image[4:60, 20:] = np.random.default_rng(0).uniform(0.5, 0.9, (56, 44))
-    >>> records = list(iter_analyse_mammogram(image, levels=1, n_init=4, pool=(2, 3)))
+    >>> records = list(iter_analyse_mammogram(image, n_init=4, pool=(2, 3)))
     >>> records[-1].stage, records[-1].fraction
     ('tissue', 1.0)
     """
@@ -736,7 +745,7 @@ def analyse_mammogram(image, *, marks_per_image=DEFAULT_MARKS_PER_IMAGE, max_reg
     >>> from car_napari.mammography import analyse_mammogram
     >>> image = np.zeros((64, 64))
     >>> image[4:60, 20:] = np.random.default_rng(0).uniform(0.5, 0.9, (56, 44))
-    >>> rois, tissue = analyse_mammogram(image, levels=1, n_init=4, pool=(2, 3))
+    >>> rois, tissue = analyse_mammogram(image, n_init=4, pool=(2, 3))
     >>> tissue.tissue_class in ("F", "G", "D")
     True
     """

@@ -125,6 +125,12 @@ def test_bad_input(half):
         mm.segment_tissue(half, segmentation=seg)
     with pytest.raises(ValueError, match="levels"):
         mm.segment_tissue(half, levels=0)
+    with pytest.raises(ValueError, match="at least 3"):  # the model's resolutions
+        mm.segment_tissue(half, levels=2)
+    small = half[::2, ::2]
+    seg = mm.segment_breast(small, levels=1, n_init=4, keep_features=True)
+    with pytest.raises(ValueError, match="fewer than 3"):
+        mm.segment_tissue(small, segmentation=seg)
     with pytest.raises(TypeError, match="pool"):
         mm.segment_tissue(half, pool="8")
     with pytest.raises(ValueError, match="breast"):
