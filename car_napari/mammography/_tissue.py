@@ -396,11 +396,13 @@ def _full_mask(small, segmentation, shape):
     big = np.repeat(np.repeat(small, f, axis=0), f, axis=1)[: H - R0, : W - C0]
     out = np.zeros((H, W), bool)
     out[R0 : R0 + big.shape[0], C0 : C0 + big.shape[1]] = big
-    # the last working block of a side not divisible by f reaches the edge
-    if R0 + big.shape[0] < H and big.shape[0]:
-        out[R0 + big.shape[0] :, C0 : C0 + big.shape[1]] = big[-1]
-    if C0 + big.shape[1] < W and big.shape[1]:
-        out[:, C0 + big.shape[1] :] = out[:, C0 + big.shape[1] - 1 : C0 + big.shape[1]]
+    # the pixels of a side not divisible by f (cut off by the block mean)
+    # take the last working block's value
+    r_end, c_end = R0 + big.shape[0], C0 + big.shape[1]
+    if r_end < H and big.shape[0]:
+        out[r_end : r_end + f, C0:c_end] = big[-1]
+    if c_end < W and big.shape[1]:
+        out[R0 : r_end + f, c_end : c_end + f] = out[R0 : r_end + f, c_end - 1 : c_end]
     return out & segmentation.breast
 
 
