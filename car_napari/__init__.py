@@ -24,11 +24,14 @@ from .inpainting import (
 )
 from .mammography import (
     MammogramROIs,
+    TissueResult,
     detect_breast,
     detect_mammogram_rois,
     iter_detect_mammogram_rois,
     iter_segment_breast,
+    iter_segment_tissue,
     segment_breast,
+    segment_tissue,
 )
 from .model import (
     CARModel,
@@ -110,6 +113,9 @@ __all__ = [
     "iter_detect_mammogram_rois",
     "iter_segment_breast",
     "segment_breast",
+    "TissueResult",
+    "iter_segment_tissue",
+    "segment_tissue",
     # restoration
     "MultichannelRestoration",
     "RestorationResult",

@@ -240,6 +240,7 @@ def test_gui_toolkits_only_in_the_widgets():
 
 TOP_LEVEL = [
     "segment", "iter_segment", "detect_mammogram_rois", "iter_detect_mammogram_rois",
+    "segment_tissue", "iter_segment_tissue",
     "restore", "iter_restore", "restore_multichannel", "iter_restore_multichannel",
     "estimate_psf", "inpaint", "iter_inpaint", "detect_scratches", "TextureModel", "BTFModel",
     "DynamicTextureModel", "texture_features", "rank", "fit_car", "select_support", "predict",

@@ -91,6 +91,7 @@ def test_wheel_ships_manifest_and_resources(wheel):
                  "LICENCE-mini-MIAS.txt"):
         assert f"car_napari/_resources/{name}" in names
     assert "car_napari/mammography/roi_model.json" in names  # read on import
+    assert "car_napari/mammography/tissue_model.json" in names
     packages = {n.split("/")[0] for n in names if ".dist-info/" not in n}
     assert packages == {"car_napari"}  # no tests/, benchmarks/ or top-level modules
     modules = {n for n in names if n.endswith(".py")}

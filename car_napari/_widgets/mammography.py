@@ -1,11 +1,13 @@
 """Dock widget "Mammogram ROI": candidate masses as labels, outlines (each
 with its score) and a table sorted by score, at an operating point in marks
-per image that moves without recomputing the segmentation."""
+per image that moves without recomputing the segmentation; and, from the same
+segmentation, the breast tissue: a fibroglandular overlay (toggled) and the
+percent density and tissue class in a one-row table."""
 
 from __future__ import annotations
 
 import numpy as np
-from magicgui.widgets import FloatSpinBox, Label
+from magicgui.widgets import CheckBox, FloatSpinBox, Label
 from napari.layers import Labels, Shapes
 from napari.utils.notifications import show_info
 from qtpy.QtCore import Qt
@@ -15,8 +17,9 @@ from .._progress import Progress, stage
 from ..mammography import (
     DEFAULT_MARKS_PER_IMAGE,
     OPERATING_POINTS,
+    TISSUE_CLASSES,
     MammogramROIs,
-    iter_detect_mammogram_rois,
+    iter_analyse_mammogram,
     operating_point,
     region_outlines,
     score_threshold,
@@ -50,16 +53,28 @@ OUTLINE_STYLE = dict(edge_color="yellow", edge_width=2)
 OUTLINE_TEXT = {"string": "{score:.2f}", "color": "yellow", "size": 10, "anchor": "upper_left"}
 
 
+# The breast-tissue table: (header, format, tooltip) of its one row.
+TISSUE_COLUMNS = (
+    ("density", "{:.0f} %", "percent density: fibroglandular area over breast area (the "
+                            "pectoral muscle is not breast)"),
+    ("class", "{}", "tissue class: F fatty, G fatty-glandular, D dense-glandular (mini-MIAS), "
+                    "the most probable"),
+    *((f"P({c})", "{:.2f}", f"the tissue model's probability of class {c}")
+      for c in TISSUE_CLASSES),
+)
+
+
 def _with_outlines(job):
-    """The detection job, then (in the worker too) the regions' outlines and
-    the labels in the smallest integer type that holds them (napari shows
-    uint8 labels without converting them)."""
-    rois = yield from stage(job, 0.0, 0.97)
+    """The detection job (ROIs and tissue from one segmentation), then (in
+    the worker too) the regions' outlines and the labels in the smallest
+    integer type that holds them (napari shows uint8 labels without
+    converting them)."""
+    (labels, table), tissue = yield from stage(job, 0.0, 0.97)
     yield Progress("outlines", 0.97, "outlines of the regions")
-    labels, table = rois
     n = int(labels.max(initial=0))
     small = labels.astype(np.uint8 if n < 2**8 else np.uint16 if n < 2**16 else labels.dtype)
-    return MammogramROIs(small, table), region_outlines(labels, tolerance=OUTLINE_TOLERANCE)
+    return (MammogramROIs(small, table), region_outlines(labels, tolerance=OUTLINE_TOLERANCE),
+            tissue)
 
 
 def _set_outlines(layer, outlines, features):
@@ -127,6 +142,11 @@ class MammogramWidget(JobWidget):
                                tooltip="cross-validated by patient on CBIS-DDSM screening films "
                                        "(95 % interval over patients), at the nearest tabled "
                                        "operating point at or below the control's value")
+        self.tissue = None  # the last TissueResult
+        self._overlay = CheckBox(value=True, text="fibroglandular overlay",
+                                 tooltip="show the breast's fibroglandular (dense) tissue, "
+                                         "found on the same CAR segmentation")
+        self._overlay.changed.connect(self._on_overlay)
         self._run = self.action("Detect", self.start,
                                 tooltip="find and mark candidate regions of interest in the "
                                         "breast")
@@ -141,7 +161,20 @@ class MammogramWidget(JobWidget):
             item = QTableWidgetItem(title)
             item.setToolTip(tip)
             self._table.setHorizontalHeaderItem(j, item)
-        self.arrange([self._marks, self._expected, self._run], fill=self._table)
+        self._tissue_table = QTableWidget(1, len(TISSUE_COLUMNS))
+        self._tissue_table.setEditTriggers(QTableWidget.NoEditTriggers)
+        self._tissue_table.verticalHeader().setVisible(False)
+        self._tissue_table.horizontalHeader().setSectionResizeMode(QHeaderView.Stretch)
+        self._tissue_table.setMaximumHeight(60)
+        for j, (title, _fmt, tip) in enumerate(TISSUE_COLUMNS):
+            item = QTableWidgetItem(title)
+            item.setToolTip(tip)
+            self._tissue_table.setHorizontalHeaderItem(j, item)
+        self.arrange([self._marks, self._expected, self._overlay, self._run],
+                     fill=self._table)
+        # the one-row tissue table just above the regions' table
+        layout = self.body.layout()
+        layout.insertWidget(layout.indexOf(self._table), self._tissue_table)
 
     def _start(self):
         """Detect and score every region of interest of the picked layer."""
@@ -150,18 +183,50 @@ class MammogramWidget(JobWidget):
         self._name = layer.name
         self._geometry = dict(scale=tuple(layer.scale[-2:]),
                               translate=tuple(layer.translate[-2:]))
-        job = iter_detect_mammogram_rois(data, channel_axis=channel_axis, marks_per_image=None)
+        job = iter_analyse_mammogram(data, channel_axis=channel_axis, marks_per_image=None)
         return self.run(_with_outlines(job), done=self._show)
 
     def _show(self, result):
-        previous = self._found, self._found_for
-        self._found = result
+        previous = self._found, self._found_for, self.tissue
+        self._found = tuple(result[:2])
+        self.tissue = result[2] if len(result) > 2 else None
         self._found_for = (self._name, self._geometry)
         try:
             yield from self._show_marks()
+            yield from self._show_tissue()
         except BaseException:  # a Cancel or an error in between: the layers are put back,
-            self._found, self._found_for = previous  # and what the control re-cuts with them
-            raise
+            self._found, self._found_for, self.tissue = previous  # and what the control
+            raise  # re-cuts with them
+
+    def _tissue_name(self):
+        return f"{self._found_for[0]} fibroglandular"
+
+    def _show_tissue(self):
+        """The fibroglandular overlay (visible as the toggle says) and the
+        density and class in the tissue table."""
+        tissue, geometry = self.tissue, self._found_for[1]
+        if tissue is None:
+            return
+        mask = tissue.fibroglandular.astype(np.uint8)
+        self.record.replace(self._tissue_name(), lambda layer_name: self._viewer.add_labels(
+            mask, name=layer_name, opacity=0.35, visible=bool(self._overlay.value),
+            **geometry))
+        yield
+        values = (tissue.density, tissue.tissue_class,
+                  *(tissue.probabilities[c] for c in TISSUE_CLASSES))
+        for j, ((_title, fmt, _tip), value) in enumerate(zip(TISSUE_COLUMNS, values,
+                                                             strict=True)):
+            item = QTableWidgetItem(fmt.format(value))
+            item.setTextAlignment(Qt.AlignCenter)
+            self._tissue_table.setItem(0, j, item)
+
+    def _on_overlay(self, *_):
+        """The overlay toggle: show or hide the fibroglandular layer."""
+        if self._found_for is None:
+            return
+        name = self._tissue_name()
+        if name in self._viewer.layers:
+            self._viewer.layers[name].visible = bool(self._overlay.value)
 
     def _on_marks(self, *_):
         """The operating point moved: re-cut the last result (no new job)."""

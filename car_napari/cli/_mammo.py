@@ -47,6 +47,10 @@ def add_parser(sub):
     advanced.add_argument("--max-regions", type=non_negative_int, default=None,
                           help="at most this many regions per image, best first (default "
                                "and 0: no cap)")
+    p.add_argument("--tissue", action="store_true",
+                   help="also the breast tissue from the same segmentation: percent density "
+                        "and class (F/G/D) in tissue.csv, the fibroglandular mask as "
+                        "<name>_tissue.png")
     add_quiet(p)
     add_cluster(p)
     p.set_defaults(run=run)
@@ -56,7 +60,9 @@ def run(args):
     from ..mammography import (
         DEFAULT_MARKS_PER_IMAGE,
         TABLE_COLUMNS,
+        TISSUE_CLASSES,
         bit_depth,
+        iter_analyse_mammogram,
         iter_detect_mammogram_rois,
         roi_overlay,
     )
@@ -73,31 +79,52 @@ def run(args):
     def process(path, on_progress):
         t0 = time.perf_counter()
         image = one_image(read_image(path, on_note=print_note), path)
-        labels, table = drain(iter_detect_mammogram_rois(
-            image, marks_per_image=marks, reference=args.reference,
-            tolerance=args.tolerance or None, max_regions=max_regions,
-            channel_axis=channel_axis(image)), on_progress)
-        labels_path, overlay_path = outputs(path)
+        options = dict(marks_per_image=marks, reference=args.reference,
+                       tolerance=args.tolerance or None, max_regions=max_regions,
+                       channel_axis=channel_axis(image))
+        if args.tissue:  # one segmentation for both
+            (labels, table), tissue = drain(iter_analyse_mammogram(image, **options),
+                                            on_progress)
+        else:
+            labels, table = drain(iter_detect_mammogram_rois(image, **options), on_progress)
+        labels_path, overlay_path, *tissue_path = outputs(path)
         write_labels(labels_path, labels)
+        tissue_row = []
+        if args.tissue:
+            write_labels(tissue_path[0], tissue.fibroglandular.astype(np.uint8))
+            tissue_row = [(f"{tissue.density:.2f}", tissue.tissue_class,
+                           *(f"{tissue.probabilities[c]:.4f}" for c in TISSUE_CLASSES))]
         write_image(overlay_path, roi_overlay(image, labels, channel_axis=channel_axis(image)))
         depth = bit_depth(image) if np.ndim(image) == 2 else None
         depth = f"{depth}-bit" if depth else "float"
         rows = [(depth, *row) for row in zip(
             *(np.asarray(table[k]).tolist() for k in TABLE_COLUMNS), strict=True)]
-        return f"{len(rows)} regions ({depth}), {time.perf_counter() - t0:.1f} s", rows
+        note = (f", density {tissue.density:.0f} % ({tissue.tissue_class})"
+                if args.tissue else "")
+        return (f"{len(rows)} regions ({depth}){note}, {time.perf_counter() - t0:.1f} s",
+                (rows, tissue_row))
 
     def outputs(path):
         # the label image, and beside it the overlay a person opens (labels look black)
         if target:
-            return [target, target.with_name(f"{target.stem}_overlay.png")]
-        return [out / f"{path.stem}_rois.png", out / f"{path.stem}_overlay.png"]
+            found = [target, target.with_name(f"{target.stem}_overlay.png")]
+            tissue = target.with_name(f"{target.stem}_tissue.png")
+        else:
+            found = [out / f"{path.stem}_rois.png", out / f"{path.stem}_overlay.png"]
+            tissue = out / f"{path.stem}_tissue.png"
+        return [*found, tissue] if args.tissue else found
 
     # one table for the whole batch, in input order whatever order the inputs finish
     # in; the rows of inputs skipped on a rerun come from the table already there
     rows = {} if args.overwrite or target else _table_rows(table_path, paths)
+    tissue_path = table_path.with_name(
+        f"{table_path.stem}_tissue.csv" if target else "tissue.csv")
+    tissue_rows = ({} if args.overwrite or target or not args.tissue
+                   else _table_rows(tissue_path, paths))
     try:
         return run_batch(paths, process, outputs=None if target else outputs,
-                         on_done=lambda path, r: rows.__setitem__(path, r),
+                         on_done=lambda path, r: (rows.__setitem__(path, r[0]),
+                                                  tissue_rows.__setitem__(path, r[1])),
                          options=args, quiet=args.quiet)
     finally:
         with open(table_path, "w", newline="") as fh:
@@ -107,6 +134,15 @@ def run(args):
                 for row in rows.get(path, ()):
                     writer.writerow((path.name, *row))
         say(f"table: {table_path}")
+        if args.tissue:
+            with open(tissue_path, "w", newline="") as fh:
+                writer = csv.writer(fh)
+                writer.writerow(("image", "density_percent", "tissue_class",
+                                 *(f"p_{c}" for c in TISSUE_CLASSES)))
+                for path in paths:
+                    for row in tissue_rows.get(path, ()):
+                        writer.writerow((path.name, *row))
+            say(f"tissue: {tissue_path}")
 
 
 def _table_rows(table_path, paths):

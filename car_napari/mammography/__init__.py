@@ -8,7 +8,11 @@ with the shipped logistic model and returns the marks of an operating point
 (``marks_per_image``) as :class:`MammogramROIs` ``(labels, table)``;
 :func:`select_marks` re-cuts a result at another operating point
 (:data:`OPERATING_POINTS`: the shipped cross-validated FROC table).
-:func:`filter_regions` is the chapter's plain grey-level filter. The ``iter_`` forms are the same
+:func:`filter_regions` is the chapter's plain grey-level filter.
+:func:`segment_tissue` finds the fibroglandular tissue on the same
+segmentation and gives the percent density and tissue class
+(:class:`TissueResult`); :func:`analyse_mammogram` does both from one
+segmentation. The ``iter_`` forms are the same
 jobs as generators of :class:`~car_napari.Progress` records that return the
 result. A research tool, never a screening aid.
 """
@@ -39,6 +43,15 @@ from ._rois import (
     segment_breast,
     select_marks,
 )
+from ._tissue import (
+    TISSUE_CLASSES,
+    MammogramAnalysis,
+    TissueResult,
+    analyse_mammogram,
+    iter_analyse_mammogram,
+    iter_segment_tissue,
+    segment_tissue,
+)
 
 # The shipped model's operating points (benchmarks/bench_froc.py): per
 # ``marks_per_image`` (false marks per image, cross-validated by patient on
@@ -55,19 +68,26 @@ __all__ = [
     "REFERENCE_GREY",
     "REFERENCE_TOLERANCE",
     "TABLE_COLUMNS",
+    "TISSUE_CLASSES",
     "BreastDetection",
     "BreastSegmentation",
+    "MammogramAnalysis",
     "MammogramROIs",
+    "TissueResult",
+    "analyse_mammogram",
     "bit_depth",
     "detect_breast",
     "detect_mammogram_rois",
     "filter_regions",
+    "iter_analyse_mammogram",
     "iter_detect_mammogram_rois",
     "iter_segment_breast",
+    "iter_segment_tissue",
     "operating_point",
     "region_outlines",
     "roi_overlay",
     "score_threshold",
     "segment_breast",
+    "segment_tissue",
     "select_marks",
 ]

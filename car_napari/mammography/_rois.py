@@ -168,13 +168,16 @@ segment_options : dict, optional
 channel_axis : int or None, optional
     The colour axis of an RGB(A) export; a 2-D image is grey, None forces
     grey.
+keep_features : bool, optional
+    Keep the segmentation's CAR features (``features``, ``box``): what
+    :func:`segment_tissue` needs to reuse the segmentation.
 """
 
 
 @shared_parameters(_SEGMENT_BREAST_PARAMETERS)
 def iter_segment_breast(image, *, breast=None, n_segments=None, levels=3, neighbourhood=2,
                         n_init=16, work_side=512, seed=0, pool=None, segment_options=None,
-                        channel_axis=-1):
+                        channel_axis=-1, keep_features=False):
     """Texture segmentation of the breast only, as a job.
 
     The mammogram is block-averaged to about ``work_side`` pixels on its long
@@ -232,7 +235,8 @@ def iter_segment_breast(image, *, breast=None, n_segments=None, levels=3, neighb
     return (yield from stage(_iter_segment_grey(
         grey, breast=breast, n_segments=n_segments, levels=levels, neighbourhood=neighbourhood,
         n_init=n_init, work_side=work_side, seed=seed, pool=pool,
-        segment_options=segment_options), spans["reading"][1], 1.0))
+        segment_options=segment_options, keep_features=bool(keep_features)),
+        spans["reading"][1], 1.0))
 
 
 def _block_fraction(mask, factor):
@@ -342,7 +346,7 @@ def _iter_segment_grey(grey, *, breast, n_segments, levels, neighbourhood, n_ini
 @shared_parameters(_SEGMENT_BREAST_PARAMETERS)
 def segment_breast(image, *, breast=None, n_segments=None, levels=3, neighbourhood=2,
                    n_init=16, work_side=512, seed=0, pool=None, segment_options=None,
-                   channel_axis=-1):
+                   channel_axis=-1, keep_features=False):
     """Texture segmentation of the breast only.
 
     :func:`iter_segment_breast` run to its end (see it for the method).
@@ -377,6 +381,7 @@ def segment_breast(image, *, breast=None, n_segments=None, levels=3, neighbourho
         image, breast=breast, n_segments=n_segments, levels=levels,
         neighbourhood=neighbourhood, n_init=n_init, work_side=work_side, seed=seed, pool=pool,
         segment_options=segment_options, channel_axis=channel_axis,
+        keep_features=keep_features,
     ))
 
 

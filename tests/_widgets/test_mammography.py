@@ -178,12 +178,12 @@ def test_moving_the_operating_point_changes_the_marks_without_recomputing(
         widget, qtbot, small_mammogram, monkeypatch):
     """Issue 17: the "marks per image" control re-cuts the last result: the
     marks change with it, and neither the detection job nor the segmentation
-    runs again."""
+    runs again (the job, ROIs and tissue, segments once)."""
     from car_napari._widgets import mammography as widget_module
-    from car_napari.mammography import _rois, score_threshold
+    from car_napari.mammography import _tissue, score_threshold
 
     calls = {"detect": 0, "segment": 0}
-    detect, segment = widget_module.iter_detect_mammogram_rois, _rois._iter_segment_grey
+    detect, segment = widget_module.iter_analyse_mammogram, _tissue._iter_segment_grey
 
     def counted_detect(*args, **kwargs):
         calls["detect"] += 1
@@ -193,8 +193,8 @@ def test_moving_the_operating_point_changes_the_marks_without_recomputing(
         calls["segment"] += 1
         return segment(*args, **kwargs)
 
-    monkeypatch.setattr(widget_module, "iter_detect_mammogram_rois", counted_detect)
-    monkeypatch.setattr(_rois, "_iter_segment_grey", counted_segment)
+    monkeypatch.setattr(widget_module, "iter_analyse_mammogram", counted_detect)
+    monkeypatch.setattr(_tissue, "_iter_segment_grey", counted_segment)
     viewer, w = widget
     w._image.value = viewer.add_image(small_mammogram, name="mdb001")
     w._marks.value = 0.25
@@ -270,3 +270,32 @@ def test_the_control_shows_its_cross_validated_sensitivity(widget):
         point = operating_point(rate)
         assert f"finds {point['sensitivity']:.0%}" in w._expected.value
         assert f"without the CAR model {point['control']:.0%}" in w._expected.value
+
+
+def test_tissue_overlay_toggle_and_table(widget, qtbot, small_mammogram):
+    """The breast tissue from the same run: a fibroglandular overlay that the
+    toggle shows and hides, and the density and class in the tissue table."""
+    from car_napari.mammography import segment_tissue
+
+    viewer, w = widget
+    layer = viewer.add_image(small_mammogram, name="mdb001")
+    w._image.value = layer
+    job = w.start()
+    qtbot.waitUntil(lambda: job.done, timeout=180000)
+    overlay = viewer.layers["mdb001 fibroglandular"]
+    expected = segment_tissue(small_mammogram)
+    np.testing.assert_array_equal(overlay.data > 0, expected.fibroglandular)
+    assert overlay.visible
+    w._overlay.value = False
+    assert not overlay.visible
+    w._overlay.value = True
+    assert overlay.visible
+    cells = [w._tissue_table.item(0, j).text() for j in range(w._tissue_table.columnCount())]
+    assert cells[0] == f"{expected.density:.0f} %"
+    assert cells[1] == expected.tissue_class
+    assert cells[2:] == [f"{expected.probabilities[c]:.2f}" for c in ("F", "G", "D")]
+    # re-running replaces the overlay, it does not add another
+    count = len(viewer.layers)
+    job = w.start()
+    qtbot.waitUntil(lambda: job.done, timeout=180000)
+    assert len(viewer.layers) == count

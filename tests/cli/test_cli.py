@@ -431,3 +431,33 @@ def test_missing_inputs_leave_no_output_folder(tmp_path, capsys, command):
     assert main([part.format(**names) for part in command]) == 2
     assert "no such" in capsys.readouterr().err
     assert sorted(p.name for p in tmp_path.iterdir()) == before
+
+
+def test_mammo_tissue_writes_density_and_class(tmp_path):
+    import csv
+
+    from car_napari.io.sample_data import mammogram
+    from car_napari.mammography import TISSUE_CLASSES, analyse_mammogram
+
+    (image, _, _), = mammogram()
+    small = image.reshape(256, 4, 256, 4).mean(axis=(1, 3)).astype(np.uint8)
+    src = tmp_path / "in"
+    src.mkdir()
+    io.imsave(src / "mdb001.png", small)
+    out = tmp_path / "out"
+    assert main(["mammo", str(src / "mdb001.png"), "-o", str(out), "--tissue", "--quiet"]) == 0
+    rois, tissue = analyse_mammogram(small)
+    mask = io.imread(out / "mdb001_tissue.png")
+    np.testing.assert_array_equal(mask > 0, tissue.fibroglandular)
+    np.testing.assert_array_equal(io.imread(out / "mdb001_rois.png"), rois.labels)
+    with open(out / "tissue.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) == 1 and rows[0]["image"] == "mdb001.png"
+    assert float(rows[0]["density_percent"]) == pytest.approx(
+        100.0 * (mask > 0).sum() / tissue.breast.sum(), abs=0.01)
+    assert rows[0]["tissue_class"] == tissue.tissue_class
+    assert sum(float(rows[0][f"p_{c}"]) for c in TISSUE_CLASSES) == pytest.approx(1, abs=1e-3)
+    # without the switch: no tissue outputs
+    out2 = tmp_path / "out2"
+    assert main(["mammo", str(src / "mdb001.png"), "-o", str(out2), "--quiet"]) == 0
+    assert not (out2 / "tissue.csv").exists() and not (out2 / "mdb001_tissue.png").exists()
