@@ -502,6 +502,27 @@ def iter_detect_mammogram_rois(image, *, marks_per_image=DEFAULT_MARKS_PER_IMAGE
         breast = check_mask(breast, "breast", meaning="True on the breast")
     model = shipped_model()
     pool = None if n_segments is not None else pool
+    grey, segmentation, (r0, r1) = yield from _iter_breast_stages(
+        image, breast=breast, n_segments=n_segments, levels=levels,
+        neighbourhood=neighbourhood, n_init=n_init, work_side=work_side, seed=seed, pool=pool,
+        channel_axis=channel_axis)
+    yield Progress("regions", r0, "candidate regions")
+    threshold = None if marks_per_image is None else model.threshold(marks_per_image)
+    rois = yield from stage(
+        _iter_rank(grey, segmentation, model, threshold=threshold, max_regions=max_regions,
+                   min_area=min_area, split=split, band=_band(reference, tolerance)),
+        r0, r1,
+    )
+    n = len(rois.table["label"])
+    yield Progress("regions", 1.0, f"{n} region{'' if n == 1 else 's'}")
+    return rois
+
+
+def _iter_breast_stages(image, *, breast, n_segments, levels, neighbourhood, n_init, work_side,
+                        seed, pool, channel_axis):
+    """The first stages of every mammogram job: the image read as grey and
+    its breast segmented (features kept). Returns (grey, segmentation, the
+    (start, stop) fractions left for the job's own stages)."""
     spans = _spans(_work(np.size(image), len(pool or ()) + 1),
                    ("reading", "breast", "segmentation", "pooling", "regions"))
     grey = yield from stage(_iter_grey(image, channel_axis), *spans["reading"])
@@ -511,20 +532,14 @@ def iter_detect_mammogram_rois(image, *, marks_per_image=DEFAULT_MARKS_PER_IMAGE
                            seed=seed, pool=pool, segment_options=None, keep_features=True),
         spans["breast"][0], spans["pooling"][1],
     )
-    r0, r1 = spans["regions"]
-    yield Progress("regions", r0, "candidate regions")
-    threshold = None if marks_per_image is None else model.threshold(marks_per_image)
-    rois = yield from stage(
-        _iter_rank(grey, segmentation, model, threshold=threshold, max_regions=max_regions,
-                   min_area=min_area, split=split,
-                   band=None if tolerance is None else (
-                       REFERENCE_GREY if reference is None else float(reference),
-                       float(tolerance))),
-        r0, r1,
-    )
-    n = len(rois.table["label"])
-    yield Progress("regions", 1.0, f"{n} region{'' if n == 1 else 's'}")
-    return rois
+    return grey, segmentation, spans["regions"]
+
+
+def _band(reference, tolerance):
+    """The chapter's grey-level filter as (centre, half width), or None."""
+    if tolerance is None:
+        return None
+    return REFERENCE_GREY if reference is None else float(reference), float(tolerance)
 
 
 def _iter_rank(grey, segmentation, model, *, threshold, max_regions, min_area, split, band):

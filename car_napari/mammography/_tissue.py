@@ -32,17 +32,15 @@ from .._validation import check_mask
 from ._candidates import _texture_indices
 from ._candidates import shipped_model as _roi_model
 from ._images import _block_mean, _iter_grey
-from ._regions import REFERENCE_GREY
 from ._rois import (
     DEFAULT_MARKS_PER_IMAGE,
     DEFAULT_POOL_SEGMENTS,
     BreastSegmentation,
     MammogramROIs,
+    _band,
     _check_roi_options,
+    _iter_breast_stages,
     _iter_rank,
-    _iter_segment_grey,
-    _spans,
-    _work,
 )
 
 __all__ = [
@@ -530,16 +528,10 @@ def iter_segment_tissue(image, *, breast=None, levels=3, neighbourhood=2, n_init
         _check_segmentation(segmentation, grey.shape)
         t0 = 0.5
     else:
-        spans = _spans(_work(np.size(image), len(pool or ()) + 1),
-                       ("reading", "breast", "segmentation", "pooling", "regions"))
-        grey = yield from stage(_iter_grey(image, channel_axis), *spans["reading"])
-        segmentation = yield from stage(
-            _iter_segment_grey(grey, breast=breast, n_segments=None, levels=levels,
-                               neighbourhood=neighbourhood, n_init=n_init,
-                               work_side=work_side, seed=seed, pool=pool or None,
-                               segment_options=None, keep_features=True),
-            spans["breast"][0], spans["pooling"][1])
-        t0 = spans["regions"][0]
+        grey, segmentation, (t0, _) = yield from _iter_breast_stages(
+            image, breast=breast, n_segments=None, levels=levels, neighbourhood=neighbourhood,
+            n_init=n_init, work_side=work_side, seed=seed, pool=pool or None,
+            channel_axis=channel_axis)
     yield Progress("tissue", t0, "fibroglandular segments")
     tissue = _tissue_of(grey, segmentation, model)
     yield Progress("tissue", 1.0, f"density {tissue.density:.0f} %, class {tissue.tissue_class}")
@@ -688,25 +680,16 @@ def iter_analyse_mammogram(image, *, marks_per_image=DEFAULT_MARKS_PER_IMAGE, ma
     if breast is not None:
         breast = check_mask(breast, "breast", meaning="True on the breast")
     roi_model, model = _roi_model(), shipped_tissue_model()
-    spans = _spans(_work(np.size(image), len(pool or ()) + 1),
-                   ("reading", "breast", "segmentation", "pooling", "regions"))
-    grey = yield from stage(_iter_grey(image, channel_axis), *spans["reading"])
-    segmentation = yield from stage(
-        _iter_segment_grey(grey, breast=breast, n_segments=None, levels=levels,
-                           neighbourhood=neighbourhood, n_init=n_init, work_side=work_side,
-                           seed=seed, pool=pool or None, segment_options=None,
-                           keep_features=True),
-        spans["breast"][0], spans["pooling"][1])
-    r0, r1 = spans["regions"]
+    grey, segmentation, (r0, r1) = yield from _iter_breast_stages(
+        image, breast=breast, n_segments=None, levels=levels, neighbourhood=neighbourhood,
+        n_init=n_init, work_side=work_side, seed=seed, pool=pool or None,
+        channel_axis=channel_axis)
     mid = r0 + 0.8 * (r1 - r0)
     yield Progress("regions", r0, "candidate regions")
     threshold = None if marks_per_image is None else roi_model.threshold(marks_per_image)
     rois = yield from stage(
         _iter_rank(grey, segmentation, roi_model, threshold=threshold, max_regions=max_regions,
-                   min_area=None, split=True,
-                   band=None if tolerance is None else (
-                       REFERENCE_GREY if reference is None else float(reference),
-                       float(tolerance))), r0, mid)
+                   min_area=None, split=True, band=_band(reference, tolerance)), r0, mid)
     yield Progress("tissue", mid, "fibroglandular segments")
     tissue = _tissue_of(grey, segmentation, model)
     yield Progress("tissue", 1.0, f"density {tissue.density:.0f} %, class {tissue.tissue_class}")
