@@ -22,7 +22,7 @@ from typing import Any
 
 from ._threads import limited_blas
 
-__all__ = ["Progress", "drain", "side_by_side", "stage"]
+__all__ = ["Progress", "drain", "iter_chains", "side_by_side", "stage"]
 
 
 @dataclass(frozen=True)
@@ -169,6 +169,72 @@ def stage(job, start, stop, *, name=None, prefix="", previews=True):
         )
 
 
+def iter_chains(pool, chains):
+    """Run chains of calls, the chains side by side on ``pool``, each chain's
+    calls one after the other: the one scheduler of every job's threads.
+
+    The calls gain where they release the GIL (Numba ``nogil`` kernels,
+    NumPy). How the work is split into calls must not depend on ``pool``
+    (the callers' splits are fixed), so that a job's results are the same
+    on any number of threads (``CAR_NAPARI_JOB_THREADS``).
+
+    Parameters
+    ----------
+    pool : concurrent.futures.Executor or None
+        Threads to run the chains on (:func:`car_napari._threads.job_pool`);
+        None: one chain after the other, here.
+    chains : list of iterable
+        Iterables of zero-argument callables, drawn lazily: the next call of
+        a chain is drawn when its previous call has finished, so it may
+        depend on it.
+
+    Yields
+    ------
+    value : object
+        Each call's return value as it finishes (calls finishing together:
+        in the order of their chains).
+
+    Notes
+    -----
+    Closing the generator early starts no more calls, and returns once the
+    running ones have finished (they may write into the job's arrays).
+
+    Examples
+    --------
+    >>> list(iter_chains(None, [[lambda: 1, lambda: 2], [lambda: 3]]))
+    [1, 2, 3]
+    """
+    from concurrent.futures import FIRST_COMPLETED, wait
+
+    chains = [iter(chain) for chain in chains]
+    if pool is None:
+        for chain in chains:
+            for call in chain:
+                yield call()
+        return
+    pending = {}
+
+    def submit(k):
+        call = next(chains[k], None)
+        if call is not None:
+            pending[pool.submit(call)] = k
+
+    try:
+        for k in range(len(chains)):
+            submit(k)
+        while pending:
+            done, _ = wait(list(pending), return_when=FIRST_COMPLETED)
+            for future in sorted(done, key=pending.get):
+                k = pending.pop(future)
+                value = future.result()
+                submit(k)
+                yield value
+    finally:  # closing early: do not start what is queued, let the running end
+        for future in pending:
+            future.cancel()
+        wait(list(pending))
+
+
 def side_by_side(jobs, pool):
     """Run jobs side by side, each stepped to its next record in a thread of
     ``pool``: their records, as they come, then the list of their results.
@@ -177,6 +243,7 @@ def side_by_side(jobs, pool):
     The jobs gain where their work between records releases the GIL (Numba
     ``nogil`` kernels, NumPy); they must not share state they write. Closing
     early lets each job's running step end (a record's work) and closes them.
+    Scheduled by :func:`iter_chains`: each job a chain of steps.
 
     Parameters
     ----------
@@ -210,9 +277,7 @@ def side_by_side(jobs, pool):
     [2, 3]
     5
     """
-    from concurrent.futures import FIRST_COMPLETED, wait
     from dataclasses import replace
-
 
     jobs = list(jobs)
     results = [None] * len(jobs)
@@ -220,33 +285,30 @@ def side_by_side(jobs, pool):
         for k, job in enumerate(jobs):
             results[k] = yield from job
         return results
+    finished = [False] * len(jobs)
 
-    def step(job):
-        try:
-            return False, next(job)
-        except StopIteration as stop:
-            return True, stop.value
+    def steps(k):
+        def step():
+            try:
+                return next(jobs[k])
+            except StopIteration as stop:
+                finished[k] = True
+                results[k] = stop.value
+                return None
 
-    pending = {}
+        while not finished[k]:
+            yield step
+
     highest = -float("inf")
     try:
-        for k, job in enumerate(jobs):
-            pending[pool.submit(step, job)] = k
-        while pending:
-            done, _ = wait(list(pending), return_when=FIRST_COMPLETED)
-            for future in sorted(done, key=pending.get):
-                k = pending.pop(future)
-                finished, value = future.result()
-                if finished:
-                    results[k] = value
-                    continue
-                pending[pool.submit(step, jobs[k])] = k
-                if value.fraction < highest:  # made before one that came first
-                    value = replace(value, fraction=highest)
-                highest = value.fraction
-                yield value
+        for record in iter_chains(pool, [steps(k) for k in range(len(jobs))]):
+            if record is None:
+                continue
+            if record.fraction < highest:  # made before one that came first
+                record = replace(record, fraction=highest)
+            highest = record.fraction
+            yield record
     finally:  # a job can be closed only once its running step has returned
-        wait(list(pending))
         for job in jobs:
             job.close()
     return results

@@ -24,7 +24,7 @@ is known; each row uses the model of the tile it lies in.
 from __future__ import annotations
 
 import math
-from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, wait
 from typing import NamedTuple
 
 import numpy as np
@@ -33,6 +33,7 @@ from scipy import ndimage, sparse
 from scipy.sparse.linalg import splu
 
 from .._progress import Progress, drain, stage
+from .._threads import job_pool
 from ..model.neighbourhood import causal_neighbourhood
 
 __all__ = ["DIRECTIONS", "LocalModels", "conditional_mean", "direction_offsets",
@@ -60,7 +61,7 @@ HALO_REGION_BLEND = 0.05
 HALO_UNBLEND = 0.5  # a pixel called damaged stays known, less half its blend (see _filling)
 # The work between records: the statistics of the fit by bands of blocks of
 # about _FIT_RECORD_PIXELS pixels; the solves by batches of coupled groups of
-# about SOLVE_UNKNOWNS unknowns, run in _SOLVERS threads, a record every
+# about SOLVE_UNKNOWNS unknowns, run on the job pool's threads, a record every
 # SOLVE_RECORD_SECONDS while they run (a Cancel returns at the next record;
 # a factorisation running finishes in its thread, its result dropped).
 _FIT_RECORD_PIXELS = 1 << 16
@@ -68,7 +69,6 @@ _ESTIMATE_TILES = 512  # tiles' models estimated between records
 _ASSEMBLE_ROWS = 1 << 15  # rows of the normal equations added between records
 SOLVE_UNKNOWNS = 1 << 14
 SOLVE_RECORD_SECONDS = 0.25
-_SOLVERS = 2
 # The widest band (half-bandwidth, in unknowns) of a batch solved by the band
 # Cholesky factorisation rather than SuperLU: on 640x480 RGB holes, the band
 # solve is 3-5x faster on 3-8 px wide scratches (half-bandwidth 32-77), 1.2x
@@ -1013,11 +1013,17 @@ def _iter_solve(system, C, message):
         a, b = batches[0]  # small: no thread
         values[a:b], draws[a:b] = _solve_block(system, a, b, C)
         return values, draws
-    pool = ThreadPoolExecutor(_SOLVERS)
+    pool = job_pool()
+    done_pixels = 0
+    if pool is None:  # one thread: the batches one after the other, a record after each
+        for a, b in batches:
+            values[a:b], draws[a:b] = _solve_block(system, a, b, C)
+            done_pixels += b - a
+            yield Progress("solve", done_pixels / max(n, 1), f"{message}, solving")
+        return values, draws
     pending = {}
     try:
         pending = {pool.submit(_solve_block, system, a, b, C): (a, b) for a, b in batches}
-        done_pixels = 0
         while pending:
             finished, _ = wait(pending, timeout=SOLVE_RECORD_SECONDS,
                                return_when=FIRST_COMPLETED)
@@ -1027,7 +1033,8 @@ def _iter_solve(system, C, message):
                 done_pixels += b - a
             yield Progress("solve", done_pixels / max(n, 1), f"{message}, solving")
     finally:  # a Cancel: the batches not started are dropped, a running one finishes
-        pool.shutdown(wait=False, cancel_futures=True)
+        for future in pending:
+            future.cancel()
     return values, draws
 
 

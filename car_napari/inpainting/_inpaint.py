@@ -27,7 +27,7 @@ def iter_inpaint(image, mask, *, temporal=True, neighbourhood=None, forgetting=0
     after each (the local fits by bands of blocks, the rows by model, the
     sparse solves by batches of coupled holes, run in threads with a record
     every :data:`~car_napari.inpainting._conditional.SOLVE_RECORD_SECONDS`).
-    With ``method="scans"`` each frame is four scans, run two at a time in
+    With ``method="scans"`` each frame is four scans, run side by side in
     chunks of rows
     (about :data:`SCAN_CHUNK_PIXELS` pixels each, a fraction of a second) with
     a record after each chunk, so that closing the job (a Cancel) stops it

@@ -10,13 +10,13 @@ prediction probability exceeds ``kappa`` (14.50)-(14.52).
 from __future__ import annotations
 
 import operator
-from concurrent.futures import ThreadPoolExecutor
 from functools import partial
 from typing import NamedTuple
 
 import numpy as np
 
 from .._progress import Progress, drain, stage
+from .._threads import job_pool, submit
 from .._validation import (
     channel_last_shape,
     check_channel_axis,
@@ -427,32 +427,32 @@ def iter_restore_multichannel(stack, *, axis=0, kappa=DEFAULT_KAPPA, reference="
     yield Progress("start", 0.0, f"{n} versions")
     versions = yield from stage(_iter_versions(arr, position), *span("reading"))
     shape = versions[0].shape
-    with ThreadPoolExecutor(max_workers=2) as pool:
-        if isinstance(reference, str):
-            sharp = yield from stage(_iter_sharpness(versions, pool), *span("sharpness"))
-            reference = int(np.argmax(sharp))
-        else:
-            reference = int(reference) % n
-        observed = versions[reference]
-        summary = summarize(observed)
-        check_not_constant(observed, name=f"the reference version {reference}",
-                           summary=summary)
-        offsets = resolve_offsets(neighbourhood, observed)
-        context = multichannel_context(offsets, n, reference,
-                                       with_prediction=reference_prediction)
-        # the noise level beside the scans, one channel per call
-        noise_futures = [pool.submit(median_abs_laplacian, np.ascontiguousarray(
-            observed[..., c])) for c in range(C)] if keep_edges else []
-        try:
-            result = yield from _iter_scans(
-                versions, observed, reference, context, forgetting, directions,
-                reference_prediction, position, pool, span, steps)
-            pred, prob, spread = result
-            noise = (noise_from_medians([f.result() for f in noise_futures]) if keep_edges
-                     else estimate_noise(observed))
-        finally:
-            for future in noise_futures:
-                future.cancel()
+    pool = job_pool()  # None: one thread (CAR_NAPARI_JOB_THREADS=1)
+    if isinstance(reference, str):
+        sharp = yield from stage(_iter_sharpness(versions, pool), *span("sharpness"))
+        reference = int(np.argmax(sharp))
+    else:
+        reference = int(reference) % n
+    observed = versions[reference]
+    summary = summarize(observed)
+    check_not_constant(observed, name=f"the reference version {reference}",
+                       summary=summary)
+    offsets = resolve_offsets(neighbourhood, observed)
+    context = multichannel_context(offsets, n, reference,
+                                   with_prediction=reference_prediction)
+    # the noise level beside the scans, one channel per call
+    noise_futures = [submit(pool, median_abs_laplacian, np.ascontiguousarray(
+        observed[..., c])) for c in range(C)] if keep_edges else []
+    try:
+        result = yield from _iter_scans(
+            versions, observed, reference, context, forgetting, directions,
+            reference_prediction, position, pool, span, steps)
+        pred, prob, spread = result
+        noise = (noise_from_medians([f.result() for f in noise_futures]) if keep_edges
+                 else estimate_noise(observed))
+    finally:
+        for future in noise_futures:
+            future.cancel()
     weight = None
     if keep_edges:
         lo, hi = span("edges")
@@ -478,7 +478,7 @@ def iter_restore_multichannel(stack, *, axis=0, kappa=DEFAULT_KAPPA, reference="
 def _iter_scans(versions, observed, reference, context, forgetting, directions,
                 reference_prediction, position, pool, span, steps):
     """The reference's single-image prediction, then the 2.5D scans of every
-    colour channel in chunks of rows (two directions at a time on ``pool``),
+    colour channel in chunks of rows (the directions side by side on ``pool``),
     with a preview after each direction; returns (prediction, probability,
     spread per channel)."""
     shape = observed.shape

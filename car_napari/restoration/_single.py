@@ -17,13 +17,14 @@ four scan directions.
 from __future__ import annotations
 
 import queue
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import wait
 from dataclasses import dataclass, replace
 from functools import partial
 
 import numpy as np
 
 from .._progress import Progress, stage
+from .._threads import job_pool, pool_threads, submit
 from .._validation import (
     channel_last_shape,
     check_flag,
@@ -286,7 +287,7 @@ def _iter_windowed(planes, mean, var, offsets, directions, window, pool, live, p
                        f"{min(nbi, ranges[k - 1][1]) * nbj}/{nbi * nbj} local models")
     boxes = np.array([valid_box(H, W, tap[0], tap[1]) for tap in taps], np.int64)
 
-    # Strips of rows, two at a time on two cores, each with its own buffers:
+    # Strips of rows, one a thread of the pool at a time, each with its own buffers:
     # the image fills in row by row, and the per-direction arrays stay small.
     # live: rows not yet restored show the observation (pred holds it)
     spread = np.zeros((H, W))
@@ -295,7 +296,7 @@ def _iter_windowed(planes, mean, var, offsets, directions, window, pool, live, p
     height = int(np.clip(H // 8, 8, STRIP_ROWS))  # small images: still a few strips
     strips = [(r, min(H, r + height)) for r in range(0, H, height)]
     buffers = queue.SimpleQueue()
-    for _ in range(2):
+    for _ in range(pool_threads(pool)):
         rows = height + 2
         buffers.put((np.empty((K, C, rows, W)), np.empty((K, rows, W)),
                      np.empty((K, rows, W) if probability else (K, 0, 0)),
@@ -323,7 +324,10 @@ def _iter_windowed(planes, mean, var, offsets, directions, window, pool, live, p
         finally:
             buffers.put((means, err2, ratio, weight, scratch))
 
-    futures = [pool.submit(run, *strip) for strip in strips]
+    if pool is None:  # one strip after the other, here, drawn as the loop asks
+        futures = (submit(None, run, *strip) for strip in strips)
+    else:
+        futures = [pool.submit(run, *strip) for strip in strips]
     every = max(1, len(strips) // 8)  # a live image costs a copy: about 8 of them
     lo, hi = span("rows")
     try:
@@ -342,8 +346,10 @@ def _iter_windowed(planes, mean, var, offsets, directions, window, pool, live, p
                 running = show(running)
             yield Progress("rows", fraction, message, running)
     finally:  # closing the generator early: do not start what is queued
-        for future in futures:
-            future.cancel()
+        if pool is not None:
+            for future in futures:
+                future.cancel()
+            wait(futures)  # the running strips write into pred
     return pred, density, spread
 
 
@@ -455,72 +461,76 @@ def iter_restoration(image, *, neighbourhood, estimator, window, forgetting, dir
     context = Context.spatial(offsets, data.shape[2])
     lo, hi = span("centre")
     rows = row_chunks(0, H, chunk_rows(W, 2 * C))
-    with ThreadPoolExecutor(max_workers=2) as pool:
-        if estimator == "windowed":
-            # channel-first: every kernel runs along contiguous rows
-            planes = np.empty(np.roll(data.shape, 1))
-            source = np.moveaxis(data, -1, 0)
-            # live: rows not yet restored show the observation
-            pred = np.empty((H, W, C))
+    pool = job_pool()  # None: one thread (CAR_NAPARI_JOB_THREADS=1)
+    if estimator == "windowed":
+        # channel-first: every kernel runs along contiguous rows
+        planes = np.empty(np.roll(data.shape, 1))
+        source = np.moveaxis(data, -1, 0)
+        # live: rows not yet restored show the observation
+        pred = np.empty((H, W, C))
 
-            def centre(a, b):  # NumPy releases the GIL
-                np.subtract(source[:, a:b], summary.mean[:, None, None], out=planes[:, a:b])
-                if live:
-                    np.add(np.moveaxis(planes[:, a:b], 0, -1), summary.mean, out=pred[a:b])
+        def centre(a, b):  # NumPy releases the GIL
+            np.subtract(source[:, a:b], summary.mean[:, None, None], out=planes[:, a:b])
+            if live:
+                np.add(np.moveaxis(planes[:, a:b], 0, -1), summary.mean, out=pred[a:b])
 
-            for k, _ in enumerate(iter_calls(pool, [partial(centre, a, b) for a, b in rows]),
-                                  start=1):
-                yield Progress("centre", lo + (hi - lo) * k / len(rows), "centring")
-            pred, prob, spread = yield from _iter_windowed(
-                planes, summary.mean, summary.var, offsets, directions, window, pool,
-                live, probability, show, span, pred)
-            if noise is None:  # one channel per call, two at a time
-                lo, hi = span("noise")
-                medians = {}
-                for k, (c, value) in enumerate(iter_calls(pool, [
-                        partial(_median, c, plane) for c, plane in enumerate(planes)]),
-                        start=1):
-                    medians[c] = value
-                    yield Progress("noise", lo + (hi - lo) * k / C, f"channel {k}/{C}")
-                noise = noise_from_medians([medians[c] for c in range(C)])
-            weight = None
-            if keep_edges and blend:  # the restored image straight away, no weight array,
-                # written over the planes, which are no longer needed (fresh memory is
-                # slow to touch: page faults cost as much as a kernel here)
-                pred = yield from _iter_edges(data, pred, spread, noise, pool, span, blend=True,
-                                              out=planes.reshape(data.shape))
-            elif keep_edges:
-                weight = yield from _iter_edges(data, pred, spread, noise, pool, span)
-        else:
-            centred = np.empty(data.shape)
+        for k, _ in enumerate(iter_calls(pool, [partial(centre, a, b) for a, b in rows]),
+                              start=1):
+            yield Progress("centre", lo + (hi - lo) * k / len(rows), "centring")
+        pred, prob, spread = yield from _iter_windowed(
+            planes, summary.mean, summary.var, offsets, directions, window, pool,
+            live, probability, show, span, pred)
+        if noise is None:  # one channel per call, side by side
+            lo, hi = span("noise")
+            medians = {}
+            for k, (c, value) in enumerate(iter_calls(pool, [
+                    partial(_median, c, plane) for c, plane in enumerate(planes)]),
+                    start=1):
+                medians[c] = value
+                yield Progress("noise", lo + (hi - lo) * k / C, f"channel {k}/{C}")
+            noise = noise_from_medians([medians[c] for c in range(C)])
+        weight = None
+        if keep_edges and blend:  # the restored image straight away, no weight array,
+            # written over the planes, which are no longer needed (fresh memory is
+            # slow to touch: page faults cost as much as a kernel here)
+            pred = yield from _iter_edges(data, pred, spread, noise, pool, span, blend=True,
+                                          out=planes.reshape(data.shape), halves=True)
+        elif keep_edges:
+            weight = yield from _iter_edges(data, pred, spread, noise, pool, span, halves=True)
+    else:
+        centred = np.empty(data.shape)
 
-            def centre(a, b):
-                np.subtract(data[a:b], summary.mean, out=centred[a:b])
+        def centre(a, b):
+            np.subtract(data[a:b], summary.mean, out=centred[a:b])
 
-            for k, _ in enumerate(iter_calls(pool, [partial(centre, a, b) for a, b in rows]),
-                                  start=1):
-                yield Progress("centre", lo + (hi - lo) * k / len(rows), "centring")
-            noise_future = pool.submit(noise_channel_last, data) if noise is None else None
-            pred, prob, spread = yield from _iter_recursive(
-                centred, summary.mean, context, summary.var, forgetting, directions, live, show,
-                pool, span)
-            if noise_future is not None:
-                noise = noise_future.result()
-            pred += summary.mean
-            weight = None
-            # one segment of rows, in chunks here (bit for bit the one-call rule)
-            if keep_edges and blend:
-                pred = yield from _iter_edges(data, pred, spread, noise, None, span, blend=True)
-            elif keep_edges:
-                weight = yield from _iter_edges(data, pred, spread, noise, None, span)
+        for k, _ in enumerate(iter_calls(pool, [partial(centre, a, b) for a, b in rows]),
+                              start=1):
+            yield Progress("centre", lo + (hi - lo) * k / len(rows), "centring")
+        noise_future = submit(pool, noise_channel_last, data) if noise is None else None
+        pred, prob, spread = yield from _iter_recursive(
+            centred, summary.mean, context, summary.var, forgetting, directions, live, show,
+            pool, span)
+        if noise_future is not None:
+            noise = noise_future.result()
+        pred += summary.mean
+        weight = None
+        # one segment of rows, in chunks here (bit for bit the one-call rule)
+        if keep_edges and blend:
+            pred = yield from _iter_edges(data, pred, spread, noise, None, span, blend=True)
+        elif keep_edges:
+            weight = yield from _iter_edges(data, pred, spread, noise, None, span)
     return RestorationResult(data, pred, prob, weight, None, kappa, noise)
 
 
-def _iter_edges(observed, prediction, spread, noise, pool, span, blend=False, out=None):
-    """The edge rule in chunks of rows, a Progress record after each."""
+def _iter_edges(observed, prediction, spread, noise, pool, span, blend=False, out=None,
+                halves=False):
+    """The edge rule in chunks of rows (``halves``: see
+    :func:`~car_napari.restoration._combine.iter_edge_rule`), a Progress
+    record after each."""
     lo, hi = span("edges")
     H = observed.shape[0]
-    job = iter_edge_rule(observed, prediction, spread, noise, pool, blend=blend, out=out)
+    job = iter_edge_rule(observed, prediction, spread, noise, pool, blend=blend, out=out,
+                         halves=halves)
     done = 0
     while True:
         try:

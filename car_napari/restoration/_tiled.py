@@ -31,11 +31,10 @@ benchmark, docs/restoration.md).
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
-
 import numpy as np
 
 from .._progress import Progress, drain
+from .._threads import job_pool
 from .._tiles import is_lazy, iter_map_tiles, lazy_map_tiles, read_tile, require, tile_grid
 from .._validation import (
     MAX_SIDE,
@@ -281,13 +280,13 @@ def _restore_part(part, *, mean, var, noise, offsets, directions, window, keep_e
     planes = np.empty((C, H, W))
     np.subtract(np.moveaxis(data, -1, 0), mean[:, None, None], out=planes)
     pred = np.empty((H, W, C))
-    with ThreadPoolExecutor(max_workers=2) as pool:
-        pred, prob, spread = drain(_iter_windowed(
-            planes, mean, var, offsets, directions, window, pool, False, probability,
-            None, span, pred))
-        if keep_edges:
-            pred = drain(_iter_edges(data, pred, spread, noise, pool, span, blend=True,
-                                     out=planes.reshape(data.shape)))
+    pool = job_pool()
+    pred, prob, spread = drain(_iter_windowed(
+        planes, mean, var, offsets, directions, window, pool, False, probability,
+        None, span, pred))
+    if keep_edges:
+        pred = drain(_iter_edges(data, pred, spread, noise, pool, span, blend=True,
+                                 out=planes.reshape(data.shape), halves=True))
     if probability:
         pred = np.where((prob > kappa)[..., None], pred, data)
     return pred[..., 0] if part.ndim == 2 else pred
