@@ -103,7 +103,7 @@ def _block(window):
 
 
 def _check(image, neighbourhood, estimator, window, directions, kappa, noise, channel_axis,
-           tile):
+           tile, forgetting=0.995):
     """The options validated up front: (offsets, directions, kappa, C, noise)."""
     if estimator != "windowed":
         raise ValueError(
@@ -120,7 +120,7 @@ def _check(image, neighbourhood, estimator, window, directions, kappa, noise, ch
     # window's buffers larger than the image)
     window = check_real(window, "window (an integer of at least 6 pixels)", low=6,
                         high=MAX_SIDE, integer=True)
-    _, directions = check_options(0.995, directions, CORNERS)
+    _, directions = check_options(forgetting, directions, CORNERS)  # as restore checks it
     kappa = check_kappa(kappa)
     tile = check_real(tile, "tile (a positive number of pixels)", low=1, high=MAX_SIDE,
                       integer=True)
@@ -293,8 +293,9 @@ def _restore_part(part, *, mean, var, noise, offsets, directions, window, keep_e
 
 
 def iter_restore_tiled(image, *, out=None, tile=DEFAULT_TILE, neighbourhood=1,
-                       estimator="windowed", window=DEFAULT_WINDOW, directions="all",
-                       keep_edges=True, kappa=0.0, noise=None, channel_axis=-1):
+                       estimator="windowed", window=DEFAULT_WINDOW, forgetting=0.995,
+                       directions="all", keep_edges=True, kappa=0.0, noise=None,
+                       channel_axis=-1):
     """Restore an image larger than memory by tiles, as a job.
 
     The same result as :func:`~car_napari.restoration.restore` with the
@@ -322,6 +323,9 @@ def iter_restore_tiled(image, *, out=None, tile=DEFAULT_TILE, neighbourhood=1,
         Only the windowed estimator is tile-local (see the module's notes).
     window, directions, keep_edges, kappa, noise : optional
         As :func:`restore`.
+    forgetting : float in [0.5, 1], optional
+        As :func:`restore`: checked as there, and unused (only the recursive
+        estimator, which cannot run by tiles, forgets).
     channel_axis : -1 or None, optional
         A 3-D image is (H, W, C).
 
@@ -362,7 +366,8 @@ def iter_restore_tiled(image, *, out=None, tile=DEFAULT_TILE, neighbourhood=1,
     if not (hasattr(image, "shape") and hasattr(image, "__getitem__")):
         image = np.asarray(image)  # a nested list: as restore takes it
     offsets, directions, kappa, C, noise, window, tile = _check(
-        image, neighbourhood, estimator, window, directions, kappa, noise, channel_axis, tile)
+        image, neighbourhood, estimator, window, directions, kappa, noise, channel_axis, tile,
+        forgetting)
     _check_out(out, image.shape)
     H, W = image.shape[:2]
     yield Progress("start", 0.0, f"{H} x {W} image by tiles")
@@ -396,8 +401,9 @@ class _TilePart:
 
 
 def restore_tiled(image, *, out=None, tile=DEFAULT_TILE, neighbourhood=1,
-                  estimator="windowed", window=DEFAULT_WINDOW, directions="all",
-                  keep_edges=True, kappa=0.0, noise=None, channel_axis=-1):
+                  estimator="windowed", window=DEFAULT_WINDOW, forgetting=0.995,
+                  directions="all", keep_edges=True, kappa=0.0, noise=None,
+                  channel_axis=-1):
     """Restore an image larger than memory by tiles.
 
     ``drain(iter_restore_tiled(image, ...))``: see :func:`iter_restore_tiled`
@@ -417,6 +423,9 @@ def restore_tiled(image, *, out=None, tile=DEFAULT_TILE, neighbourhood=1,
         Only 'windowed' runs by tiles.
     window, directions, keep_edges, kappa, noise : optional
         As :func:`restore`.
+    forgetting : float in [0.5, 1], optional
+        As :func:`restore`: checked as there, and unused (only the recursive
+        estimator, which cannot run by tiles, forgets).
     channel_axis : -1 or None, optional
         A 3-D image is (H, W, C).
 
@@ -442,19 +451,20 @@ def restore_tiled(image, *, out=None, tile=DEFAULT_TILE, neighbourhood=1,
     """
     return drain(iter_restore_tiled(
         image, out=out, tile=tile, neighbourhood=neighbourhood, estimator=estimator,
-        window=window, directions=directions, keep_edges=keep_edges, kappa=kappa, noise=noise,
-        channel_axis=channel_axis))
+        window=window, forgetting=forgetting, directions=directions, keep_edges=keep_edges,
+        kappa=kappa, noise=noise, channel_axis=channel_axis))
 
 
 def iter_restore_lazy(image, *, neighbourhood, estimator, window, forgetting, directions,
                       keep_edges, kappa, noise, channel_axis, return_result):
     """What ``iter_restore`` and ``restore`` run for a dask or zarr image:
-    :func:`iter_restore_tiled` (``forgetting`` is the recursive estimator's,
-    which tiles refuse)."""
+    :func:`iter_restore_tiled`, every option passed on (``forgetting`` is
+    checked as for an image in memory; only the recursive estimator, which
+    tiles refuse, uses it)."""
     if return_result:
         raise ValueError("return_result needs the image in memory; a dask or zarr image is "
                          "restored by tiles into an array (restore_tiled).")
     return (yield from iter_restore_tiled(
         image, neighbourhood=neighbourhood, estimator=estimator, window=window,
-        directions=directions, keep_edges=keep_edges, kappa=kappa, noise=noise,
-        channel_axis=channel_axis))
+        forgetting=forgetting, directions=directions, keep_edges=keep_edges, kappa=kappa,
+        noise=noise, channel_axis=channel_axis))
