@@ -9,20 +9,23 @@ Cancel) stops the work at the next yield: kernels run in chunks (rows, tiles,
 EM iterations) with a yield between them.
 
 Generators that run another one as a stage use :func:`stage`, which maps
-the inner fractions into a part of the outer range. These helpers (and the
-widgets' job runner, which relays the records to a napari worker) are the
-only code that steps a generator by hand. Every job runs with BLAS limited
-to one thread (:mod:`car_napari._threads`).
+the inner fractions into a part of the outer range; a job of several stages
+gives each its :class:`Span` of [0, 1] by :func:`spans`. Work split into
+calls between records goes by :func:`row_blocks`, and runs side by side on
+the job pool (:mod:`car_napari._threads`) by :func:`iter_chains` (or, whole
+jobs, :func:`side_by_side`). Every job runs with BLAS limited to one thread
+(:mod:`car_napari._threads`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 from ._threads import limited_blas
 
-__all__ = ["Progress", "drain", "iter_chains", "side_by_side", "stage"]
+__all__ = ["Progress", "Span", "drain", "iter_chains", "row_blocks", "side_by_side", "spans",
+           "stage"]
 
 
 @dataclass(frozen=True)
@@ -58,6 +61,113 @@ class Progress:
     fraction: float
     message: str = ""
     preview: Any = None
+
+
+class Span(NamedTuple):
+    """A stage's part ``[start, stop)`` of a job's [0, 1] progress range.
+
+    A tuple: ``lo, hi = span`` and ``stage(job, *span)`` work.
+
+    Attributes
+    ----------
+    start, stop : float
+        The stage's first and last fraction.
+
+    Examples
+    --------
+    >>> Span(0.2, 0.6).at(1, 4)
+    0.3
+    """
+
+    start: float
+    stop: float
+
+    def at(self, done, total=1):
+        """The job's fraction when ``done`` of the stage's ``total`` is done.
+
+        Parameters
+        ----------
+        done : float
+            The work of the stage done.
+        total : float, optional
+            The stage's whole work (default 1: ``done`` is a fraction).
+
+        Returns
+        -------
+        float
+            ``start + (stop - start) * done / total``.
+        """
+        return self.start + (self.stop - self.start) * done / total
+
+
+def spans(work):
+    """The stages' spans of [0, 1], in proportion to their work.
+
+    Parameters
+    ----------
+    work : dict
+        ``{stage name: work}`` in the order the stages run (a stage of no
+        work gets an empty span).
+
+    Returns
+    -------
+    callable
+        ``span(name) -> Span``.
+
+    Examples
+    --------
+    >>> span = spans({"reading": 1.0, "scans": 3.0})
+    >>> span("scans")
+    Span(start=0.25, stop=1.0)
+    >>> span("scans").at(1, 2)
+    0.625
+    """
+    total = sum(work.values())
+    bounds, at = {}, 0.0
+    for name, value in work.items():
+        bounds[name] = Span(at / total, (at + value) / total)
+        at += value
+    return bounds.__getitem__
+
+
+def row_blocks(stop, size, *, start=0, merge_tail=False):
+    """Consecutive ``(a, b)`` ranges of at most ``size`` over ``[start, stop)``.
+
+    The one chunking of every job's work into calls between records (rows
+    of an image, frames of a clip, rows of a feature array).
+
+    Parameters
+    ----------
+    stop : int
+        The end of the range covered.
+    size : int or float
+        The most a range holds (its integer part, at least 1).
+    start : int, optional
+        The first index covered.
+    merge_tail : bool, optional
+        Merge a last range shorter than ``size // 2`` into the one before
+        it (a BLAS product over the blocks then sees the shapes one call
+        would, up to its tiles).
+
+    Returns
+    -------
+    list of (int, int)
+        The ranges, in order (none for an empty range).
+
+    Examples
+    --------
+    >>> row_blocks(7, 3)
+    [(0, 3), (3, 6), (6, 7)]
+    >>> row_blocks(9, 4, merge_tail=True)
+    [(0, 4), (4, 9)]
+    >>> row_blocks(9, 4.5, start=2)
+    [(2, 6), (6, 9)]
+    """
+    size = max(1, int(size))
+    blocks = [(a, min(a + size, stop)) for a in range(start, stop, size)]
+    if merge_tail and len(blocks) > 1 and blocks[-1][1] - blocks[-1][0] < size // 2:
+        blocks[-2:] = [(blocks[-2][0], stop)]
+    return blocks
 
 
 def drain(job, on_progress=None):

@@ -324,7 +324,7 @@ def submit(pool, call, *args):
     future = Future()
     try:
         future.set_result(call(*args))
-    except Exception as error:  # noqa: BLE001 - kept for future.result(), as a pool would
+    except Exception as error:  # raised by future.result(), as a pool would
         future.set_exception(error)
     return future
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._progress import Progress, drain
+from .._progress import Progress, drain, row_blocks
 from .._validation import as_channel_last_float, check_real
 from . import _motion
 from ._layout import read_layout
@@ -59,17 +59,11 @@ BLOTCH_THRESHOLD = 0.12  # the raw test (motion=False), image scale [0, 1]
 _CROSS = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], bool)
 
 
-def _bands(n, size):
-    """(start, stop) of consecutive bands of ``size`` over ``range(n)``."""
-    size = max(1, int(size))
-    return [(a, min(a + size, n)) for a in range(0, n, size)]
-
-
 def _iter_grey(clip, colour, grey, t, band_pixels):
     """Fill ``grey[t]`` with frame ``t`` as grey floats (the channel mean) by
     row bands; yields the pixels done after each band."""
     _, H, W = grey.shape
-    for a, b in _bands(H, band_pixels // W):
+    for a, b in row_blocks(H, band_pixels // W):
         f = clip[t, a:b]
         g = as_channel_last_float(f if colour else f[..., 0],
                                   channel_axis=-1 if colour else None, name="frame")
@@ -84,7 +78,7 @@ def _iter_line_mask(g, w, length, line_threshold, band_pixels, out):
     from scipy import ndimage
 
     H, W = g.shape
-    rows = _bands(H, band_pixels // W)
+    rows = row_blocks(H, band_pixels // W)
     contrast = np.zeros_like(g)
     steps = np.empty((H, W - 1))
     for a, b in rows:  # row-local: the contrast with both sides, the horizontal steps
@@ -106,7 +100,7 @@ def _iter_line_mask(g, w, length, line_threshold, band_pixels, out):
         signed[a:b] = np.sign(contrast[a:b]) * strong[a:b]
         yield (b - a) * W
     lines = np.empty((H, W), bool)
-    for c, d in _bands(W, band_pixels // H):  # column-local: persistence down the frame
+    for c, d in row_blocks(W, band_pixels // H):  # column-local: persistence down the frame
         # most rows of a long vertical window agree in sign
         along = ndimage.uniform_filter1d(signed[:, c:d], length, axis=0, mode="nearest")
         lines[:, c:d] = strong[:, c:d] & (np.abs(along) > 0.5) & (
@@ -177,7 +171,7 @@ def _iter_blotch_mask(before, frame, after, blotch_threshold, band_pixels, out,
     it when ``compensated``) into ``out``, by row bands with a halo (exact);
     yields the pixels done (:data:`_BLOTCH_PASSES` passes of H * W)."""
     H, W = frame.shape
-    for a, b in _bands(H, band_pixels // W):
+    for a, b in row_blocks(H, band_pixels // W):
         lo, hi = max(a - _BLOTCH_HALO, 0), min(b + _BLOTCH_HALO, H)
         if compensated:
             found = _compensated_blotch_mask(before[lo:hi], frame[lo:hi], after[lo:hi],

@@ -29,7 +29,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from .._progress import Progress, stage
+from .._progress import Progress, row_blocks, stage
 from .._threads import job_pool, pool_threads, submit
 from .._validation import check_forgetting, check_mask, check_real
 from ..model.neighbourhood import Context, causal_neighbourhood
@@ -241,19 +241,12 @@ class _Meter:
         return True
 
 
-def _bands(n, width):
-    """(start, stop) of bands of rows of about :data:`BAND_PIXELS` pixels
-    over ``n`` rows of ``width`` pixels."""
-    size = max(1, BAND_PIXELS // max(1, width))
-    return [(a, min(a + size, n)) for a in range(0, n, size)]
-
-
 def _as_float(array, out, meter, fraction, message, units=None):
     """``array.astype(np.float64)`` into ``out``, by bands (exact: element
     by element), in ``units`` ``(shift, scale)`` if given; a record (at
     ``fraction``) when due."""
     H, W = array.shape[:2]
-    for a, b in _bands(H, W):
+    for a, b in row_blocks(H, BAND_PIXELS // max(1, W)):
         out[a:b] = array[a:b]
         if units is not None:
             out[a:b] -= units[0]
@@ -287,7 +280,7 @@ def _iter_known_statistics(frame, mask, meter, message):
     continued band by band is the same sum; an (n, 1) array is summed
     pairwise, so a grey frame's variance is one call (a third of the data)."""
     H, W, C = frame.shape
-    bands = _bands(H, W)
+    bands = row_blocks(H, BAND_PIXELS // max(1, W))
     counts = [int(np.count_nonzero(~mask[a:b])) for a, b in bands]
     n = sum(counts)
     known = np.empty((n, C))
@@ -354,7 +347,7 @@ def _iter_source(frame, previous, mean, mask, pad, meter, message):
     H, W, C = frame.shape
     channels = C if previous is None else 2 * C
     source = np.empty((H + 2 * pad, W + 2 * pad, channels))
-    for a, b in _bands(H, W):
+    for a, b in row_blocks(H, BAND_PIXELS // max(1, W)):
         rows = source[pad + a : pad + b, pad : pad + W]
         np.subtract(frame[a:b], mean, out=rows[..., :C])
         if previous is not None:
@@ -381,7 +374,7 @@ def _iter_scans(source, codes, options, buffers, finish, meter, message):
     height, width = source.shape[:2]
     length = {"down": width, "up": width, "right": height, "left": height}  # pixels a row
     chunk = {k: max(1, SCAN_CHUNK_PIXELS // length[k]) for k in _DIRECTIONS}
-    copy_bands = _bands(height, width)
+    copy_bands = row_blocks(height, BAND_PIXELS // max(1, width))
     total = 4 * height * width
     pool = job_pool()  # None: one scan after the other, here
     scanners = pool_threads(pool)

@@ -14,14 +14,14 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .._progress import Progress, drain, stage
+from .._progress import Progress, drain, row_blocks, stage
 from .._validation import (
     MAGNITUDE_LIMIT,
     as_channel_last_float,
     check_not_constant,
     check_size,
 )
-from .blocks import iter_centre, iter_channel_last_float, row_ranges
+from .blocks import iter_centre, iter_channel_last_float
 from .directions import DIRECTIONS, scan_view
 from .neighbourhood import Context, as_offsets
 from .recursive import scan
@@ -468,21 +468,11 @@ def _iter_whiten(centred):
     L = np.linalg.cholesky(cov)
     out = np.empty_like(centred)
     out_flat = out.reshape(-1, d)
-    blocks = _long_blocks(flat.shape[0], _WHITEN_ROWS)
+    blocks = row_blocks(flat.shape[0], _WHITEN_ROWS, merge_tail=True)
     for k, (start, stop) in enumerate(blocks, start=1):
         out_flat[start:stop] = np.linalg.solve(L, flat[start:stop].T).T
         yield Progress("whitening", k / len(blocks), f"whitening: {k}/{len(blocks)}")
     return out
-
-
-def _long_blocks(n, size):
-    """``[(start, stop), ...]`` over ``range(n)`` in blocks of ``size``, the
-    last one merged with a short tail (the BLAS calls then see the same
-    shapes as one call would, up to the tile size)."""
-    blocks = row_ranges(n, 1, size)
-    if len(blocks) > 1 and blocks[-1][1] - blocks[-1][0] < size // 2:
-        blocks[-2:] = [(blocks[-2][0], n)]
-    return blocks
 
 
 def iter_select_support(image, orders=range(1, 6), *, channel_axis=-1, direction="down"):
@@ -823,7 +813,7 @@ def _iter_covariance(flat):
     n, d = flat.shape
     mean = flat.mean(axis=0)
     centred = np.empty_like(flat)
-    blocks = _long_blocks(n, _WHITEN_ROWS)
+    blocks = row_blocks(n, _WHITEN_ROWS, merge_tail=True)
     for k, (start, stop) in enumerate(blocks, start=1):
         np.subtract(flat[start:stop], mean, out=centred[start:stop])
         yield Progress("decorrelating", 0.5 * k / len(blocks), "spectral covariance")
@@ -843,7 +833,7 @@ def _iter_fit_2d(centred, mean, neighbourhood, orders, direction):
     basis = basis[:, ::-1]  # strongest factor first
     factors_data = np.empty_like(centred)
     factors_flat = factors_data.reshape(-1, d)
-    blocks = _long_blocks(flat.shape[0], _WHITEN_ROWS)
+    blocks = row_blocks(flat.shape[0], _WHITEN_ROWS, merge_tail=True)
     for k, (start, stop) in enumerate(blocks, start=1):
         factors_flat[start:stop] = flat[start:stop] @ basis
         yield Progress("decorrelating", share * (0.5 + 0.5 * k / len(blocks)),

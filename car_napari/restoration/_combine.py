@@ -7,7 +7,7 @@ from functools import partial
 
 import numpy as np
 
-from .._progress import iter_chains
+from .._progress import iter_chains, row_blocks
 from .._threads import pool_threads
 from .._validation import check_size
 from ..model.directions import scan_shape
@@ -25,12 +25,6 @@ DIRECTION_POWER = 4
 EDGE_SPREAD = 0.7
 # Values (pixels x channels) of one chunk of the row-wise kernels: ~10-40 ms.
 CHUNK_VALUES = 1 << 20
-
-
-def row_chunks(start, stop, rows):
-    """[start, stop) as consecutive (a, b) ranges of at most ``rows`` rows."""
-    rows = max(1, int(rows))
-    return [(a, min(stop, a + rows)) for a in range(start, stop, rows)]
 
 
 def chunk_rows(width, per_pixel=1.0):
@@ -132,7 +126,7 @@ class DirectionalAverage:
             return b - a
 
         rows = chunk_rows(W, 4 * C)
-        yield from iter_calls(pool, [partial(call, a, b) for a, b in row_chunks(0, H, rows)])
+        yield from iter_calls(pool, [partial(call, a, b) for a, b in row_blocks(H, rows)])
 
     def spread(self):
         """(H, W, C) variance of the directional predictions (0 with < 2)."""
@@ -153,7 +147,7 @@ class DirectionalAverage:
         chunks of rows (a 4000x4000 image is ~0.3 s in one call); yields the
         rows done after each chunk. Rows are independent: bit for bit one call."""
         H, W, C = self.observed.shape
-        for a, b in row_chunks(0, H, chunk_rows(W, C)):
+        for a, b in row_blocks(H, chunk_rows(W, C)):
             combine_directions(self.mean_sum, self.prob_sum, self.weight_sum, self.observed,
                                self.offset, pred, prob, a, b)
             yield b - a
@@ -208,7 +202,7 @@ def iter_edge_rule(observed, prediction, spread, noise, pool=None, blend=False, 
 
     def chain(r0, r1):
         cols, spread_cols = np.zeros((W, C)), np.zeros(W)
-        steps = row_chunks(r0, r1, rows)
+        steps = row_blocks(r1, rows, start=r0)
         steps[0] = (r0 - 2 * (EDGE_WINDOW // 2) - 1, steps[0][1])  # the sums fill first
         for a, b in steps:
             def call(a=a, b=b):

@@ -15,7 +15,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .._progress import Progress, drain, stage
+from .._progress import Progress, drain, row_blocks, spans, stage
 from .._threads import job_pool, submit
 from .._validation import (
     channel_last_shape,
@@ -33,11 +33,9 @@ from ._combine import (
     chunk_rows,
     iter_calls,
     iter_directions,
-    iter_edge_rule,
-    row_chunks,
 )
 from ._noise import estimate_noise, noise_from_medians
-from ._single import DEFAULT_WINDOW, RestorationResult, _spans, iter_restoration
+from ._single import DEFAULT_WINDOW, RestorationResult, _iter_edges, iter_restoration
 from ._windowed import median_abs_laplacian
 
 # Threshold on the prediction probability (the predictive density relative to
@@ -252,7 +250,7 @@ def _iter_sharpness(versions, pool=None):
     from scipy import ndimage
 
     H, W, C = versions[0].shape
-    rows = row_chunks(0, H, chunk_rows(W, 8.0))
+    rows = row_blocks(H, chunk_rows(W, 8.0))
     out = np.empty((H, W))
     values = []
     steps = len(versions) * C
@@ -423,10 +421,9 @@ def iter_restore_multichannel(stack, *, axis=0, kappa=DEFAULT_KAPPA, reference="
     work = {"reading": 0.15 * n, "sharpness": 0.6 * n if reference == "auto" else 0.0,
             "reference": 1.0 if reference_prediction else 0.0,
             "directions": len(directions) * _SCAN_COST, "edges": 0.1 if keep_edges else 0.0}
-    span = _spans(work)
+    span = spans(work)
     yield Progress("start", 0.0, f"{n} versions")
     versions = yield from stage(_iter_versions(arr, position), *span("reading"))
-    shape = versions[0].shape
     pool = job_pool()  # None: one thread (CAR_NAPARI_JOB_THREADS=1)
     if isinstance(reference, str):
         sharp = yield from stage(_iter_sharpness(versions, pool), *span("sharpness"))
@@ -454,18 +451,8 @@ def iter_restore_multichannel(stack, *, axis=0, kappa=DEFAULT_KAPPA, reference="
         for future in noise_futures:
             future.cancel()
     weight = None
-    if keep_edges:
-        lo, hi = span("edges")
-        H = shape[0]
-        done = 0
-        job = iter_edge_rule(observed, pred, spread.mean(axis=-1), noise)
-        while True:
-            try:
-                done += next(job)
-            except StopIteration as stop:
-                weight = stop.value
-                break
-            yield Progress("edges", lo + (hi - lo) * done / H, f"edge rule: rows {done}/{H}")
+    if keep_edges:  # one segment of rows, in chunks here
+        weight = yield from _iter_edges(observed, pred, spread.mean(axis=-1), noise, None, span)
     if exponent:  # back to the stack's units; probabilities and weights have none
         observed, pred, noise = (np.ldexp(a, exponent) for a in (observed, pred, noise))
     result = RestorationResult(observed, pred, prob, weight, reference, kappa, noise)
@@ -496,7 +483,7 @@ def _iter_scans(versions, observed, reference, context, forgetting, directions,
             channel_axis=-1, live=False, probability=False, blend=False),
             *span("reference"), name="reference")
         extra = [prediction.prediction]
-    lo, hi = span("directions")
+    share = span("directions")
     pred = np.empty(shape)
     prob_sum = np.zeros(shape[:2])
     spread = np.zeros(shape)
@@ -505,7 +492,7 @@ def _iter_scans(versions, observed, reference, context, forgetting, directions,
     channel_pred, channel_prob = np.empty(shape[:2] + (1,)), np.empty(shape[:2])
     rows = chunk_rows(shape[1], len(versions) + len(extra))
     for c in range(C):  # colour versions: one 2.5D model per colour channel
-        fraction = lo + (hi - lo) * scanned / total
+        fraction = share.at(scanned, total)
         message = f"channel {c + 1}/{C}: preparing"
         source, means, var = yield from _iter_centred_source(
             versions + extra, c, rows, Progress("directions", fraction, message))
@@ -515,7 +502,7 @@ def _iter_scans(versions, observed, reference, context, forgetting, directions,
                 source, context, var[[reference]], forgetting=forgetting,
                 directions=directions, outputs=("mean", "logrel"), prior=1e-6, pool=pool):
             scanned += pixels
-            fraction = lo + (hi - lo) * scanned / total
+            fraction = share.at(scanned, total)
             yield Progress("directions", fraction,
                            f"channel {c + 1}/{C}: scans {100 * scanned // total} %")
             for _, result in finished:
@@ -532,7 +519,7 @@ def _iter_scans(versions, observed, reference, context, forgetting, directions,
                 for _ in average.iter_prediction(channel_pred, channel_prob):
                     yield Progress("directions", fraction, message)
                 running = np.empty(shape)
-                for a, b in row_chunks(0, shape[0], rows):
+                for a, b in row_blocks(shape[0], rows):
                     pred[a:b, :, c] = channel_pred[a:b, :, 0]
                     running[a:b, :, : c + 1] = pred[a:b, :, : c + 1]
                     running[a:b, :, c + 1 :] = observed[a:b, :, c + 1 :]
@@ -554,7 +541,7 @@ def _iter_centred_source(versions, c, rows, record):
     sums, so that any chunking gives the same bits."""
     H, W = versions[0].shape[:2]
     n = len(versions)
-    chunks = row_chunks(0, H, rows)
+    chunks = row_blocks(H, rows)
     source = np.empty((H, W, n))
     row_sums = np.empty((H, n))
     for a, b in chunks:

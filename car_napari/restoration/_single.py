@@ -23,7 +23,7 @@ from functools import partial
 
 import numpy as np
 
-from .._progress import Progress, stage
+from .._progress import Progress, row_blocks, spans, stage
 from .._threads import job_pool, pool_threads, submit
 from .._validation import (
     channel_last_shape,
@@ -49,7 +49,6 @@ from ._combine import (
     iter_calls,
     iter_directions,
     iter_edge_rule,
-    row_chunks,
 )
 from ._noise import noise_channel_last, noise_from_medians
 from ._windowed import (
@@ -249,12 +248,12 @@ def _iter_windowed(planes, mean, var, offsets, directions, window, pool, live, p
     A = len(positions) * C + 1
     moments = np.zeros((nbi, nbj, A, A))
     # block rows are independent: chunks of them, two at a time, a record each
-    lo, hi = span("moments")
-    ranges = row_chunks(0, nbi, chunk_rows(nbj * block * block, A * (A + 1) / 8))
+    share = span("moments")
+    ranges = row_blocks(nbi, chunk_rows(nbj * block * block, A * (A + 1) / 8))
     for k, _ in enumerate(iter_calls(pool, [
             partial(block_moments, planes, disp_i, disp_j, block, moments, a, b)
             for a, b in ranges]), start=1):
-        yield Progress("moments", lo + (hi - lo) * k / len(ranges),
+        yield Progress("moments", share.at(k, len(ranges)),
                        f"statistics {k}/{len(ranges)}")
 
     taps = []
@@ -274,16 +273,16 @@ def _iter_windowed(planes, mean, var, offsets, directions, window, pool, live, p
     x_inv = np.empty((K, *density_shape, p, p))
     lam_inv = np.empty((K, *density_shape, C, C))
     exponent = np.empty((nbi, nbj))
-    lo, hi = span("models")
+    share = span("models")
     # work of one block's models: the window's sums, then per direction a
     # Cholesky factor and solves (and the inverses for the density)
     per_block = 9 * A * A + K * (p * p * (p + C) + (p * p * p if probability else 0))
-    ranges = row_chunks(0, nbi, chunk_rows(nbj, per_block / 16))
+    ranges = row_blocks(nbi, chunk_rows(nbj, per_block / 16))
     for k, _ in enumerate(iter_calls(pool, [
             partial(window_models, moments, ix, iy, prior_x, np.full(C, 1e-6 * var),
                     bool(probability), gamma, x_inv, lam_inv, exponent, a, b)
             for a, b in ranges]), start=1):
-        yield Progress("models", lo + (hi - lo) * k / len(ranges),
+        yield Progress("models", share.at(k, len(ranges)),
                        f"{min(nbi, ranges[k - 1][1]) * nbj}/{nbi * nbj} local models")
     boxes = np.array([valid_box(H, W, tap[0], tap[1]) for tap in taps], np.int64)
 
@@ -294,7 +293,7 @@ def _iter_windowed(planes, mean, var, offsets, directions, window, pool, live, p
     density = np.empty((H, W)) if probability else None  # every strip writes its rows
     block_of_column = np.arange(W) // block
     height = int(np.clip(H // 8, 8, STRIP_ROWS))  # small images: still a few strips
-    strips = [(r, min(H, r + height)) for r in range(0, H, height)]
+    strips = row_blocks(H, height)
     buffers = queue.SimpleQueue()
     for _ in range(pool_threads(pool)):
         rows = height + 2
@@ -329,18 +328,18 @@ def _iter_windowed(planes, mean, var, offsets, directions, window, pool, live, p
     else:
         futures = [pool.submit(run, *strip) for strip in strips]
     every = max(1, len(strips) // 8)  # a live image costs a copy: about 8 of them
-    lo, hi = span("rows")
+    share = span("rows")
     try:
         for done, future in enumerate(futures, start=1):
             future.result()
-            fraction = lo + (hi - lo) * done / len(strips)
+            fraction = share.at(done, len(strips))
             message = f"rows {strips[done - 1][1]}/{H}"
             running = None
             if live and done < len(strips) and done % every == 0:
                 # the copy in strips, a record between them (fresh memory of a
                 # large image is slow to touch)
                 running = np.empty_like(pred)
-                for a, b in row_chunks(0, H, chunk_rows(W, 4 * C)):
+                for a, b in row_blocks(H, chunk_rows(W, 4 * C)):
                     np.copyto(running[a:b], pred[a:b])  # NumPy releases the GIL
                     yield Progress("rows", fraction, message)
                 running = show(running)
@@ -363,13 +362,13 @@ def _iter_recursive(centred, mean, context, var, forgetting, directions, live, s
     n = len(directions)
     H, W = centred.shape[:2]
     total = n * H * W
-    lo, hi = span("directions")
+    share = span("directions")
     done = k = 0
     for pixels, finished in iter_directions(
             centred, context, var, forgetting=forgetting, directions=directions,
             outputs=("mean", "logrel"), prior=1e-6, pool=pool):
         done += pixels
-        fraction = lo + (hi - lo) * done / total
+        fraction = share.at(done, total)
         yield Progress("directions", fraction, f"scans {100 * done // total} %")
         for _, result in finished:
             k += 1
@@ -388,17 +387,6 @@ def _iter_recursive(centred, mean, context, var, forgetting, directions, live, s
 def _median(c, plane):
     """(c, :func:`median_abs_laplacian` of ``plane``)."""
     return c, median_abs_laplacian(plane)
-
-
-def _spans(work):
-    """``span(stage) -> (start, stop)``: the stages' parts of [0, 1] in
-    proportion to their ``work`` (a dict in the order they run)."""
-    total = sum(work.values())
-    bounds, at = {}, 0.0
-    for name, value in work.items():
-        bounds[name] = (at / total, (at + value) / total)
-        at += value
-    return bounds.__getitem__
 
 
 def iter_restoration(image, *, neighbourhood, estimator, window, forgetting, directions,
@@ -440,7 +428,7 @@ def iter_restoration(image, *, neighbourhood, estimator, window, forgetting, dir
         work = dict(RECURSIVE_WORK)
     if not keep_edges:
         work.pop("edges")
-    span = _spans(work)
+    span = spans(work)
     ndim = np.ndim(image)
 
     def show(running):  # a preview in the input's layout
@@ -459,8 +447,8 @@ def iter_restoration(image, *, neighbourhood, estimator, window, forgetting, dir
     else:
         offsets = given
     context = Context.spatial(offsets, data.shape[2])
-    lo, hi = span("centre")
-    rows = row_chunks(0, H, chunk_rows(W, 2 * C))
+    share = span("centre")
+    rows = row_blocks(H, chunk_rows(W, 2 * C))
     pool = job_pool()  # None: one thread (CAR_NAPARI_JOB_THREADS=1)
     if estimator == "windowed":
         # channel-first: every kernel runs along contiguous rows
@@ -476,18 +464,18 @@ def iter_restoration(image, *, neighbourhood, estimator, window, forgetting, dir
 
         for k, _ in enumerate(iter_calls(pool, [partial(centre, a, b) for a, b in rows]),
                               start=1):
-            yield Progress("centre", lo + (hi - lo) * k / len(rows), "centring")
+            yield Progress("centre", share.at(k, len(rows)), "centring")
         pred, prob, spread = yield from _iter_windowed(
             planes, summary.mean, summary.var, offsets, directions, window, pool,
             live, probability, show, span, pred)
         if noise is None:  # one channel per call, side by side
-            lo, hi = span("noise")
+            share = span("noise")
             medians = {}
             for k, (c, value) in enumerate(iter_calls(pool, [
                     partial(_median, c, plane) for c, plane in enumerate(planes)]),
                     start=1):
                 medians[c] = value
-                yield Progress("noise", lo + (hi - lo) * k / C, f"channel {k}/{C}")
+                yield Progress("noise", share.at(k, C), f"channel {k}/{C}")
             noise = noise_from_medians([medians[c] for c in range(C)])
         weight = None
         if keep_edges and blend:  # the restored image straight away, no weight array,
@@ -505,7 +493,7 @@ def iter_restoration(image, *, neighbourhood, estimator, window, forgetting, dir
 
         for k, _ in enumerate(iter_calls(pool, [partial(centre, a, b) for a, b in rows]),
                               start=1):
-            yield Progress("centre", lo + (hi - lo) * k / len(rows), "centring")
+            yield Progress("centre", share.at(k, len(rows)), "centring")
         noise_future = submit(pool, noise_channel_last, data) if noise is None else None
         pred, prob, spread = yield from _iter_recursive(
             centred, summary.mean, context, summary.var, forgetting, directions, live, show,
@@ -527,7 +515,7 @@ def _iter_edges(observed, prediction, spread, noise, pool, span, blend=False, ou
     """The edge rule in chunks of rows (``halves``: see
     :func:`~car_napari.restoration._combine.iter_edge_rule`), a Progress
     record after each."""
-    lo, hi = span("edges")
+    share = span("edges")
     H = observed.shape[0]
     job = iter_edge_rule(observed, prediction, spread, noise, pool, blend=blend, out=out,
                          halves=halves)
@@ -537,7 +525,7 @@ def _iter_edges(observed, prediction, spread, noise, pool, span, blend=False, ou
             done += next(job)
         except StopIteration as stop:
             return stop.value
-        yield Progress("edges", lo + (hi - lo) * done / H, f"edge rule: rows {done}/{H}")
+        yield Progress("edges", share.at(done, H), f"edge rule: rows {done}/{H}")
 
 
 def restore_job(image, *, neighbourhood, estimator, window, forgetting, directions,

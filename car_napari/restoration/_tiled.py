@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._progress import Progress, drain
+from .._progress import Progress, Span, drain, spans
 from .._threads import job_pool
 from .._tiles import is_lazy, iter_map_tiles, lazy_map_tiles, read_tile, require, tile_grid
 from .._validation import (
@@ -53,7 +53,6 @@ from ._single import (
     WINDOWED_WORK,
     _iter_edges,
     _iter_windowed,
-    _spans,
 )
 
 __all__ = ["DEFAULT_TILE", "iter_restore_tiled", "restore_tiled", "tile_halo"]
@@ -222,7 +221,7 @@ def _iter_statistics(image, channel_axis, want_noise, tile, span):
     C = 1 if image.ndim == 2 else image.shape[2]
     tiles = tile_grid((H, W), tile, 1)
     lo, hi = span
-    step = (hi - lo) / 2
+    passes = Span(lo, (lo + hi) / 2), Span((lo + hi) / 2, hi)  # the two passes' halves
     summary = SummaryPasses(C)
     empty = np.zeros(0, np.int64)
     hist = [(empty, empty)] * C  # per channel: sorted bins, their counts
@@ -233,7 +232,7 @@ def _iter_statistics(image, channel_axis, want_noise, tile, span):
             r = _responses(data, t, H, W)
             for c in range(C):
                 hist[c] = _add_counts(*hist[c], _bins(r[:, c]))
-        yield Progress("statistics", lo + step * k / len(tiles), f"mean: tile {k}/{len(tiles)}")
+        yield Progress("statistics", passes[0].at(k, len(tiles)), f"mean: tile {k}/{len(tiles)}")
     # the min and max are known: refuse a constant channel before a second pass
     check_not_constant(None, summary=summary.result())
     n = (H - 2) * (W - 2)
@@ -254,7 +253,7 @@ def _iter_statistics(image, channel_axis, want_noise, tile, span):
             for c in range(C):
                 b = _bins(r[:, c])
                 picked[c].append(r[:, c][(b == bins[c][0]) | (b == bins[c][1])])
-        yield Progress("statistics", lo + step * (1 + k / len(tiles)),
+        yield Progress("statistics", passes[1].at(k, len(tiles)),
                        f"variance: tile {k}/{len(tiles)}")
     result = summary.result()
     if not want_noise:
@@ -276,7 +275,7 @@ def _restore_part(part, *, mean, var, noise, offsets, directions, window, keep_e
     data = _channel_last(part, None)
     H, W, C = data.shape
     probability = kappa > 0
-    span = _spans(dict(WINDOWED_WORK))
+    span = spans(dict(WINDOWED_WORK))
     planes = np.empty((C, H, W))
     np.subtract(np.moveaxis(data, -1, 0), mean[:, None, None], out=planes)
     pred = np.empty((H, W, C))
