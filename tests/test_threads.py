@@ -255,10 +255,10 @@ def test_every_application_runs_on_the_job_pool_sized_by_the_setting(monkeypatch
     kernels run on it, at 1 on no pool, and the results are the same bit for
     bit."""
     from car_napari import _threads
-    from car_napari.inpainting import _conditional
+    from car_napari.inpainting import _solver
 
     monkeypatch.setattr(_threads, "usable_cpus", lambda: 4)  # 3 threads on any machine
-    monkeypatch.setattr(_conditional, "SOLVE_UNKNOWNS", 64)  # several solves a frame
+    monkeypatch.setattr(_solver, "SOLVE_UNKNOWNS", 64)  # several solves a frame
     pool = _CountingPool(3)
     monkeypatch.setattr(_threads, "_pools", {3: pool})
     try:

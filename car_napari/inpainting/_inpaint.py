@@ -26,7 +26,7 @@ def iter_inpaint(image, mask, *, temporal=True, neighbourhood=None, forgetting=0
     result. ``method="conditional"`` works in short steps with a record
     after each (the local fits by bands of blocks, the rows by model, the
     sparse solves by batches of coupled holes, run in threads with a record
-    every :data:`~car_napari.inpainting._conditional.SOLVE_RECORD_SECONDS`).
+    every :data:`~car_napari.inpainting._solver.SOLVE_RECORD_SECONDS`).
     With ``method="scans"`` each frame is four scans, run side by side in
     chunks of rows
     (about :data:`SCAN_CHUNK_PIXELS` pixels each, a fraction of a second) with
