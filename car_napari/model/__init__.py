@@ -14,6 +14,7 @@ recursive scan behind the last runs in chunks of rows
 restoration) yield between its chunks the same way.
 """
 
+from .adaptive import iter_local_parameters, local_parameters
 from .estimation import (
     CARModel,
     Prediction,
@@ -26,7 +27,6 @@ from .estimation import (
 )
 from .invariants import illumination_invariants
 from .neighbourhood import Context, as_offsets, causal_neighbourhood
-from .recursive import iter_local_parameters, local_parameters
 from .synthesis import iter_synthesize, spectral_radius, synthesize
 
 __all__ = [

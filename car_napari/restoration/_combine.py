@@ -10,8 +10,8 @@ import numpy as np
 from .._progress import iter_chains, row_blocks
 from .._threads import pool_threads
 from .._validation import check_size
+from ..model.adaptive import adaptive_scanner
 from ..model.directions import scan_shape
-from ..model.recursive import adaptive_scanner
 from ._kernels import accumulate_direction, combine_directions
 from ._windowed import edge_weight
 
@@ -58,7 +58,7 @@ def _scan_chain(directions, make):
 def iter_directions(source, context, targets_var, *, forgetting, directions, outputs, prior,
                     pool=None):
     """Adaptive scans in several directions, in chunks of rows
-    (:func:`~car_napari.model.recursive.adaptive_scanner`, each chunk one
+    (:func:`~car_napari.model.adaptive.adaptive_scanner`, each chunk one
     ``nogil`` kernel call of about 0.1-0.25 s), the directions side by side
     on ``pool``'s threads. Yields (pixels scanned, finished) after every
     chunk; ``finished`` lists the (direction, ScanResult) that are complete,
