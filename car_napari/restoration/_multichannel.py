@@ -15,6 +15,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .._docstrings import shared_parameters
 from .._progress import Progress, drain, row_blocks, spans, stage
 from .._threads import job_pool, submit
 from .._validation import (
@@ -316,6 +317,44 @@ def sharpness(stack, *, axis=0, channel_axis=-1):
     return _sharpness(versions)
 
 
+# the Parameters of both forms of the job, written once
+_PARAMETERS = """
+    stack : (n, H, W) or (n, H, W, C) array, or a sequence of versions
+        At least two registered versions of one shape (a telescope burst,
+        repeated scans, frames of a static scene), along ``axis``. With the
+        default ``channel_axis`` a 3-D stack is grey and a 4-D stack colour.
+    axis : int, optional
+        The axis holding the versions (default 0).
+    kappa : float in [0, 1), optional
+        Threshold on the prediction probability; default ``DEFAULT_KAPPA``
+        (0.05).
+    reference : 'auto' or int, optional
+        The version restored; 'auto' takes the sharpest by :func:`sharpness`.
+    neighbourhood : int, (eta, 2) array or 'auto', optional
+        Causal neighbourhood in every version (default order 1: 2 neighbours,
+        so ``3n - 1`` regressors; colour channels get one model each).
+    forgetting : float in [0.5, 1], optional
+        Forgetting factor of the adaptive estimator ((14.26)-(14.32),
+        docs/model.md); default 0.9995.
+    directions : 'all' or sequence of str, optional
+        The scan directions averaged, any of {'down', 'up', 'right', 'left'}.
+    keep_edges : bool, optional
+        Also apply the single-image edge rule (default on: +1.2 dB measured).
+    reference_prediction : bool, optional
+        Add the reference's single-image prediction (:func:`restore`'s four
+        directions, whose regressors never include ``X_r``) to the regression
+        vector at ``r``: +0.5 dB measured on 5 scenes of 8 versions. Our
+        extension of (14.52).
+    channel_axis : int or None, optional
+        The colour axis of a 4-D stack (default -1: the last); a 3-D stack
+        is always grey. None forces grey (and rejects a 4-D stack).
+    return_result : bool, optional
+        Return the :class:`RestorationResult` instead (``.reference``,
+        ``.prediction``, ``.probability``; ``.restored(kappa)``).
+"""
+
+
+@shared_parameters(_PARAMETERS)
 def iter_restore_multichannel(stack, *, axis=0, kappa=DEFAULT_KAPPA, reference="auto",
                               neighbourhood=1, forgetting=0.9995, directions="all",
                               keep_edges=True, reference_prediction=True, channel_axis=-1,
@@ -330,28 +369,7 @@ def iter_restore_multichannel(stack, *, axis=0, kappa=DEFAULT_KAPPA, reference="
 
     Parameters
     ----------
-    stack : (n, H, W) or (n, H, W, C) array, or a sequence of versions
-        See :func:`restore_multichannel`.
-    axis : int, optional
-        See :func:`restore_multichannel`.
-    kappa : float in [0, 1), optional
-        See :func:`restore_multichannel`.
-    reference : 'auto' or int, optional
-        See :func:`restore_multichannel`.
-    neighbourhood : int, (eta, 2) array or 'auto', optional
-        See :func:`restore_multichannel`.
-    forgetting : float in [0.5, 1], optional
-        See :func:`restore_multichannel`.
-    directions : 'all' or sequence of str, optional
-        See :func:`restore_multichannel`.
-    keep_edges : bool, optional
-        See :func:`restore_multichannel`.
-    reference_prediction : bool, optional
-        See :func:`restore_multichannel`.
-    channel_axis : int or None, optional
-        See :func:`restore_multichannel`.
-    return_result : bool, optional
-        Return the :class:`RestorationResult` (``reference`` set) instead.
+    {parameters}
 
     Returns
     -------
@@ -562,6 +580,7 @@ def _iter_centred_source(versions, c, rows, record):
     return source, means, np.where(var > 0, var, 1.0)
 
 
+@shared_parameters(_PARAMETERS)
 def restore_multichannel(stack, *, axis=0, kappa=DEFAULT_KAPPA, reference="auto",
                          neighbourhood=1, forgetting=0.9995, directions="all", keep_edges=True,
                          reference_prediction=True, channel_axis=-1, return_result=False):
@@ -578,38 +597,7 @@ def restore_multichannel(stack, *, axis=0, kappa=DEFAULT_KAPPA, reference="auto"
 
     Parameters
     ----------
-    stack : (n, H, W) or (n, H, W, C) array, or a sequence of versions
-        At least two registered versions of one shape (a telescope burst,
-        repeated scans, frames of a static scene), along ``axis``. With the
-        default ``channel_axis`` a 3-D stack is grey and a 4-D stack colour.
-    axis : int, optional
-        The axis holding the versions (default 0).
-    kappa : float in [0, 1), optional
-        Threshold on the prediction probability; default ``DEFAULT_KAPPA``
-        (0.05).
-    reference : 'auto' or int, optional
-        The version restored; 'auto' takes the sharpest by :func:`sharpness`.
-    neighbourhood : int, (eta, 2) array or 'auto', optional
-        Causal neighbourhood in every version (default order 1: 2 neighbours,
-        so ``3n - 1`` regressors; colour channels get one model each).
-    forgetting : float in [0.5, 1], optional
-        Forgetting factor of the adaptive estimator ((14.26)-(14.32),
-        docs/model.md); default 0.9995.
-    directions : 'all' or sequence of str, optional
-        The scan directions averaged, any of {'down', 'up', 'right', 'left'}.
-    keep_edges : bool, optional
-        Also apply the single-image edge rule (default on: +1.2 dB measured).
-    reference_prediction : bool, optional
-        Add the reference's single-image prediction (:func:`restore`'s four
-        directions, whose regressors never include ``X_r``) to the regression
-        vector at ``r``: +0.5 dB measured on 5 scenes of 8 versions. Our
-        extension of (14.52).
-    channel_axis : int or None, optional
-        The colour axis of a 4-D stack (default -1: the last); a 3-D stack
-        is always grey. None forces grey (and rejects a 4-D stack).
-    return_result : bool, optional
-        Return the :class:`RestorationResult` instead (``.reference``,
-        ``.prediction``, ``.probability``; ``.restored(kappa)``).
+    {parameters}
 
     Returns
     -------

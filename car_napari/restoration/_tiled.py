@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._docstrings import shared_parameters
 from .._progress import Progress, Span, drain, spans
 from .._threads import job_pool
 from .._tiles import is_lazy, iter_map_tiles, lazy_map_tiles, read_tile, require, tile_grid
@@ -63,6 +64,32 @@ DEFAULT_TILE = 2048
 # the noise pass's histogram bins: a float64's top 20 bits (sign, exponent,
 # 8 bits of mantissa: bins 0.4 % wide)
 _SHIFT = 44
+
+# the Parameters of both forms of the job, written once
+_PARAMETERS = """
+    image : (H, W) or (H, W, C) array
+        A dask or zarr array (or any sliceable array: a memory map, NumPy);
+        integers are scaled to [0, 1]. Read a tile at a time.
+    out : array, optional
+        Where the restored image (float64 values; an integer array gets them
+        as they are, so pass a float array) is written, tile by tile: a zarr
+        array, a NumPy array or memory map of ``image``'s shape. Default: a
+        lazy dask array when ``image`` is dask (its tiles computed when it
+        is; the global passes already done), else a NumPy array.
+    tile : int, optional
+        Side of a tile's core (rounded up to whole blocks).
+    neighbourhood : int or (eta, 2) array, optional
+        As :func:`restore` ('auto' needs the whole image: not here).
+    estimator : {'windowed'}, optional
+        Only the windowed estimator is tile-local (see the module's notes).
+    window, directions, keep_edges, kappa, noise : optional
+        As :func:`restore`.
+    forgetting : float in [0.5, 1], optional
+        As :func:`restore`: checked as there, and unused (only the recursive
+        estimator, which cannot run by tiles, forgets).
+    channel_axis : -1 or None, optional
+        A 3-D image is (H, W, C).
+"""
 
 
 def tile_halo(window=DEFAULT_WINDOW, reach=1):
@@ -291,6 +318,7 @@ def _restore_part(part, *, mean, var, noise, offsets, directions, window, keep_e
     return pred[..., 0] if part.ndim == 2 else pred
 
 
+@shared_parameters(_PARAMETERS)
 def iter_restore_tiled(image, *, out=None, tile=DEFAULT_TILE, neighbourhood=1,
                        estimator="windowed", window=DEFAULT_WINDOW, forgetting=0.995,
                        directions="all", keep_edges=True, kappa=0.0, noise=None,
@@ -305,28 +333,7 @@ def iter_restore_tiled(image, *, out=None, tile=DEFAULT_TILE, neighbourhood=1,
 
     Parameters
     ----------
-    image : (H, W) or (H, W, C) array
-        A dask or zarr array (or any sliceable array: a memory map, NumPy);
-        integers are scaled to [0, 1]. Read a tile at a time.
-    out : array, optional
-        Where the restored image (float64 values; an integer array gets them
-        as they are, so pass a float array) is written, tile by tile: a zarr
-        array, a NumPy array or memory map of ``image``'s shape. Default: a
-        lazy dask array when ``image`` is dask (its tiles computed when it
-        is; the global passes already done), else a NumPy array.
-    tile : int, optional
-        Side of a tile's core (rounded up to whole blocks).
-    neighbourhood : int or (eta, 2) array, optional
-        As :func:`restore` ('auto' needs the whole image: not here).
-    estimator : {'windowed'}, optional
-        Only the windowed estimator is tile-local (see the module's notes).
-    window, directions, keep_edges, kappa, noise : optional
-        As :func:`restore`.
-    forgetting : float in [0.5, 1], optional
-        As :func:`restore`: checked as there, and unused (only the recursive
-        estimator, which cannot run by tiles, forgets).
-    channel_axis : -1 or None, optional
-        A 3-D image is (H, W, C).
+    {parameters}
 
     Returns
     -------
@@ -399,34 +406,18 @@ class _TilePart:
         return _restore_part(part, **self.options)
 
 
+@shared_parameters(_PARAMETERS)
 def restore_tiled(image, *, out=None, tile=DEFAULT_TILE, neighbourhood=1,
                   estimator="windowed", window=DEFAULT_WINDOW, forgetting=0.995,
                   directions="all", keep_edges=True, kappa=0.0, noise=None,
                   channel_axis=-1):
     """Restore an image larger than memory by tiles.
 
-    ``drain(iter_restore_tiled(image, ...))``: see :func:`iter_restore_tiled`
-    for the parameters.
+    ``drain(iter_restore_tiled(image, ...))``.
 
     Parameters
     ----------
-    image : (H, W) or (H, W, C) array
-        A dask or zarr array, or any sliceable array.
-    out : array, optional
-        Where the result goes, tile by tile.
-    tile : int, optional
-        Side of a tile's core.
-    neighbourhood : int or (eta, 2) array, optional
-        As :func:`restore`.
-    estimator : {'windowed'}, optional
-        Only 'windowed' runs by tiles.
-    window, directions, keep_edges, kappa, noise : optional
-        As :func:`restore`.
-    forgetting : float in [0.5, 1], optional
-        As :func:`restore`: checked as there, and unused (only the recursive
-        estimator, which cannot run by tiles, forgets).
-    channel_axis : -1 or None, optional
-        A 3-D image is (H, W, C).
+    {parameters}
 
     Returns
     -------
