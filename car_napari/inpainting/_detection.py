@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._docstrings import shared_parameters
 from .._progress import Progress, drain, row_blocks
 from .._validation import as_channel_last_float, check_real
 from . import _motion
@@ -233,22 +234,19 @@ def _iter_records(work, stage, fraction, message, band_pixels):
     return done
 
 
-def iter_detect_scratches(image, *, kinds=KINDS, channel_axis=-1, line_width=3,
-                          line_length=0.5, line_threshold=4.0,
-                          blotch_threshold=None, motion=True):
-    """Propose a damage mask, as a job: Progress records, then the mask.
-
-    The generator form of :func:`detect_scratches`, with the same
-    parameters and result.
-
-    Parameters
-    ----------
+# the Parameters of detect_scratches and iter_detect_scratches, written once
+_DETECT_SCRATCHES_PARAMETERS = """
     image : ndarray
-        A frame or a clip, read by the rule of :func:`detect_scratches`.
+        A frame or a clip, any numeric dtype (integers are scaled to [0, 1]).
+        How ``channel_axis`` reads it (the rule of :func:`inpaint`):
+        ``(H, W)`` is a grey frame; a 3-D array is a colour frame
+        ``(H, W, C)`` when the channel axis has at most 4 entries and a grey
+        clip ``(T, H, W)`` otherwise; a 4-D array is a colour clip
+        ``(T, H, W, C)``; ``channel_axis=None`` forces grey.
     kinds : str or sequence of {'line', 'blotch'}, optional
         What to look for.
     channel_axis : int or None, optional
-        The colour axis; None forces grey.
+        The colour axis (default -1, the last); None forces grey.
     line_width : int, optional
         Distance (pixels) of the two side pixels a line pixel is compared to.
     line_length : float, optional
@@ -261,8 +259,25 @@ def iter_detect_scratches(image, *, kinds=KINDS, channel_axis=-1, line_width=3,
         [0, 1]); default :data:`COMPENSATED_THRESHOLD` (0.04) with motion
         compensation, :data:`BLOTCH_THRESHOLD` (0.12) without.
     motion : bool, optional
-        Compare with the neighbouring frames warped onto the frame by the
-        estimated motion (default); False: the raw neighbours (SDIa).
+        True (default): compare each frame with its neighbours warped onto
+        it by the estimated motion (see above), so that moving content is
+        left alone; False: with the raw neighbours (plain SDIa, which flags
+        whatever moves).
+"""
+
+
+@shared_parameters(_DETECT_SCRATCHES_PARAMETERS)
+def iter_detect_scratches(image, *, kinds=KINDS, channel_axis=-1, line_width=3,
+                          line_length=0.5, line_threshold=4.0,
+                          blotch_threshold=None, motion=True):
+    """Propose a damage mask, as a job: Progress records, then the mask.
+
+    The generator form of :func:`detect_scratches`, with the same
+    parameters and result.
+
+    Parameters
+    ----------
+    {parameters}
 
     Returns
     -------
@@ -381,6 +396,7 @@ def iter_detect_scratches(image, *, kinds=KINDS, channel_axis=-1, line_width=3,
     return mask[0] if layout.single else mask
 
 
+@shared_parameters(_DETECT_SCRATCHES_PARAMETERS)
 def detect_scratches(image, *, kinds=KINDS, channel_axis=-1, line_width=3,
                      line_length=0.5, line_threshold=4.0, blotch_threshold=None,
                      motion=True):
@@ -418,33 +434,7 @@ def detect_scratches(image, *, kinds=KINDS, channel_axis=-1, line_width=3,
 
     Parameters
     ----------
-    image : ndarray
-        A frame or a clip, any numeric dtype (integers are scaled to [0, 1]).
-        How ``channel_axis`` reads it (the rule of :func:`inpaint`):
-        ``(H, W)`` is a grey frame; a 3-D array is a colour frame
-        ``(H, W, C)`` when the channel axis has at most 4 entries and a grey
-        clip ``(T, H, W)`` otherwise; a 4-D array is a colour clip
-        ``(T, H, W, C)``; ``channel_axis=None`` forces grey.
-    kinds : str or sequence of {'line', 'blotch'}, optional
-        What to look for.
-    channel_axis : int or None, optional
-        The colour axis (default -1, the last); None forces grey.
-    line_width : int, optional
-        Distance (pixels) of the two side pixels a line pixel is compared to.
-    line_length : float, optional
-        Length of the persistence window, as a fraction of the frame height.
-    line_threshold : float, optional
-        Contrast a line needs, in robust standard deviations of the
-        horizontal pixel differences.
-    blotch_threshold : float, optional
-        Difference from both neighbouring frames a blotch needs (image scale
-        [0, 1]); default :data:`COMPENSATED_THRESHOLD` (0.04) with motion
-        compensation, :data:`BLOTCH_THRESHOLD` (0.12) without.
-    motion : bool, optional
-        True (default): compare each frame with its neighbours warped onto
-        it by the estimated motion (see above), so that moving content is
-        left alone; False: with the raw neighbours (plain SDIa, which flags
-        whatever moves).
+    {parameters}
 
     Returns
     -------

@@ -14,6 +14,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .._docstrings import shared_parameters
 from .._progress import Progress, drain, row_blocks, stage
 from .._validation import (
     MAGNITUDE_LIMIT,
@@ -475,6 +476,22 @@ def _iter_whiten(centred):
     return out
 
 
+# the Parameters of select_support and iter_select_support, written once
+_SELECT_SUPPORT_PARAMETERS = """
+    image : (H, W) or (H, W, C) array_like
+        Grey or multichannel image; any numeric dtype (integers are scaled
+        to [0, 1]).
+    orders : iterable of int or (eta, 2) arrays, optional
+        Candidate neighbourhoods: orders (see :func:`causal_neighbourhood`)
+        or explicit causal offsets.
+    channel_axis : int or None, optional
+        The channel axis of a 3-D image; a 2-D image is grey.
+    direction : {'down', 'up', 'right', 'left'}, optional
+        The scan direction the offsets are relative to.
+"""
+
+
+@shared_parameters(_SELECT_SUPPORT_PARAMETERS)
 def iter_select_support(image, orders=range(1, 6), *, channel_axis=-1, direction="down"):
     """Choose the most probable causal neighbourhood, as a job.
 
@@ -483,15 +500,7 @@ def iter_select_support(image, orders=range(1, 6), *, channel_axis=-1, direction
 
     Parameters
     ----------
-    image : (H, W) or (H, W, C) array_like
-        Grey or multichannel image; any numeric dtype.
-    orders : iterable of int or (eta, 2) arrays, optional
-        Candidate neighbourhoods: orders (see :func:`causal_neighbourhood`)
-        or explicit causal offsets.
-    channel_axis : int or None, optional
-        The channel axis of a 3-D image; a 2-D image is grey.
-    direction : {'down', 'up', 'right', 'left'}, optional
-        The scan direction the offsets are relative to.
+    {parameters}
 
     Returns
     -------
@@ -538,6 +547,7 @@ def iter_select_support(image, orders=range(1, 6), *, channel_axis=-1, direction
     return SupportSelection(best, scores)
 
 
+@shared_parameters(_SELECT_SUPPORT_PARAMETERS)
 def select_support(image, orders=range(1, 6), *, channel_axis=-1, direction="down"):
     """Choose the most probable causal neighbourhood by the decision rule (14.6).
 
@@ -550,16 +560,7 @@ def select_support(image, orders=range(1, 6), *, channel_axis=-1, direction="dow
 
     Parameters
     ----------
-    image : (H, W) or (H, W, C) array_like
-        Grey or multichannel image; any numeric dtype (integers are scaled
-        to [0, 1]).
-    orders : iterable of int or (eta, 2) arrays, optional
-        Candidate neighbourhoods: orders (see :func:`causal_neighbourhood`)
-        or explicit causal offsets.
-    channel_axis : int or None, optional
-        The channel axis of a 3-D image; a 2-D image is grey.
-    direction : {'down', 'up', 'right', 'left'}, optional
-        The scan direction the offsets are relative to.
+    {parameters}
 
     Returns
     -------
@@ -595,6 +596,28 @@ def select_support(image, orders=range(1, 6), *, channel_axis=-1, direction="dow
                                      direction=direction))
 
 
+# the Parameters of fit_car and iter_fit_car, written once
+_FIT_CAR_PARAMETERS = """
+    image : (H, W) or (H, W, C) array_like
+        Grey or multichannel image; any numeric dtype (integers are scaled
+        to [0, 1]).
+    neighbourhood : int, (eta, 2) array_like or 'auto', optional
+        Order, explicit causal offsets, or 'auto' to choose among ``orders`` by
+        the decision rule (14.6) (see :func:`select_support`).
+    model : {'3d', '2d'}, optional
+        '3d': one 3DCAR model with full ``d x d`` matrices. '2d': decorrelate
+        the channels by a spectral PCA and fit a 2DCAR model to each factor
+        (each with its own support when ``neighbourhood='auto'``).
+    orders : iterable, optional
+        Candidates for ``neighbourhood='auto'``.
+    direction : {'down', 'up', 'right', 'left'}, optional
+        The scan direction the offsets are relative to.
+    channel_axis : int or None, optional
+        The channel axis of a 3-D image; a 2-D image is grey.
+"""
+
+
+@shared_parameters(_FIT_CAR_PARAMETERS)
 def iter_fit_car(
     image,
     neighbourhood=2,
@@ -611,20 +634,7 @@ def iter_fit_car(
 
     Parameters
     ----------
-    image : (H, W) or (H, W, C) array_like
-        Grey or multichannel image; any numeric dtype (integers are scaled
-        to [0, 1]).
-    neighbourhood : int, (eta, 2) array_like or 'auto', optional
-        Order, explicit causal offsets, or 'auto' to choose among ``orders``
-        by the decision rule (see :func:`select_support`).
-    model : {'3d', '2d'}, optional
-        See :func:`fit_car`.
-    orders : iterable, optional
-        Candidates for ``neighbourhood='auto'``.
-    direction : {'down', 'up', 'right', 'left'}, optional
-        The scan direction the offsets are relative to.
-    channel_axis : int or None, optional
-        The channel axis of a 3-D image; a 2-D image is grey.
+    {parameters}
 
     Returns
     -------
@@ -702,6 +712,7 @@ def _prepare_share(d, neighbourhood, orders, model):
     return prep / (prep + rest)
 
 
+@shared_parameters(_FIT_CAR_PARAMETERS)
 def fit_car(
     image,
     neighbourhood=2,
@@ -720,22 +731,7 @@ def fit_car(
 
     Parameters
     ----------
-    image : (H, W) or (H, W, C) array_like
-        Grey or multichannel image; any numeric dtype (integers are scaled
-        to [0, 1]).
-    neighbourhood : int, (eta, 2) array_like or 'auto', optional
-        Order, explicit causal offsets, or 'auto' to choose among ``orders`` by
-        the decision rule (14.6) (see :func:`select_support`).
-    model : {'3d', '2d'}, optional
-        '3d': one 3DCAR model with full ``d x d`` matrices. '2d': decorrelate
-        the channels by a spectral PCA and fit a 2DCAR model to each factor
-        (each with its own support when ``neighbourhood='auto'``).
-    orders : iterable, optional
-        Candidates for ``neighbourhood='auto'``.
-    direction : {'down', 'up', 'right', 'left'}, optional
-        The scan direction the offsets are relative to.
-    channel_axis : int or None, optional
-        The channel axis of a 3-D image; a 2-D image is grey.
+    {parameters}
 
     Returns
     -------
