@@ -12,7 +12,7 @@ from .._validation import check_memory, check_real, check_seed, output_shape
 from ._kernels import synthesize_field
 from .blocks import row_ranges
 from .directions import unscan_view
-from .estimation import check_model
+from .fitted import check_model
 
 __all__ = ["iter_synthesize", "synthesize", "spectral_radius"]
 
@@ -139,7 +139,7 @@ def spectral_radius(model):
         If ``model`` is not a CARModel.
     ValueError
         If its parameters are inconsistent or not finite, or its offsets
-        reach too far (see :func:`~car_napari.model.estimation.check_model`).
+        reach too far (see :func:`~car_napari.model.fitted.check_model`).
 
     Examples
     --------
