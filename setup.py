@@ -1,12 +1,10 @@
-"""Ship the top-level ``napari.yaml`` and ``resources/`` inside the package.
+"""Ship ``resources/`` inside the package.
 
-The layout keeps the npe2 manifest and the sample data at the top of the
-repository; napari finds a plugin's manifest inside its package
-(``car_napari/napari.yaml``, the entry point). A regular build copies both
-into the wheel (``car_napari/napari.yaml``, ``car_napari/_resources/``). An
-editable install serves the package from the source tree, so there the
-manifest is copied next to the code (git-ignored); the sample loader reads
-``resources/`` in place.
+The npe2 manifest lives in the package (``car_napari/napari.yaml``, the
+entry point; package data in pyproject.toml). The sample data stay at the
+top of the repository: a regular build copies them into the wheel
+(``car_napari/_resources/``); an editable install serves the package from
+the source tree, and the sample loader reads ``resources/`` in place.
 """
 
 import shutil
@@ -20,18 +18,15 @@ SHIPPED_RESOURCES = ("*.png", "*.jpg", "*.txt", "README.md")
 UNSHIPPED_RESOURCES = ("screenshot.png",)
 
 
-class BuildWithManifest(build_py):
+class BuildWithResources(build_py):
     def run(self):
         if not getattr(self, "editable_mode", False):
             # build/ outlives a build: start the package afresh so no deleted module ships
             shutil.rmtree(Path(self.build_lib) / "car_napari", ignore_errors=True)
         super().run()
         if getattr(self, "editable_mode", False):
-            shutil.copyfile(TOP / "napari.yaml", TOP / "car_napari" / "napari.yaml")
             return
-        package = Path(self.build_lib) / "car_napari"
-        shutil.copyfile(TOP / "napari.yaml", package / "napari.yaml")
-        target = package / "_resources"
+        target = Path(self.build_lib) / "car_napari" / "_resources"
         target.mkdir(exist_ok=True)
         for pattern in SHIPPED_RESOURCES:
             for path in (TOP / "resources").glob(pattern):
@@ -39,4 +34,4 @@ class BuildWithManifest(build_py):
                     shutil.copyfile(path, target / path.name)
 
 
-setup(cmdclass={"build_py": BuildWithManifest})
+setup(cmdclass={"build_py": BuildWithResources})

@@ -8,6 +8,8 @@ imports neither Qt nor napari; the napari dock widgets live in
 :mod:`car_napari._widgets`, the command line in :mod:`car_napari.cli`.
 """
 
+from importlib import metadata as _metadata
+
 from ._progress import Progress, drain
 from ._threads import limited_blas
 from .inpainting import (
@@ -81,7 +83,10 @@ from .texture import (
     texture_features,
 )
 
-__version__ = "0.1.0"
+try:  # the version is pyproject.toml's, read from the installed distribution
+    __version__ = _metadata.version("car-napari")
+except _metadata.PackageNotFoundError:  # the source tree on sys.path, not installed
+    __version__ = "0+unknown"
 
 __all__ = [
     # the model

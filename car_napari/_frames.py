@@ -34,11 +34,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ._progress import Progress, stage
+from ._progress import Progress, row_blocks, stage
 from ._tiles import read_array
 from ._validation import check_real
 
-__all__ = ["FrameBlock", "auto_block", "check_clip", "frame_blocks", "iter_frame_blocks",
+__all__ = ["FrameBlock", "auto_block", "check_clip", "iter_frame_blocks",
            "lazy_output"]
 
 DEFAULT_BLOCK = 8  # frames a block of the scratch jobs (a few MB on a 512x512 clip)
@@ -92,29 +92,6 @@ class FrameBlock:
             ``frames[lead : len(frames) - trail]``.
         """
         return self.frames[self.lead:len(self.frames) - self.trail]
-
-
-def frame_blocks(n_frames, block):
-    """The ``(start, stop)`` of each block of ``block`` frames.
-
-    Parameters
-    ----------
-    n_frames : int
-        The clip's length.
-    block : int
-        Frames a block (the last one may be shorter).
-
-    Returns
-    -------
-    list of (int, int)
-        The blocks, in order.
-
-    Examples
-    --------
-    >>> frame_blocks(7, 3)
-    [(0, 3), (3, 6), (6, 7)]
-    """
-    return [(a, min(a + block, n_frames)) for a in range(0, n_frames, block)]
 
 
 def _check_count(value, name, low):
@@ -210,7 +187,7 @@ def iter_frame_blocks(source, job, out, *, block=1, before=0, after=0, carry=0,
     outs = out if isinstance(out, tuple) else (out,)
     writers = [_writer(o) for o in outs]
     previous = None
-    blocks = frame_blocks(n, block)
+    blocks = row_blocks(n, block)
     for a, b in blocks:
         lo, hi = max(a - before, 0), min(b + after, n)
         frames = read_array(source[lo:hi])

@@ -9,20 +9,23 @@ Cancel) stops the work at the next yield: kernels run in chunks (rows, tiles,
 EM iterations) with a yield between them.
 
 Generators that run another one as a stage use :func:`stage`, which maps
-the inner fractions into a part of the outer range. These helpers (and the
-widgets' job runner, which relays the records to a napari worker) are the
-only code that steps a generator by hand. Every job runs with BLAS limited
-to one thread (:mod:`car_napari._threads`).
+the inner fractions into a part of the outer range; a job of several stages
+gives each its :class:`Span` of [0, 1] by :func:`spans`. Work split into
+calls between records goes by :func:`row_blocks`, and runs side by side on
+the job pool (:mod:`car_napari._threads`) by :func:`iter_chains` (or, whole
+jobs, :func:`side_by_side`). Every job runs with BLAS limited to one thread
+(:mod:`car_napari._threads`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 from ._threads import limited_blas
 
-__all__ = ["Progress", "drain", "side_by_side", "stage"]
+__all__ = ["Progress", "Span", "drain", "iter_chains", "row_blocks", "side_by_side", "spans",
+           "stage"]
 
 
 @dataclass(frozen=True)
@@ -58,6 +61,113 @@ class Progress:
     fraction: float
     message: str = ""
     preview: Any = None
+
+
+class Span(NamedTuple):
+    """A stage's part ``[start, stop)`` of a job's [0, 1] progress range.
+
+    A tuple: ``lo, hi = span`` and ``stage(job, *span)`` work.
+
+    Attributes
+    ----------
+    start, stop : float
+        The stage's first and last fraction.
+
+    Examples
+    --------
+    >>> Span(0.2, 0.6).at(1, 4)
+    0.3
+    """
+
+    start: float
+    stop: float
+
+    def at(self, done, total=1):
+        """The job's fraction when ``done`` of the stage's ``total`` is done.
+
+        Parameters
+        ----------
+        done : float
+            The work of the stage done.
+        total : float, optional
+            The stage's whole work (default 1: ``done`` is a fraction).
+
+        Returns
+        -------
+        float
+            ``start + (stop - start) * done / total``.
+        """
+        return self.start + (self.stop - self.start) * done / total
+
+
+def spans(work):
+    """The stages' spans of [0, 1], in proportion to their work.
+
+    Parameters
+    ----------
+    work : dict
+        ``{stage name: work}`` in the order the stages run (a stage of no
+        work gets an empty span).
+
+    Returns
+    -------
+    callable
+        ``span(name) -> Span``.
+
+    Examples
+    --------
+    >>> span = spans({"reading": 1.0, "scans": 3.0})
+    >>> span("scans")
+    Span(start=0.25, stop=1.0)
+    >>> span("scans").at(1, 2)
+    0.625
+    """
+    total = sum(work.values())
+    bounds, at = {}, 0.0
+    for name, value in work.items():
+        bounds[name] = Span(at / total, (at + value) / total)
+        at += value
+    return bounds.__getitem__
+
+
+def row_blocks(stop, size, *, start=0, merge_tail=False):
+    """Consecutive ``(a, b)`` ranges of at most ``size`` over ``[start, stop)``.
+
+    The one chunking of every job's work into calls between records (rows
+    of an image, frames of a clip, rows of a feature array).
+
+    Parameters
+    ----------
+    stop : int
+        The end of the range covered.
+    size : int or float
+        The most a range holds (its integer part, at least 1).
+    start : int, optional
+        The first index covered.
+    merge_tail : bool, optional
+        Merge a last range shorter than ``size // 2`` into the one before
+        it (a BLAS product over the blocks then sees the shapes one call
+        would, up to its tiles).
+
+    Returns
+    -------
+    list of (int, int)
+        The ranges, in order (none for an empty range).
+
+    Examples
+    --------
+    >>> row_blocks(7, 3)
+    [(0, 3), (3, 6), (6, 7)]
+    >>> row_blocks(9, 4, merge_tail=True)
+    [(0, 4), (4, 9)]
+    >>> row_blocks(9, 4.5, start=2)
+    [(2, 6), (6, 9)]
+    """
+    size = max(1, int(size))
+    blocks = [(a, min(a + size, stop)) for a in range(start, stop, size)]
+    if merge_tail and len(blocks) > 1 and blocks[-1][1] - blocks[-1][0] < size // 2:
+        blocks[-2:] = [(blocks[-2][0], stop)]
+    return blocks
 
 
 def drain(job, on_progress=None):
@@ -169,6 +279,72 @@ def stage(job, start, stop, *, name=None, prefix="", previews=True):
         )
 
 
+def iter_chains(pool, chains):
+    """Run chains of calls, the chains side by side on ``pool``, each chain's
+    calls one after the other: the one scheduler of every job's threads.
+
+    The calls gain where they release the GIL (Numba ``nogil`` kernels,
+    NumPy). How the work is split into calls must not depend on ``pool``
+    (the callers' splits are fixed), so that a job's results are the same
+    on any number of threads (``CAR_NAPARI_JOB_THREADS``).
+
+    Parameters
+    ----------
+    pool : concurrent.futures.Executor or None
+        Threads to run the chains on (:func:`car_napari._threads.job_pool`);
+        None: one chain after the other, here.
+    chains : list of iterable
+        Iterables of zero-argument callables, drawn lazily: the next call of
+        a chain is drawn when its previous call has finished, so it may
+        depend on it.
+
+    Yields
+    ------
+    value : object
+        Each call's return value as it finishes (calls finishing together:
+        in the order of their chains).
+
+    Notes
+    -----
+    Closing the generator early starts no more calls, and returns once the
+    running ones have finished (they may write into the job's arrays).
+
+    Examples
+    --------
+    >>> list(iter_chains(None, [[lambda: 1, lambda: 2], [lambda: 3]]))
+    [1, 2, 3]
+    """
+    from concurrent.futures import FIRST_COMPLETED, wait
+
+    chains = [iter(chain) for chain in chains]
+    if pool is None:
+        for chain in chains:
+            for call in chain:
+                yield call()
+        return
+    pending = {}
+
+    def submit(k):
+        call = next(chains[k], None)
+        if call is not None:
+            pending[pool.submit(call)] = k
+
+    try:
+        for k in range(len(chains)):
+            submit(k)
+        while pending:
+            done, _ = wait(list(pending), return_when=FIRST_COMPLETED)
+            for future in sorted(done, key=pending.get):
+                k = pending.pop(future)
+                value = future.result()
+                submit(k)
+                yield value
+    finally:  # closing early: do not start what is queued, let the running end
+        for future in pending:
+            future.cancel()
+        wait(list(pending))
+
+
 def side_by_side(jobs, pool):
     """Run jobs side by side, each stepped to its next record in a thread of
     ``pool``: their records, as they come, then the list of their results.
@@ -177,6 +353,7 @@ def side_by_side(jobs, pool):
     The jobs gain where their work between records releases the GIL (Numba
     ``nogil`` kernels, NumPy); they must not share state they write. Closing
     early lets each job's running step end (a record's work) and closes them.
+    Scheduled by :func:`iter_chains`: each job a chain of steps.
 
     Parameters
     ----------
@@ -210,9 +387,7 @@ def side_by_side(jobs, pool):
     [2, 3]
     5
     """
-    from concurrent.futures import FIRST_COMPLETED, wait
     from dataclasses import replace
-
 
     jobs = list(jobs)
     results = [None] * len(jobs)
@@ -220,33 +395,30 @@ def side_by_side(jobs, pool):
         for k, job in enumerate(jobs):
             results[k] = yield from job
         return results
+    finished = [False] * len(jobs)
 
-    def step(job):
-        try:
-            return False, next(job)
-        except StopIteration as stop:
-            return True, stop.value
+    def steps(k):
+        def step():
+            try:
+                return next(jobs[k])
+            except StopIteration as stop:
+                finished[k] = True
+                results[k] = stop.value
+                return None
 
-    pending = {}
+        while not finished[k]:
+            yield step
+
     highest = -float("inf")
     try:
-        for k, job in enumerate(jobs):
-            pending[pool.submit(step, job)] = k
-        while pending:
-            done, _ = wait(list(pending), return_when=FIRST_COMPLETED)
-            for future in sorted(done, key=pending.get):
-                k = pending.pop(future)
-                finished, value = future.result()
-                if finished:
-                    results[k] = value
-                    continue
-                pending[pool.submit(step, jobs[k])] = k
-                if value.fraction < highest:  # made before one that came first
-                    value = replace(value, fraction=highest)
-                highest = value.fraction
-                yield value
+        for record in iter_chains(pool, [steps(k) for k in range(len(jobs))]):
+            if record is None:
+                continue
+            if record.fraction < highest:  # made before one that came first
+                record = replace(record, fraction=highest)
+            highest = record.fraction
+            yield record
     finally:  # a job can be closed only once its running step has returned
-        wait(list(pending))
         for job in jobs:
             job.close()
     return results

@@ -9,9 +9,11 @@ thread. So every job runs with BLAS limited (:func:`limited_blas`, entered
 by :func:`car_napari._progress.drain` and by the widgets' job runner); the
 job's own work runs in its one thread (the Numba kernels are serial and
 release the GIL, which keeps the napari viewer responsive), but for the
-kernels a job runs two at a time (the segmentation features' scans and
-smoothings, the mixture's E step halves) on the one pool of
-:func:`job_pool`, sized by ``CAR_NAPARI_JOB_THREADS`` (:func:`job_threads`).
+kernels a job runs side by side (the restorations' scans, strips and
+chunks of rows, the inpainting's scans and solves, the segmentation
+features' scans and smoothings, the mixture's E step halves) on the one
+pool of :func:`job_pool`, sized by ``CAR_NAPARI_JOB_THREADS``
+(:func:`job_threads`).
 
 The limit is ``CAR_NAPARI_BLAS_THREADS`` when that is set (a number of
 threads, at most the CPUs this process may use; ``0`` or ``off``: no limit),
@@ -31,14 +33,14 @@ import contextlib
 import os
 import sys
 import threading
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 
 from threadpoolctl import OpenBLASController, threadpool_limits
 
 from ._validation import check_real
 
 __all__ = ["blas_threads", "job_pool", "job_threads", "limited_blas", "lower_thread_priority",
-           "usable_cpus", "worker_nice"]
+           "pool_threads", "submit", "usable_cpus", "worker_nice"]
 
 ENV = "CAR_NAPARI_BLAS_THREADS"
 JOB_ENV = "CAR_NAPARI_JOB_THREADS"
@@ -268,6 +270,63 @@ def job_pool():
         if pool is None:
             pool = _pools[threads] = ThreadPoolExecutor(threads, thread_name_prefix="car-job")
     return pool
+
+
+def pool_threads(pool):
+    """The threads of a job's pool.
+
+    Parameters
+    ----------
+    pool : concurrent.futures.ThreadPoolExecutor or None
+        A pool of :func:`job_pool` (or any thread pool); None: no pool.
+
+    Returns
+    -------
+    int
+        Its number of threads; 1 for None (the job's own thread).
+
+    Examples
+    --------
+    >>> pool_threads(None)
+    1
+    >>> pool_threads(job_pool()) == job_threads()
+    True
+    """
+    if pool is None:
+        return 1
+    return max(1, int(getattr(pool, "_max_workers", 1)))
+
+
+def submit(pool, call, *args):
+    """Run ``call(*args)`` on ``pool``, or here and now without one.
+
+    Parameters
+    ----------
+    pool : concurrent.futures.Executor or None
+        A pool of :func:`job_pool`; None: call it in this thread.
+    call : callable
+        What to run.
+    *args
+        Its arguments.
+
+    Returns
+    -------
+    concurrent.futures.Future
+        Its future (without a pool, done: its result or exception set).
+
+    Examples
+    --------
+    >>> submit(None, max, 2, 3).result()
+    3
+    """
+    if pool is not None:
+        return pool.submit(call, *args)
+    future = Future()
+    try:
+        future.set_result(call(*args))
+    except Exception as error:  # raised by future.result(), as a pool would
+        future.set_exception(error)
+    return future
 
 
 @contextlib.contextmanager

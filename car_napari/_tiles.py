@@ -22,7 +22,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._progress import Progress
+from ._progress import Progress, Span
 
 __all__ = ["CLUSTER_HINT", "Tile", "aligned_chunks", "is_lazy", "iter_map_tiles", "read_array",
            "lazy_map_tiles", "require", "tile_grid"]
@@ -222,11 +222,11 @@ def iter_map_tiles(source, function, out, tiles, *, stage="tiles", span=(0.0, 1.
     >>> bool(np.array_equal(out, 2 * image))
     True
     """
-    lo, hi = span
+    span = Span(*span)
     for k, tile in enumerate(tiles, start=1):
         result = function(read_tile(source, tile), tile)
         out[tile.core] = result[tile.inner]
-        yield Progress(stage, lo + (hi - lo) * k / len(tiles), f"tile {k}/{len(tiles)}")
+        yield Progress(stage, span.at(k, len(tiles)), f"tile {k}/{len(tiles)}")
     return out
 
 

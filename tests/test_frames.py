@@ -5,8 +5,8 @@ and memory does not grow with the clip's length."""
 import numpy as np
 import pytest
 
-from car_napari._frames import frame_blocks, iter_frame_blocks, lazy_output
-from car_napari._progress import Progress, drain
+from car_napari._frames import iter_frame_blocks, lazy_output
+from car_napari._progress import Progress, drain, row_blocks
 from car_napari.inpainting import descratch_frames, detect_scratches, inpaint, inpaint_frames
 from car_napari.restoration import restore, restore_frames
 
@@ -29,8 +29,8 @@ def film(shared_data):
 
 
 def test_blocks_cover_the_clip():
-    assert frame_blocks(10, 4) == [(0, 4), (4, 8), (8, 10)]
-    assert frame_blocks(3, 8) == [(0, 3)]
+    assert row_blocks(10, 4) == [(0, 4), (4, 8), (8, 10)]
+    assert row_blocks(3, 8) == [(0, 3)]
 
 
 def test_each_block_gets_its_context_and_the_outputs_before_it():

@@ -16,7 +16,8 @@ import pytest
 import yaml
 
 TOP = Path(__file__).resolve().parents[1]
-MANIFEST = yaml.safe_load((TOP / "napari.yaml").read_text())
+MANIFEST_FILE = TOP / "car_napari" / "napari.yaml"  # in the package: no copy step
+MANIFEST = yaml.safe_load(MANIFEST_FILE.read_text())
 WIDGETS = [w["display_name"] for w in MANIFEST["contributions"]["widgets"]]
 SAMPLES = [s["key"] for s in MANIFEST["contributions"]["sample_data"]]
 # what setup.py copies from resources/ into car_napari/_resources
@@ -24,16 +25,51 @@ SHIPPED_SUFFIXES = (".png", ".jpg", ".txt")
 UNSHIPPED = ("screenshot.png",)
 
 
-def test_manifest_validates_and_is_the_top_level_one():
+def test_manifest_validates_and_is_the_package_one():
     from npe2 import PluginManifest
 
     installed = files("car_napari") / "napari.yaml"
-    assert installed.read_text() == (TOP / "napari.yaml").read_text()
+    assert installed.read_text() == MANIFEST_FILE.read_text()
     manifest = PluginManifest.from_file(str(installed))
     assert manifest.name == "car-napari"
     assert {w.display_name for w in manifest.contributions.widgets} >= {"CAR model"}
     keys = {s.key for s in manifest.contributions.sample_data}
     assert keys == {"texture", "mammogram", "film", "burst"}
+
+
+def test_the_manifest_lives_in_the_package_only():
+    """napari.yaml is package data, as the napari plugin template has it: no
+    top-level copy, no copy step in setup.py, no git-ignored copy."""
+    import tomllib
+
+    assert MANIFEST_FILE.is_file() and not (TOP / "napari.yaml").exists()
+    assert not [line for line in (TOP / "setup.py").read_text().splitlines()
+                if "napari.yaml" in line and "copy" in line]
+    assert "napari.yaml" not in (TOP / ".gitignore").read_text()
+    project = tomllib.loads((TOP / "pyproject.toml").read_text())
+    assert "napari.yaml" in project["tool"]["setuptools"]["package-data"]["car_napari"]
+    assert project["project"]["entry-points"]["napari.manifest"] == {
+        "car-napari": "car_napari:napari.yaml"}
+
+
+def test_python_3_11_and_the_version_in_one_place():
+    """requires-python >= 3.11 (napari 0.8 needs it; the README says so too)
+    and the version written once, in pyproject.toml, read by
+    ``car_napari.__version__`` through importlib.metadata."""
+    import re
+    import tomllib
+    from importlib import metadata
+
+    import car_napari
+
+    project = tomllib.loads((TOP / "pyproject.toml").read_text())["project"]
+    assert project["requires-python"] == ">=3.11"
+    assert project["version"] == metadata.version("car-napari") == car_napari.__version__
+    assert "Python 3.11+" in (TOP / "README.md").read_text()
+    assert not re.search(r"Python 3\.10", (TOP / "README.md").read_text())
+    init = (TOP / "car_napari" / "__init__.py").read_text()
+    assert project["version"] not in init  # not written twice
+    assert "metadata.version(" in init
 
 
 def test_sample_data():
@@ -77,7 +113,7 @@ def test_wheel_ships_manifest_and_resources(wheel):
     repository's top level."""
     with zipfile.ZipFile(wheel) as z:
         names = set(z.namelist())
-        assert z.read("car_napari/napari.yaml").decode() == (TOP / "napari.yaml").read_text()
+        assert z.read("car_napari/napari.yaml").decode() == MANIFEST_FILE.read_text()
         entry = next(n for n in names if n.endswith("entry_points.txt"))
         assert "car-napari = car_napari:napari.yaml" in z.read(entry).decode()
     expected = {
@@ -102,7 +138,7 @@ def test_wheel_ships_manifest_and_resources(wheel):
 def test_manifest_reads_dicom():
     from npe2 import PluginManifest
 
-    manifest = PluginManifest.from_file(str(TOP / "napari.yaml"))
+    manifest = PluginManifest.from_file(str(MANIFEST_FILE))
     (reader,) = manifest.contributions.readers
     assert "*.dcm" in reader.filename_patterns
 

@@ -4,6 +4,7 @@ once), the limits found before come back, and ``CAR_NAPARI_BLAS_THREADS`` overri
 import os
 import sys
 import threading
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
@@ -205,3 +206,70 @@ def test_worker_nice_default_and_environment(monkeypatch):
             worker_nice()
     with pytest.raises(ValueError, match="nice"):
         lower_thread_priority(25)
+
+
+class _CountingPool(ThreadPoolExecutor):
+    """A thread pool that counts the calls submitted to it."""
+
+    def __init__(self, threads):
+        super().__init__(threads, thread_name_prefix="car-job-test")
+        self.calls = 0
+
+    def submit(self, *args, **kwargs):
+        self.calls += 1
+        return super().submit(*args, **kwargs)
+
+
+def _applications():
+    """Every application's call on a small case: (name, run() -> array)."""
+    from skimage import data as skdata
+
+    from car_napari.inpainting import inpaint
+    from car_napari.restoration import restore, restore_multichannel, restore_tiled
+    from car_napari.segmentation import segment
+
+    rng = np.random.default_rng(3)
+    colour = skdata.astronaut()[100:164, 100:164] / 255.0
+    noisy = colour + 0.05 * rng.standard_normal(colour.shape)
+    versions = np.stack([colour + 0.05 * rng.standard_normal(colour.shape) for _ in range(3)])
+    damaged = skdata.astronaut()[100:196, 100:196].copy()
+    mask = np.zeros(damaged.shape[:2], bool)
+    mask[:, 20:23] = mask[:, 60:62] = mask[40:43, :] = True
+    damaged[mask] = 255
+    texture = np.concatenate([skdata.brick()[:96, :64], skdata.grass()[:96, :64]], axis=1)
+    return [
+        ("restore windowed", lambda: restore(noisy, return_result=True).prediction),
+        ("restore recursive",
+         lambda: restore(noisy, estimator="recursive", return_result=True).restored()),
+        ("restore_multichannel", lambda: restore_multichannel(versions).restored),
+        ("restore_tiled", lambda: restore_tiled(noisy, tile=32)),
+        ("inpaint conditional", lambda: inpaint(damaged, mask)),
+        ("inpaint scans", lambda: inpaint(damaged, mask, method="scans")),
+        ("segment", lambda: segment(texture, n_segments=2, levels=2).labels),
+    ]
+
+
+def test_every_application_runs_on_the_job_pool_sized_by_the_setting(monkeypatch):
+    """CAR_NAPARI_JOB_THREADS sizes the one pool every application uses (the
+    restorations and the inpainting had their own two threads): at 3 their
+    kernels run on it, at 1 on no pool, and the results are the same bit for
+    bit."""
+    from car_napari import _threads
+    from car_napari.inpainting import _solver
+
+    monkeypatch.setattr(_threads, "usable_cpus", lambda: 4)  # 3 threads on any machine
+    monkeypatch.setattr(_solver, "SOLVE_UNKNOWNS", 64)  # several solves a frame
+    pool = _CountingPool(3)
+    monkeypatch.setattr(_threads, "_pools", {3: pool})
+    try:
+        for name, run in _applications():
+            monkeypatch.setenv("CAR_NAPARI_JOB_THREADS", "1")
+            before = pool.calls
+            one = run()
+            assert pool.calls == before, name
+            monkeypatch.setenv("CAR_NAPARI_JOB_THREADS", "3")
+            three = run()
+            assert pool.calls > before, f"{name} does not use the job pool"
+            np.testing.assert_array_equal(one, three, err_msg=name)
+    finally:
+        pool.shutdown()

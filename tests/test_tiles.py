@@ -74,6 +74,34 @@ def test_tiled_restore_of_colour_integers_from_dask_and_zarr(tmp_path):
                                atol=1e-6)
 
 
+def test_a_lazy_restore_passes_forgetting_on(camera, monkeypatch):
+    """``restore`` and ``iter_restore`` of a dask image pass ``forgetting``
+    to the tiles (they dropped it): checked as for an image in memory, the
+    windowed result the same whatever its value."""
+    da = pytest.importorskip("dask.array")
+    from car_napari.restoration import _tiled, iter_restore
+
+    lazy = da.from_array(camera, chunks=(100, 105))
+    for bad in (0.2, 2.0):
+        with pytest.raises(ValueError, match="forgetting"):
+            restore(camera, forgetting=bad)
+        with pytest.raises(ValueError, match="forgetting"):
+            restore(lazy, forgetting=bad)
+        with pytest.raises(ValueError, match="forgetting"):
+            drain(iter_restore(lazy, forgetting=bad))
+    seen = []
+    passed_on = _tiled.iter_restore_tiled
+
+    def spy(image, **options):
+        seen.append(options["forgetting"])
+        return passed_on(image, **options)
+
+    monkeypatch.setattr(_tiled, "iter_restore_tiled", spy)
+    restored = restore(lazy, forgetting=0.9)
+    assert seen == [0.9]
+    np.testing.assert_array_equal(np.asarray(restored), np.asarray(restore(lazy)))
+
+
 def test_what_is_not_tile_local_is_refused(camera):
     with pytest.raises(ValueError, match="estimator='recursive' cannot run by tiles"):
         restore_tiled(camera, estimator="recursive")

@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._progress import Progress, drain
+from .._docstrings import shared_parameters
+from .._progress import Progress, drain, row_blocks
 from .._validation import as_channel_last_float, check_real
 from . import _motion
 from ._layout import read_layout
@@ -59,17 +60,11 @@ BLOTCH_THRESHOLD = 0.12  # the raw test (motion=False), image scale [0, 1]
 _CROSS = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], bool)
 
 
-def _bands(n, size):
-    """(start, stop) of consecutive bands of ``size`` over ``range(n)``."""
-    size = max(1, int(size))
-    return [(a, min(a + size, n)) for a in range(0, n, size)]
-
-
 def _iter_grey(clip, colour, grey, t, band_pixels):
     """Fill ``grey[t]`` with frame ``t`` as grey floats (the channel mean) by
     row bands; yields the pixels done after each band."""
     _, H, W = grey.shape
-    for a, b in _bands(H, band_pixels // W):
+    for a, b in row_blocks(H, band_pixels // W):
         f = clip[t, a:b]
         g = as_channel_last_float(f if colour else f[..., 0],
                                   channel_axis=-1 if colour else None, name="frame")
@@ -84,7 +79,7 @@ def _iter_line_mask(g, w, length, line_threshold, band_pixels, out):
     from scipy import ndimage
 
     H, W = g.shape
-    rows = _bands(H, band_pixels // W)
+    rows = row_blocks(H, band_pixels // W)
     contrast = np.zeros_like(g)
     steps = np.empty((H, W - 1))
     for a, b in rows:  # row-local: the contrast with both sides, the horizontal steps
@@ -106,7 +101,7 @@ def _iter_line_mask(g, w, length, line_threshold, band_pixels, out):
         signed[a:b] = np.sign(contrast[a:b]) * strong[a:b]
         yield (b - a) * W
     lines = np.empty((H, W), bool)
-    for c, d in _bands(W, band_pixels // H):  # column-local: persistence down the frame
+    for c, d in row_blocks(W, band_pixels // H):  # column-local: persistence down the frame
         # most rows of a long vertical window agree in sign
         along = ndimage.uniform_filter1d(signed[:, c:d], length, axis=0, mode="nearest")
         lines[:, c:d] = strong[:, c:d] & (np.abs(along) > 0.5) & (
@@ -177,7 +172,7 @@ def _iter_blotch_mask(before, frame, after, blotch_threshold, band_pixels, out,
     it when ``compensated``) into ``out``, by row bands with a halo (exact);
     yields the pixels done (:data:`_BLOTCH_PASSES` passes of H * W)."""
     H, W = frame.shape
-    for a, b in _bands(H, band_pixels // W):
+    for a, b in row_blocks(H, band_pixels // W):
         lo, hi = max(a - _BLOTCH_HALO, 0), min(b + _BLOTCH_HALO, H)
         if compensated:
             found = _compensated_blotch_mask(before[lo:hi], frame[lo:hi], after[lo:hi],
@@ -239,22 +234,19 @@ def _iter_records(work, stage, fraction, message, band_pixels):
     return done
 
 
-def iter_detect_scratches(image, *, kinds=KINDS, channel_axis=-1, line_width=3,
-                          line_length=0.5, line_threshold=4.0,
-                          blotch_threshold=None, motion=True):
-    """Propose a damage mask, as a job: Progress records, then the mask.
-
-    The generator form of :func:`detect_scratches`, with the same
-    parameters and result.
-
-    Parameters
-    ----------
+# the Parameters of detect_scratches and iter_detect_scratches, written once
+_DETECT_SCRATCHES_PARAMETERS = """
     image : ndarray
-        A frame or a clip, read by the rule of :func:`detect_scratches`.
+        A frame or a clip, any numeric dtype (integers are scaled to [0, 1]).
+        How ``channel_axis`` reads it (the rule of :func:`inpaint`):
+        ``(H, W)`` is a grey frame; a 3-D array is a colour frame
+        ``(H, W, C)`` when the channel axis has at most 4 entries and a grey
+        clip ``(T, H, W)`` otherwise; a 4-D array is a colour clip
+        ``(T, H, W, C)``; ``channel_axis=None`` forces grey.
     kinds : str or sequence of {'line', 'blotch'}, optional
         What to look for.
     channel_axis : int or None, optional
-        The colour axis; None forces grey.
+        The colour axis (default -1, the last); None forces grey.
     line_width : int, optional
         Distance (pixels) of the two side pixels a line pixel is compared to.
     line_length : float, optional
@@ -267,8 +259,25 @@ def iter_detect_scratches(image, *, kinds=KINDS, channel_axis=-1, line_width=3,
         [0, 1]); default :data:`COMPENSATED_THRESHOLD` (0.04) with motion
         compensation, :data:`BLOTCH_THRESHOLD` (0.12) without.
     motion : bool, optional
-        Compare with the neighbouring frames warped onto the frame by the
-        estimated motion (default); False: the raw neighbours (SDIa).
+        True (default): compare each frame with its neighbours warped onto
+        it by the estimated motion (see above), so that moving content is
+        left alone; False: with the raw neighbours (plain SDIa, which flags
+        whatever moves).
+"""
+
+
+@shared_parameters(_DETECT_SCRATCHES_PARAMETERS)
+def iter_detect_scratches(image, *, kinds=KINDS, channel_axis=-1, line_width=3,
+                          line_length=0.5, line_threshold=4.0,
+                          blotch_threshold=None, motion=True):
+    """Propose a damage mask, as a job: Progress records, then the mask.
+
+    The generator form of :func:`detect_scratches`, with the same
+    parameters and result.
+
+    Parameters
+    ----------
+    {parameters}
 
     Returns
     -------
@@ -387,6 +396,7 @@ def iter_detect_scratches(image, *, kinds=KINDS, channel_axis=-1, line_width=3,
     return mask[0] if layout.single else mask
 
 
+@shared_parameters(_DETECT_SCRATCHES_PARAMETERS)
 def detect_scratches(image, *, kinds=KINDS, channel_axis=-1, line_width=3,
                      line_length=0.5, line_threshold=4.0, blotch_threshold=None,
                      motion=True):
@@ -424,33 +434,7 @@ def detect_scratches(image, *, kinds=KINDS, channel_axis=-1, line_width=3,
 
     Parameters
     ----------
-    image : ndarray
-        A frame or a clip, any numeric dtype (integers are scaled to [0, 1]).
-        How ``channel_axis`` reads it (the rule of :func:`inpaint`):
-        ``(H, W)`` is a grey frame; a 3-D array is a colour frame
-        ``(H, W, C)`` when the channel axis has at most 4 entries and a grey
-        clip ``(T, H, W)`` otherwise; a 4-D array is a colour clip
-        ``(T, H, W, C)``; ``channel_axis=None`` forces grey.
-    kinds : str or sequence of {'line', 'blotch'}, optional
-        What to look for.
-    channel_axis : int or None, optional
-        The colour axis (default -1, the last); None forces grey.
-    line_width : int, optional
-        Distance (pixels) of the two side pixels a line pixel is compared to.
-    line_length : float, optional
-        Length of the persistence window, as a fraction of the frame height.
-    line_threshold : float, optional
-        Contrast a line needs, in robust standard deviations of the
-        horizontal pixel differences.
-    blotch_threshold : float, optional
-        Difference from both neighbouring frames a blotch needs (image scale
-        [0, 1]); default :data:`COMPENSATED_THRESHOLD` (0.04) with motion
-        compensation, :data:`BLOTCH_THRESHOLD` (0.12) without.
-    motion : bool, optional
-        True (default): compare each frame with its neighbours warped onto
-        it by the estimated motion (see above), so that moving content is
-        left alone; False: with the raw neighbours (plain SDIa, which flags
-        whatever moves).
+    {parameters}
 
     Returns
     -------

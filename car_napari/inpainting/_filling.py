@@ -22,14 +22,15 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Callable
-from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, wait
 from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
-from .._progress import Progress, stage
+from .._progress import Progress, row_blocks, stage
+from .._threads import job_pool, pool_threads, submit
 from .._validation import check_forgetting, check_mask, check_real
 from ..model.neighbourhood import Context, causal_neighbourhood
 from ..model.recursive import RecursiveScan, default_prior
@@ -87,7 +88,6 @@ _CLEAN_FRAME_WORK = 0.01  # a frame without damage is only copied: its share of 
 # quickly. The scans resume exactly (model.recursive.RecursiveScan): the fill
 # does not depend on the chunks.
 SCAN_CHUNK_PIXELS = 1 << 18
-_SCANNERS = 2  # scans run at the same time (the machine's two cores)
 # The passes over a whole frame before and after the scans (statistics, the
 # scans' source, the side distances) go by bands of rows of BAND_PIXELS
 # pixels, bit for bit the whole-frame passes, with a record after every
@@ -241,19 +241,12 @@ class _Meter:
         return True
 
 
-def _bands(n, width):
-    """(start, stop) of bands of rows of about :data:`BAND_PIXELS` pixels
-    over ``n`` rows of ``width`` pixels."""
-    size = max(1, BAND_PIXELS // max(1, width))
-    return [(a, min(a + size, n)) for a in range(0, n, size)]
-
-
 def _as_float(array, out, meter, fraction, message, units=None):
     """``array.astype(np.float64)`` into ``out``, by bands (exact: element
     by element), in ``units`` ``(shift, scale)`` if given; a record (at
     ``fraction``) when due."""
     H, W = array.shape[:2]
-    for a, b in _bands(H, W):
+    for a, b in row_blocks(H, BAND_PIXELS // max(1, W)):
         out[a:b] = array[a:b]
         if units is not None:
             out[a:b] -= units[0]
@@ -287,7 +280,7 @@ def _iter_known_statistics(frame, mask, meter, message):
     continued band by band is the same sum; an (n, 1) array is summed
     pairwise, so a grey frame's variance is one call (a third of the data)."""
     H, W, C = frame.shape
-    bands = _bands(H, W)
+    bands = row_blocks(H, BAND_PIXELS // max(1, W))
     counts = [int(np.count_nonzero(~mask[a:b])) for a, b in bands]
     n = sum(counts)
     known = np.empty((n, C))
@@ -354,7 +347,7 @@ def _iter_source(frame, previous, mean, mask, pad, meter, message):
     H, W, C = frame.shape
     channels = C if previous is None else 2 * C
     source = np.empty((H + 2 * pad, W + 2 * pad, channels))
-    for a, b in _bands(H, W):
+    for a, b in row_blocks(H, BAND_PIXELS // max(1, W)):
         rows = source[pad + a : pad + b, pad : pad + W]
         np.subtract(frame[a:b], mean, out=rows[..., :C])
         if previous is not None:
@@ -368,8 +361,9 @@ def _iter_source(frame, previous, mean, mask, pad, meter, message):
 
 
 def _iter_scans(source, codes, options, buffers, finish, meter, message):
-    """The four scans of a frame (:data:`_DIRECTIONS`), two at a time in
-    threads (the kernel releases the GIL), each in chunks of about
+    """The four scans of a frame (:data:`_DIRECTIONS`), one a thread of the
+    job pool at a time (:func:`~car_napari._threads.job_pool`; the kernel
+    releases the GIL), each in chunks of about
     :data:`SCAN_CHUNK_PIXELS` pixels, a Progress record after every chunk but
     the last. Each scan works on a copy of ``source`` (copied by bands into
     one of the reused ``buffers``) and of ``codes``; ``finish(work)`` gives a
@@ -380,9 +374,11 @@ def _iter_scans(source, codes, options, buffers, finish, meter, message):
     height, width = source.shape[:2]
     length = {"down": width, "up": width, "right": height, "left": height}  # pixels a row
     chunk = {k: max(1, SCAN_CHUNK_PIXELS // length[k]) for k in _DIRECTIONS}
-    copy_bands = _bands(height, width)
+    copy_bands = row_blocks(height, BAND_PIXELS // max(1, width))
     total = 4 * height * width
-    while len(buffers) < _SCANNERS:
+    pool = job_pool()  # None: one scan after the other, here
+    scanners = pool_threads(pool)
+    while len(buffers) < scanners:
         buffers.append(None)
     for k, buffer in enumerate(buffers):
         if buffer is None or buffer.shape != source.shape:
@@ -407,37 +403,37 @@ def _iter_scans(source, codes, options, buffers, finish, meter, message):
         piece = state["scanner"].advance(chunk[direction])
         return 0, piece.stop - piece.start
 
-    def submit(direction):
+    def start(direction):
         if direction not in scans:
             scans[direction] = {"work": free.pop(), "copied": 0, "scanner": None}
-        running[pool.submit(step, direction)] = direction
+        running[submit(pool, step, direction)] = direction
 
-    with ThreadPoolExecutor(max_workers=_SCANNERS) as pool:
-        running = {}
-        try:
-            while waiting and len(running) < _SCANNERS:
-                submit(waiting.pop(0))
-            while running:
-                finished, _ = wait(running, return_when=FIRST_COMPLETED)
-                # in a fixed order: the records do not depend on the threads' timing
-                for future in sorted(finished, key=lambda f: _DIRECTIONS.index(running[f])):
-                    direction = running.pop(future)
-                    copied, rows = future.result()
-                    done_pixels += rows * length[direction]
-                    state = scans[direction]
-                    if state["scanner"] is not None and state["scanner"].done:
-                        results[direction] = finish(state["work"])
-                        free.append(scans.pop(direction)["work"])
-                        if waiting:
-                            submit(waiting.pop(0))
-                    else:
-                        submit(direction)
-                    if running and (rows or meter.due(copied)):
-                        yield Progress("frames", done_pixels / total,
-                                       f"{message}, scan {len(results)}/{len(_DIRECTIONS)}")
-        finally:
-            for future in running:
-                future.cancel()  # those not started yet; the running chunks end soon
+    running = {}
+    try:
+        while waiting and len(running) < scanners:
+            start(waiting.pop(0))
+        while running:
+            finished, _ = wait(running, return_when=FIRST_COMPLETED)
+            # in a fixed order: the records do not depend on the threads' timing
+            for future in sorted(finished, key=lambda f: _DIRECTIONS.index(running[f])):
+                direction = running.pop(future)
+                copied, rows = future.result()
+                done_pixels += rows * length[direction]
+                state = scans[direction]
+                if state["scanner"] is not None and state["scanner"].done:
+                    results[direction] = finish(state["work"])
+                    free.append(scans.pop(direction)["work"])
+                    if waiting:
+                        start(waiting.pop(0))
+                else:
+                    start(direction)
+                if running and (rows or meter.due(copied)):
+                    yield Progress("frames", done_pixels / total,
+                                   f"{message}, scan {len(results)}/{len(_DIRECTIONS)}")
+    finally:
+        for future in running:
+            future.cancel()  # those not started yet; the running chunks end soon
+        wait(running)
     return [results[k] for k in _DIRECTIONS]
 
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from functools import partial
 
+from .._docstrings import shared_parameters
 from .._progress import drain
 from .._tiles import is_lazy
 from . import _tiled
@@ -17,6 +18,65 @@ from ._tiled import iter_inpaint_large
 __all__ = ["inpaint", "iter_inpaint"]
 
 
+# the Parameters of both forms of the job, written once
+_PARAMETERS = """
+    image : ndarray
+        A frame or a clip, any integer or float32/64 dtype (a dask or zarr
+        array is read a frame at a time, a clip exactly as in memory, a
+        frame by tiles: :func:`~car_napari.inpainting.iter_inpaint_large`;
+        the result is a NumPy array; a frame larger than
+        :data:`~car_napari.inpainting._tiled.DEFAULT_TILE` a side is filled
+        by the same tiles in memory, so the two are equal). How
+        ``channel_axis`` reads it: ``(H, W)`` is a grey frame; a 3-D array is
+        a colour frame ``(H, W, C)`` when the channel axis has at most 4
+        entries and a grey clip ``(T, H, W)`` otherwise; a 4-D array is a
+        colour clip ``(T, H, W, C)``; ``channel_axis=None`` forces grey
+        (``(H, W)`` or ``(T, H, W)``, e.g. for a grey clip of 4 frames or
+        fewer).
+    mask : (H, W) or (T, H, W) array_like of bool
+        True (nonzero) where pixels are missing (in every channel); (H, W)
+        applies to every frame of a clip.
+    temporal : bool, optional
+        Use the previous restored frame as context (clips only).
+    motion : bool, optional
+        With ``temporal``, move the previous frame onto this one by the
+        estimated optical flow first (:func:`estimate_motion`), so that the
+        context follows moving content.
+    neighbourhood : int or None, optional
+        ``method="conditional"``: the hierarchical order (1 to 8) of the
+        local models (default :data:`CONDITIONAL_ORDER`, 3).
+        ``method="scans"``: how many previous scan lines the models see
+        (default 1; see :func:`line_offsets`): 5 pixels of each. One line
+        measured best on composited real scratches (+1.6 dB over two lines
+        of 3 pixels).
+    forgetting : float in [0.5, 1], optional
+        Forgetting factor of the adaptive models (``method="scans"``).
+    interleave : float, optional
+        Decay length (pixels) of each side's weight (``method="scans"``).
+    halo : float <= 0, 'auto' or None, optional
+        The edge test: known pixels next to the mask (4-neighbours) that the
+        model finds improbable are treated as damaged (still returned
+        unchanged). Soft-edged damage leaves such a halo just outside a mask
+        drawn at its core. A log density ratio: ``"scans"`` tests each
+        pixel's predictive density relative to its peak as a model reaches
+        it; ``"conditional"`` tests the blend of the pixel towards the
+        damage (half its chi-square statistic, with the blend pooled over
+        the ring nearby; such a pixel is used less half its estimated blend;
+        docs/inpainting.md). 'auto' (the default): :data:`CONDITIONAL_HALO`
+        or ``EDGE_OUTLIER_LOGREL`` (-12); None disables the test.
+    channel_axis : int or None, optional
+        The colour axis (default -1, the last); None forces grey.
+    method : {'conditional', 'scans'}, optional
+        ``"conditional"`` (the default): the exact conditional mean of the
+        missing pixels given the known ones under local 3DCAR models fitted
+        around the damage (four scan directions, their densities
+        multiplied), a sparse linear solve per batch of coupled holes.
+        ``"scans"``: the chapter's four directional adaptive models with
+        exponential interleaving, in chunks of rows.
+"""
+
+
+@shared_parameters(_PARAMETERS)
 def iter_inpaint(image, mask, *, temporal=True, neighbourhood=None, forgetting=0.9995,
                  interleave=DEFAULT_INTERLEAVE, halo="auto", channel_axis=-1,
                  method="conditional", motion=True):
@@ -26,8 +86,8 @@ def iter_inpaint(image, mask, *, temporal=True, neighbourhood=None, forgetting=0
     result. ``method="conditional"`` works in short steps with a record
     after each (the local fits by bands of blocks, the rows by model, the
     sparse solves by batches of coupled holes, run in threads with a record
-    every :data:`~car_napari.inpainting._conditional.SOLVE_RECORD_SECONDS`).
-    With ``method="scans"`` each frame is four scans, run two at a time in
+    every :data:`~car_napari.inpainting._solver.SOLVE_RECORD_SECONDS`).
+    With ``method="scans"`` each frame is four scans, run side by side in
     chunks of rows
     (about :data:`SCAN_CHUNK_PIXELS` pixels each, a fraction of a second) with
     a record after each chunk, so that closing the job (a Cancel) stops it
@@ -37,29 +97,7 @@ def iter_inpaint(image, mask, *, temporal=True, neighbourhood=None, forgetting=0
 
     Parameters
     ----------
-    image : ndarray
-        A frame ``(H, W)`` or ``(H, W, C)``, or a clip ``(T, H, W)`` or
-        ``(T, H, W, C)``; see :func:`inpaint` for how ``channel_axis`` reads it.
-    mask : (H, W) or (T, H, W) array_like of bool
-        True (nonzero) where pixels are missing; (H, W) applies to every frame.
-    temporal : bool, optional
-        Use the previous restored frame as context (clips only).
-    motion : bool, optional
-        With ``temporal``, move the previous frame onto this one by the
-        estimated optical flow first (:func:`estimate_motion`), so that the
-        context follows moving content.
-    neighbourhood : int or None, optional
-        The models' neighbourhood (see :func:`inpaint`).
-    forgetting : float in [0.5, 1], optional
-        Forgetting factor of the adaptive models (``method="scans"``).
-    interleave : float, optional
-        Decay length (pixels) of each side's weight (``method="scans"``).
-    halo : float <= 0, 'auto' or None, optional
-        Threshold of the edge test (see :func:`inpaint`); None disables it.
-    channel_axis : int or None, optional
-        The colour axis; None forces grey.
-    method : {'conditional', 'scans'}, optional
-        How the damage is filled (see :func:`inpaint`).
+    {parameters}
 
     Returns
     -------
@@ -122,6 +160,7 @@ def iter_inpaint(image, mask, *, temporal=True, neighbourhood=None, forgetting=0
                            channel_axis=channel_axis, method=method, motion=motion))
 
 
+@shared_parameters(_PARAMETERS)
 def inpaint(image, mask, *, temporal=True, neighbourhood=None, forgetting=0.9995,
             interleave=DEFAULT_INTERLEAVE, halo="auto", channel_axis=-1,
             method="conditional", motion=True):
@@ -142,59 +181,7 @@ def inpaint(image, mask, *, temporal=True, neighbourhood=None, forgetting=0.9995
 
     Parameters
     ----------
-    image : ndarray
-        A frame or a clip, any integer or float32/64 dtype (a dask or zarr
-        array is read a frame at a time, a clip exactly as in memory, a
-        frame by tiles: :func:`~car_napari.inpainting.iter_inpaint_large`;
-        the result is a NumPy array; a frame larger than
-        :data:`~car_napari.inpainting._tiled.DEFAULT_TILE` a side is filled
-        by the same tiles in memory, so the two are equal). How
-        ``channel_axis`` reads it: ``(H, W)`` is a grey frame; a 3-D array is
-        a colour frame ``(H, W, C)`` when the channel axis has at most 4
-        entries and a grey clip ``(T, H, W)`` otherwise; a 4-D array is a
-        colour clip ``(T, H, W, C)``; ``channel_axis=None`` forces grey
-        (``(H, W)`` or ``(T, H, W)``, e.g. for a grey clip of 4 frames or
-        fewer).
-    mask : (H, W) or (T, H, W) array_like of bool
-        True (nonzero) where pixels are missing (in every channel); (H, W)
-        applies to every frame of a clip.
-    temporal : bool, optional
-        Use the previous restored frame as context (clips only).
-    motion : bool, optional
-        With ``temporal``, move the previous frame onto this one by the
-        estimated optical flow first (:func:`estimate_motion`), so that the
-        context follows moving content.
-    neighbourhood : int or None, optional
-        ``method="conditional"``: the hierarchical order (1 to 8) of the
-        local models (default :data:`CONDITIONAL_ORDER`, 3).
-        ``method="scans"``: how many previous scan lines the models see
-        (default 1; see :func:`line_offsets`): 5 pixels of each. One line
-        measured best on composited real scratches (+1.6 dB over two lines
-        of 3 pixels).
-    forgetting : float in [0.5, 1], optional
-        Forgetting factor of the adaptive models (``method="scans"``).
-    interleave : float, optional
-        Decay length (pixels) of each side's weight (``method="scans"``).
-    halo : float <= 0, 'auto' or None, optional
-        The edge test: known pixels next to the mask (4-neighbours) that the
-        model finds improbable are treated as damaged (still returned
-        unchanged). Soft-edged damage leaves such a halo just outside a mask
-        drawn at its core. A log density ratio: ``"scans"`` tests each
-        pixel's predictive density relative to its peak as a model reaches
-        it; ``"conditional"`` tests the blend of the pixel towards the
-        damage (half its chi-square statistic, with the blend pooled over
-        the ring nearby; such a pixel is used less half its estimated blend;
-        docs/inpainting.md). 'auto' (the default): :data:`CONDITIONAL_HALO`
-        or ``EDGE_OUTLIER_LOGREL`` (-12); None disables the test.
-    channel_axis : int or None, optional
-        The colour axis (default -1, the last); None forces grey.
-    method : {'conditional', 'scans'}, optional
-        ``"conditional"`` (the default): the exact conditional mean of the
-        missing pixels given the known ones under local 3DCAR models fitted
-        around the damage (four scan directions, their densities
-        multiplied), a sparse linear solve per batch of coupled holes.
-        ``"scans"``: the chapter's four directional adaptive models with
-        exponential interleaving, in chunks of rows.
+    {parameters}
 
     Returns
     -------

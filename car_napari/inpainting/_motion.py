@@ -21,6 +21,7 @@ import math
 import numpy as np
 from numba import njit
 
+from .._docstrings import shared_parameters
 from .._progress import Progress, drain
 from .._validation import as_channel_last_float, check_mask, check_real
 from ._layout import read_layout
@@ -331,6 +332,25 @@ def _as_weight(mask, shape):
     return (m == 0).astype(np.float32)
 
 
+# the Parameters of estimate_motion and iter_estimate_motion, written once
+_ESTIMATE_MOTION_PARAMETERS = """
+    reference : ndarray
+        The frame the motion is measured on: (H, W) grey or (H, W, C)
+        colour (integers are scaled to [0, 1]).
+    moving : ndarray
+        The other frame, of the same size.
+    mask : (H, W) array_like of bool, optional
+        True where ``reference`` is damaged (ignored by the estimate).
+    channel_axis : int or None, optional
+        The colour axis of 3-D frames (default -1); None for grey frames.
+    radius : int, optional
+        Half size of the window (pixels, at every pyramid level).
+    iterations : int, optional
+        Warps per pyramid level.
+"""
+
+
+@shared_parameters(_ESTIMATE_MOTION_PARAMETERS)
 def iter_estimate_motion(reference, moving, *, mask=None, channel_axis=-1, radius=RADIUS,
                          iterations=ITERATIONS):
     """Estimate the motion from one frame to another, as a job.
@@ -340,16 +360,7 @@ def iter_estimate_motion(reference, moving, *, mask=None, channel_axis=-1, radiu
 
     Parameters
     ----------
-    reference, moving : ndarray
-        Two frames of one size, (H, W) grey or (H, W, C) colour.
-    mask : (H, W) array_like of bool, optional
-        True where ``reference`` is damaged.
-    channel_axis : int or None, optional
-        The colour axis of 3-D frames; None for grey.
-    radius : int, optional
-        Half size of the Lucas-Kanade window (pixels, at every level).
-    iterations : int, optional
-        Warps per pyramid level.
+    {parameters}
 
     Returns
     -------
@@ -401,6 +412,7 @@ def iter_estimate_motion(reference, moving, *, mask=None, channel_axis=-1, radiu
     return _full_flow(flow, (H, W))
 
 
+@shared_parameters(_ESTIMATE_MOTION_PARAMETERS)
 def estimate_motion(reference, moving, *, mask=None, channel_axis=-1, radius=RADIUS,
                     iterations=ITERATIONS):
     """Estimate the motion (dense optical flow) from one frame to another.
@@ -420,19 +432,7 @@ def estimate_motion(reference, moving, *, mask=None, channel_axis=-1, radius=RAD
 
     Parameters
     ----------
-    reference : ndarray
-        The frame the motion is measured on: (H, W) grey or (H, W, C)
-        colour (integers are scaled to [0, 1]).
-    moving : ndarray
-        The other frame, of the same size.
-    mask : (H, W) array_like of bool, optional
-        True where ``reference`` is damaged (ignored by the estimate).
-    channel_axis : int or None, optional
-        The colour axis of 3-D frames (default -1); None for grey frames.
-    radius : int, optional
-        Half size of the window (pixels, at every pyramid level).
-    iterations : int, optional
-        Warps per pyramid level.
+    {parameters}
 
     Returns
     -------
@@ -523,6 +523,22 @@ def warp_frame(frame, flow, *, channel_axis=-1):
     return np.moveaxis(out, -1, channel_axis)
 
 
+# the Parameters of compensate_motion and iter_compensate_motion, written once
+_COMPENSATE_MOTION_PARAMETERS = """
+    clip : ndarray
+        (T, H, W) grey or (T, H, W, C) colour, any numeric dtype (integers
+        are scaled to [0, 1]), read by the rule of
+        :func:`~car_napari.inpainting.inpaint`.
+    mask : (H, W) or (T, H, W) array_like of bool, optional
+        True where frames are damaged (ignored by the motion estimate).
+    channel_axis : int or None, optional
+        The colour axis (default -1); None forces grey.
+    radius, iterations : int, optional
+        As in :func:`estimate_motion`.
+"""
+
+
+@shared_parameters(_COMPENSATE_MOTION_PARAMETERS)
 def iter_compensate_motion(clip, *, mask=None, channel_axis=-1, radius=RADIUS,
                            iterations=ITERATIONS):
     """Both neighbours of every frame of a clip warped onto it, as a job.
@@ -532,15 +548,7 @@ def iter_compensate_motion(clip, *, mask=None, channel_axis=-1, radius=RADIUS,
 
     Parameters
     ----------
-    clip : ndarray
-        (T, H, W) grey or (T, H, W, C) colour, by the rule of
-        :func:`~car_napari.inpainting.inpaint`.
-    mask : (H, W) or (T, H, W) array_like of bool, optional
-        True where frames are damaged (ignored by the motion estimate).
-    channel_axis : int or None, optional
-        The colour axis; None forces grey.
-    radius, iterations : int, optional
-        As in :func:`estimate_motion`.
+    {parameters}
 
     Returns
     -------
@@ -628,6 +636,7 @@ def iter_compensate_motion(clip, *, mask=None, channel_axis=-1, radius=RADIUS,
     return layout.to_input(previous), layout.to_input(following)
 
 
+@shared_parameters(_COMPENSATE_MOTION_PARAMETERS)
 def compensate_motion(clip, *, mask=None, channel_axis=-1, radius=RADIUS,
                       iterations=ITERATIONS):
     """Both neighbours of every frame of a clip, warped onto it.
@@ -642,16 +651,7 @@ def compensate_motion(clip, *, mask=None, channel_axis=-1, radius=RADIUS,
 
     Parameters
     ----------
-    clip : ndarray
-        (T, H, W) grey or (T, H, W, C) colour, any numeric dtype (integers
-        are scaled to [0, 1]), read by the rule of
-        :func:`~car_napari.inpainting.inpaint`.
-    mask : (H, W) or (T, H, W) array_like of bool, optional
-        True where frames are damaged (ignored by the motion estimate).
-    channel_axis : int or None, optional
-        The colour axis (default -1); None forces grey.
-    radius, iterations : int, optional
-        As in :func:`estimate_motion`.
+    {parameters}
 
     Returns
     -------

@@ -14,19 +14,17 @@ recursive scan behind the last runs in chunks of rows
 restoration) yield between its chunks the same way.
 """
 
+from .adaptive import iter_local_parameters, local_parameters
 from .estimation import (
-    CARModel,
-    Prediction,
     SupportSelection,
     fit_car,
     iter_fit_car,
     iter_select_support,
-    predict,
     select_support,
 )
+from .fitted import CARModel, Prediction, predict
 from .invariants import illumination_invariants
 from .neighbourhood import Context, as_offsets, causal_neighbourhood
-from .recursive import iter_local_parameters, local_parameters
 from .synthesis import iter_synthesize, spectral_radius, synthesize
 
 __all__ = [

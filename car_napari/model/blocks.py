@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._progress import Progress
+from .._progress import Progress, row_blocks
 from .._validation import (
     SummaryPasses,
     as_channel_last_float,
@@ -26,7 +26,8 @@ BLOCK_VALUES = 1 << 22
 
 
 def row_ranges(n_rows, values_per_row, budget=None):
-    """Blocks of rows of about ``budget`` values each.
+    """Blocks of rows of about ``budget`` values each
+    (:func:`~car_napari._progress.row_blocks` by a budget of values).
 
     Parameters
     ----------
@@ -48,8 +49,7 @@ def row_ranges(n_rows, values_per_row, budget=None):
     [(0, 2), (2, 4), (4, 6), (6, 8), (8, 10)]
     """
     budget = BLOCK_VALUES if budget is None else budget
-    step = max(1, int(budget // max(1, values_per_row)))
-    return [(start, min(start + step, n_rows)) for start in range(0, n_rows, step)]
+    return row_blocks(n_rows, budget // max(1, values_per_row))
 
 
 def iter_channel_last_float(image, *, channel_axis=-1, name="image", stage="prepare",

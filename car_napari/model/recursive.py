@@ -1,5 +1,7 @@
-"""Recursive (adaptive) estimation along the four scan directions ((14.26)-(14.32),
-section 14.2.1, docs/model.md)."""
+"""Recursive estimation along the four scan directions ((14.26)-(14.32),
+section 14.2.1, docs/model.md): the square-root estimator's scan
+(:class:`RecursiveScan`, :func:`scan`); the adaptive estimator built on it
+(its prior and warm start, the local parameters) is :mod:`.adaptive`."""
 
 from __future__ import annotations
 
@@ -7,25 +9,12 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .._progress import Progress, drain
-from .._validation import (
-    as_channel_last_float,
-    check_forgetting,
-    check_not_constant,
-    check_real,
-    check_size,
-    summarize,
-)
+from .._progress import Progress
 from ._kernels import finish_factor, recursive_scan
 from .directions import DIRECTIONS, scan_shape, scan_view, unscan_view
-from .neighbourhood import Context, as_offsets
-from .statistics import data_statistics
 
-__all__ = ["local_parameters", "iter_local_parameters", "scan", "iter_scan", "RecursiveScan",
-           "ScanChunk", "ScanResult", "adaptive_scan", "iter_adaptive_scan", "adaptive_scanner",
-           "adaptive_start",
-           "default_prior", "scan_work",
-           "DIRECTIONS", "scan_shape", "scan_view", "unscan_view"]
+__all__ = ["scan", "iter_scan", "RecursiveScan", "ScanChunk", "ScanResult", "default_prior",
+           "scan_work", "DIRECTIONS", "scan_shape", "scan_view", "unscan_view"]
 
 
 def _geometry(shape, direction, context):
@@ -224,7 +213,8 @@ class RecursiveScan:
     See Also
     --------
     iter_scan : The loop as a job.
-    adaptive_scanner : The same with :func:`adaptive_scan`'s prior and warm start.
+    car_napari.model.adaptive.adaptive_scanner : The same with the adaptive estimator's
+        prior and warm start.
 
     Examples
     --------
@@ -462,16 +452,62 @@ class RecursiveScan:
                       beta=float(self._fstate[1]), count=int(self._fstate[2]))
         return result
 
+    def run(self):
+        """Scan the rows left in one kernel call and return :meth:`result`.
+
+        Returns
+        -------
+        ScanResult
+            What :func:`scan` returns.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from car_napari.model import Context
+        >>> y = np.random.default_rng(0).standard_normal((8, 8, 1))
+        >>> RecursiveScan(y, Context.spatial([[0, 1]], 1), prior=np.ones(2)).run()["count"]
+        56
+        """
+        self.advance(self.rows - self.position)
+        return self.result()
+
+    def iter_run(self, chunk_rows=None):
+        """:meth:`run` as a job: the rows left in chunks, a record after each.
+
+        Parameters
+        ----------
+        chunk_rows : int, optional
+            Scan rows per chunk (default :attr:`chunk_rows`: about
+            0.1-0.25 s of work).
+
+        Yields
+        ------
+        Progress
+            Stage ``"scan"``, message ``"<direction> scan: rows k/n"``.
+
+        Returns
+        -------
+        ScanResult
+            What :meth:`run` returns, bit for bit.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from car_napari._progress import drain
+        >>> from car_napari.model import Context
+        >>> y = np.random.default_rng(0).standard_normal((8, 8, 1))
+        >>> scanner = RecursiveScan(y, Context.spatial([[0, 1]], 1), prior=np.ones(2))
+        >>> drain(scanner.iter_run(chunk_rows=3))["count"]
+        56
+        """
+        while not self.done:
+            chunk = self.advance(chunk_rows)
+            yield Progress("scan", chunk.stop / self.rows,
+                           f"{self.direction} scan: rows {chunk.stop}/{self.rows}")
+        return self.result()
+
 
 _EMPTY = np.empty(0)
-
-
-def _iter_rows(scanner, chunk_rows=None, stage_name="scan"):
-    """Advance a scanner to its end, a Progress record after each chunk."""
-    while not scanner.done:
-        chunk = scanner.advance(chunk_rows)
-        yield Progress(stage_name, chunk.stop / scanner.rows,
-                       f"{scanner.direction} scan: rows {chunk.stop}/{scanner.rows}")
 
 
 def iter_scan(
@@ -578,8 +614,7 @@ def iter_scan(
         prior=prior, initial=initial, update=update, outputs=outputs, missing=missing,
         fill_range=fill_range, suspect_logrel=suspect_logrel,
     )
-    yield from _iter_rows(scanner, chunk_rows)
-    return scanner.result()
+    return (yield from scanner.iter_run(chunk_rows))
 
 
 def scan(
@@ -673,8 +708,7 @@ def scan(
         prior=prior, initial=initial, update=update, outputs=outputs, missing=missing,
         fill_range=fill_range, suspect_logrel=suspect_logrel,
     )
-    scanner.advance(scanner.rows)  # one kernel call
-    return scanner.result()
+    return scanner.run()  # one kernel call
 
 
 def default_prior(channel_var, n_regressors, intercept, n_targets, strength):
@@ -711,415 +745,3 @@ def default_prior(channel_var, n_regressors, intercept, n_targets, strength):
     if intercept:
         prior[n_regressors] = strength
     return prior
-
-
-def local_parameters(
-    image,
-    neighbourhood=2,
-    *,
-    forgetting=0.99,
-    direction="down",
-    channel_axis=-1,
-    prior=1e-6,
-    warm_start=True,
-):
-    """Adaptive 3DCAR parameters ``gamma_hat_r`` at every pixel.
-
-    The recursive Bayesian estimator with exponential forgetting
-    ((14.26)-(14.32), section 14.2.1, docs/model.md) scans the image in one
-    direction, keeping a square-root (Cholesky) factor of its statistics, so
-    it stays finite and accurate on flat regions.
-
-    Parameters
-    ----------
-    image : (H, W) or (H, W, C) array
-        Grey or multichannel image; any dtype (integers are scaled to [0, 1]).
-    neighbourhood : int or (eta, 2) array of int, optional
-        Order of the hierarchical causal neighbourhood, or explicit offsets.
-    forgetting : float in [0.5, 1], optional
-        Exponential forgetting factor ``phi``; the effective window is about
-        ``1 / (1 - phi**2)`` pixels along the scan. 1 means no forgetting;
-        below 0.5 (a window of about one pixel) is refused.
-    direction : {'down', 'up', 'right', 'left'}, optional
-        Where the scan moves: 'down' is the raster (rows top to bottom, each
-        left to right), 'up' bottom to top, 'right' columns left to right,
-        'left' columns right to left. Offsets are relative to the scan.
-    channel_axis : int or None, optional
-        Axis of the channels; None for a grey image.
-    prior : float, optional
-        Strength of the prior ``V_0 = prior * var(image) * I`` relative to one
-        pixel's data; also the floor the statistics never fall below.
-    warm_start : bool, optional
-        Start the scan from the whole image's statistics weighted as one
-        forgetting window (``1 / (1 - phi**2)`` pixels) instead of the bare
-        prior: the first pixels of the scan then get the global model, not a
-        transient fitted to a handful of pixels. Ignored when ``forgetting=1``.
-
-    Returns
-    -------
-    (H, W, d, d*eta) ndarray of float64
-        ``gamma[i, j] = [A_1, ..., A_eta]`` estimated from the pixels scanned
-        up to and including ``(i, j)``; where the neighbourhood leaves the image
-        the running estimate carries over (zeros before the first update).
-
-    Raises
-    ------
-    ValueError
-        If the image is empty, constant, not 2-D or 3-D, holds NaN or
-        infinite values, or is too small; if the neighbourhood,
-        ``forgetting``, ``direction`` or ``prior`` is invalid.
-    TypeError
-        If the image is None or not numeric.
-
-    Notes
-    -----
-    A local intercept is estimated with ``gamma`` (and dropped from the
-    output), so the parameters describe texture, not local brightness; with
-    ``forgetting=1`` the estimate at the last pixel equals least squares with
-    an intercept over all pixels whose neighbourhood lies inside the image.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> image = np.random.default_rng(0).random((16, 16, 3))
-    >>> local_parameters(image, 1).shape
-    (16, 16, 3, 6)
-    """
-    return drain(iter_local_parameters(
-        image, neighbourhood, forgetting=forgetting, direction=direction,
-        channel_axis=channel_axis, prior=prior, warm_start=warm_start))
-
-
-def iter_local_parameters(
-    image,
-    neighbourhood=2,
-    *,
-    forgetting=0.99,
-    direction="down",
-    channel_axis=-1,
-    prior=1e-6,
-    warm_start=True,
-    chunk_rows=None,
-):
-    """Adaptive 3DCAR parameters at every pixel, as a job: Progress, then the parameters.
-
-    The generator form of :func:`local_parameters`, with the same parameters
-    and, bit for bit, the same result: the scan runs in chunks of rows (about
-    0.1-0.25 s of work each, see :class:`RecursiveScan`) with a yield
-    between them, so a worker can report progress and stop at a Cancel.
-
-    Parameters
-    ----------
-    image : (H, W) or (H, W, C) array
-        Grey or multichannel image; any dtype (integers are scaled to [0, 1]).
-    neighbourhood : int or (eta, 2) array of int, optional
-        Order of the hierarchical causal neighbourhood, or explicit offsets.
-    forgetting : float in [0.5, 1], optional
-        Exponential forgetting factor ``phi``.
-    direction : {'down', 'up', 'right', 'left'}, optional
-        Where the scan moves.
-    channel_axis : int or None, optional
-        Axis of the channels; None for a grey image.
-    prior : float, optional
-        Strength of the prior relative to one pixel's data.
-    warm_start : bool, optional
-        Start the scan from the whole image's statistics (see
-        :func:`local_parameters`).
-    chunk_rows : int, optional
-        Scan rows per chunk (default: about 0.1-0.25 s of work).
-
-    Returns
-    -------
-    (H, W, d, d*eta) ndarray of float64
-        What :func:`local_parameters` returns.
-
-    Yields
-    ------
-    Progress
-        Stage ``"scan"`` after each chunk of rows, its fraction the rows
-        done, message like ``"down scan: rows 512/2048"``.
-
-    Raises
-    ------
-    ValueError
-        As :func:`local_parameters`.
-    TypeError
-        As :func:`local_parameters`.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from car_napari._progress import drain
-    >>> image = np.random.default_rng(0).random((64, 48, 3))
-    >>> records = []
-    >>> gamma = drain(iter_local_parameters(image, 1, chunk_rows=16), records.append)
-    >>> gamma.shape, [r.message for r in records][-1]
-    ((64, 48, 3, 6), 'down scan: rows 64/64')
-    >>> bool(np.array_equal(gamma, local_parameters(image, 1)))
-    True
-    """
-    offsets, _ = as_offsets(neighbourhood)  # the options first: no pass over a bad call
-    forgetting = check_forgetting(forgetting)
-    if direction not in DIRECTIONS:
-        raise ValueError(f"direction must be one of {DIRECTIONS}; got {direction!r}.")
-    prior = check_real(prior, "prior", low=0.0, low_open=True)
-    if not isinstance(warm_start, (bool, np.bool_)):
-        raise TypeError(f"warm_start must be True or False; got {warm_start!r}.")
-    data = as_channel_last_float(image, channel_axis=channel_axis)
-    context = Context.spatial(offsets, data.shape[2])
-    check_size(np.empty(scan_shape(data.shape, direction)), context.reach)
-    summary = summarize(data)
-    check_not_constant(data, summary=summary)
-    data -= summary.mean
-    res = yield from iter_adaptive_scan(
-        data, context, summary.var, forgetting=float(forgetting), direction=direction,
-        prior=prior, warm_start=warm_start, outputs=("gamma",), chunk_rows=chunk_rows)
-    return res["gamma"]
-
-
-def adaptive_scan(centred, context, channel_var, *, forgetting, direction, prior=1e-6,
-                  warm_start=True, outputs=("gamma",)):
-    """The scan behind :func:`local_parameters`, on centred, validated data.
-
-    With any of :func:`scan`'s outputs (e.g. the one-step conditional mean).
-
-    Parameters
-    ----------
-    centred : (H, W, C) ndarray of float64
-        C-contiguous, mean already subtracted.
-    context : Context
-        What goes into ``X_r`` and ``Y_r``.
-    channel_var : array_like
-        Per-channel variance of the data (scales the prior).
-    forgetting : float in (0, 1]
-        The forgetting factor ``phi``.
-    direction : {'down', 'up', 'right', 'left'}
-        The scan direction.
-    prior : float, optional
-        Strength of the prior (see :func:`default_prior`).
-    warm_start : bool, optional
-        Start from the whole image's statistics weighted as one forgetting
-        window (see :func:`local_parameters`).
-    outputs : tuple of str, optional
-        As :func:`scan`.
-
-    Returns
-    -------
-    ScanResult
-        As :func:`scan`, with an intercept.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from car_napari.model import Context
-    >>> y = np.random.default_rng(0).standard_normal((8, 8, 1))
-    >>> res = adaptive_scan(y, Context.spatial([[0, 1], [1, 0]], 1), [1.0],
-    ...                     forgetting=0.99, direction="down")
-    >>> res["gamma"].shape
-    (8, 8, 1, 2)
-    """
-    scanner = adaptive_scanner(centred, context, channel_var, forgetting=forgetting,
-                               direction=direction, prior=prior, warm_start=warm_start,
-                               outputs=outputs)
-    scanner.advance(scanner.rows)  # one kernel call
-    return scanner.result()
-
-
-def adaptive_scanner(centred, context, channel_var, *, forgetting, direction, prior=1e-6,
-                     warm_start=True, outputs=("gamma",), stream=False, start=None):
-    """The scan of :func:`adaptive_scan` as a :class:`RecursiveScan`, to run in chunks.
-
-    Parameters
-    ----------
-    centred : (H, W, C) ndarray of float64
-        C-contiguous, mean already subtracted.
-    context : Context
-        What goes into ``X_r`` and ``Y_r``.
-    channel_var : array_like
-        Per-channel variance of the data (scales the prior).
-    forgetting : float in (0, 1]
-        The forgetting factor ``phi``.
-    direction : {'down', 'up', 'right', 'left'}
-        The scan direction.
-    prior : float, optional
-        Strength of the prior (see :func:`default_prior`).
-    warm_start : bool, optional
-        Start from the whole image's statistics weighted as one forgetting
-        window (see :func:`local_parameters`).
-    outputs : tuple of str, optional
-        As :func:`scan`.
-    stream : bool, optional
-        Hand each chunk's outputs out instead of keeping image-sized arrays
-        (see :class:`RecursiveScan`).
-    start : tuple, optional
-        What :func:`adaptive_start` returns for these arguments, when a
-        second scan of the same data starts as the first did (default:
-        computed here).
-
-    Returns
-    -------
-    RecursiveScan
-        Not started; ``advance`` it to its end (yielding in between), then
-        ``result()`` is what :func:`adaptive_scan` returns.
-
-    Examples
-    --------
-    A job that keeps only a per-row summary of ``gamma`` (memory bounded by a
-    chunk, whatever the image size), a yield after each chunk:
-
-    >>> import numpy as np
-    >>> from car_napari._progress import Progress, drain
-    >>> from car_napari.model import Context
-    >>> y = np.random.default_rng(0).standard_normal((64, 40, 1))
-    >>> ctx = Context.spatial([[0, 1], [1, 0]], 1)
-    >>> def row_means():
-    ...     scanner = adaptive_scanner(y, ctx, [1.0], forgetting=0.99, direction="up",
-    ...                                stream=True)
-    ...     means = np.empty((scanner.rows, 2))
-    ...     while not scanner.done:
-    ...         start, stop, out = scanner.advance()
-    ...         means[start:stop] = out["gamma"].mean(axis=1)[:, 0]
-    ...         yield Progress("scan", stop / scanner.rows)
-    ...     return means   # rows in scan order: bottom to top for 'up'
-    >>> drain(row_means()).shape
-    (64, 2)
-
-    Several scans at once, one per thread (the kernel releases the GIL), a
-    yield after each round of chunks, so a Cancel stops them all within one
-    chunk:
-
-    >>> from concurrent.futures import ThreadPoolExecutor
-    >>> def two_directions():
-    ...     scanners = [adaptive_scanner(y, ctx, [1.0], forgetting=0.99, direction=d,
-    ...                                  outputs=("mean",)) for d in ("down", "up")]
-    ...     with ThreadPoolExecutor(max_workers=2) as pool:
-    ...         while not all(s.done for s in scanners):
-    ...             list(pool.map(lambda s: s.advance(16), scanners))
-    ...             yield Progress("scan", min(s.position / s.rows for s in scanners))
-    ...     return [s.result()["mean"] for s in scanners]
-    >>> down, up = drain(two_directions())
-    >>> bool(np.array_equal(down, adaptive_scan(y, ctx, [1.0], forgetting=0.99,
-    ...                     direction="down", outputs=("mean",))["mean"], equal_nan=True))
-    True
-    """
-    pri, initial = start if start is not None else adaptive_start(
-        centred, context, channel_var, forgetting=forgetting, direction=direction,
-        prior=prior, warm_start=warm_start)
-    return RecursiveScan(centred, context, direction=direction, forgetting=float(forgetting),
-                         intercept=True, prior=pri, initial=initial, outputs=outputs,
-                         stream=stream)
-
-
-def adaptive_start(centred, context, channel_var, *, forgetting, direction, prior=1e-6,
-                   warm_start=True):
-    """The prior and warm start of :func:`adaptive_scanner` (its parameters).
-
-    Returns
-    -------
-    (prior, initial)
-        The prior's diagonal and the whole image's statistics weighted as
-        one forgetting window (None without a warm start): what a second
-        scan of the same data passes as ``start`` instead of computing them
-        again.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from car_napari.model import Context
-    >>> y = np.random.default_rng(0).standard_normal((32, 32, 1))
-    >>> ctx = Context.spatial([[0, 1], [1, 0]], 1)
-    >>> start = adaptive_start(y, ctx, [1.0], forgetting=0.99, direction="down")
-    >>> a = adaptive_scanner(y, ctx, [1.0], forgetting=0.99, direction="down", start=start)
-    >>> b = adaptive_scanner(y, ctx, [1.0], forgetting=0.99, direction="down")
-    >>> while not (a.done or b.done):
-    ...     _ = a.advance(), b.advance()
-    >>> bool(np.array_equal(a.result()["gamma"], b.result()["gamma"]))
-    True
-    """
-    pri = default_prior(channel_var, context.n_regressors, True, context.n_targets, prior)
-    initial = None
-    if warm_start and forgetting < 1.0:
-        initial = _window_statistics(centred, context, direction, pri, float(forgetting))
-    return pri, initial
-
-
-def iter_adaptive_scan(centred, context, channel_var, *, forgetting, direction, prior=1e-6,
-                       warm_start=True, outputs=("gamma",), chunk_rows=None):
-    """The scan of :func:`adaptive_scan` as a job: Progress per chunk of rows.
-
-    The generator form of :func:`adaptive_scan`, with the same parameters
-    and, bit for bit, the same result.
-
-    Parameters
-    ----------
-    centred : (H, W, C) ndarray of float64
-        C-contiguous, mean already subtracted.
-    context : Context
-        What goes into ``X_r`` and ``Y_r``.
-    channel_var : array_like
-        Per-channel variance of the data (scales the prior).
-    forgetting : float in (0, 1]
-        The forgetting factor ``phi``.
-    direction : {'down', 'up', 'right', 'left'}
-        The scan direction.
-    prior : float, optional
-        Strength of the prior (see :func:`default_prior`).
-    warm_start : bool, optional
-        Start from the whole image's statistics weighted as one forgetting
-        window (see :func:`local_parameters`).
-    outputs : tuple of str, optional
-        As :func:`scan`.
-    chunk_rows : int, optional
-        Scan rows per chunk (default: about 0.1-0.25 s of work).
-
-    Returns
-    -------
-    ScanResult
-        What :func:`adaptive_scan` returns.
-
-    Yields
-    ------
-    Progress
-        Stage ``"scan"`` after each chunk (see :func:`iter_scan`).
-
-    Examples
-    --------
-    Inside a job, as one of its stages:
-
-    >>> import numpy as np
-    >>> from car_napari._progress import drain, stage
-    >>> from car_napari.model import Context
-    >>> y = np.random.default_rng(0).standard_normal((64, 40, 1))
-    >>> ctx = Context.spatial([[0, 1], [1, 0]], 1)
-    >>> def job():
-    ...     res = yield from stage(iter_adaptive_scan(y, ctx, [1.0], forgetting=0.99,
-    ...                                               direction="left"), 0.0, 0.8)
-    ...     return res["gamma"]
-    >>> drain(job()).shape
-    (64, 40, 1, 2)
-    """
-    scanner = adaptive_scanner(centred, context, channel_var, forgetting=forgetting,
-                               direction=direction, prior=prior, warm_start=warm_start,
-                               outputs=outputs)
-    yield from _iter_rows(scanner, chunk_rows)
-    return scanner.result()
-
-
-def _window_statistics(centred, context, direction, prior, forgetting):
-    """Whole-image augmented statistics of [X; 1; Y], scaled to the weight of
-    one forgetting window, plus the prior: (upper factor, beta). A prior worth
-    one window needs no more than a central crop of 256 x 256 pixels."""
-    h, w = centred.shape[:2]
-    top, left = max(0, (h - 256) // 2), max(0, (w - 256) // 2)
-    crop = centred[top : top + 256, left : left + 256]
-    V, count = data_statistics(crop, context, direction=direction)
-    m = context.n_regressors
-    n = V.shape[0] + 1
-    aug = np.zeros((n, n))
-    aug[:m, :m], aug[:m, m + 1:], aug[m + 1:, :m], aug[m + 1:, m + 1:] = (
-        V[:m, :m], V[:m, m:], V[m:, :m], V[m:, m:])
-    aug[m, m] = count  # the data are centred: the intercept's cross terms are ~0
-    window = 1.0 / (1.0 - forgetting**2)
-    weight = min(1.0, window / max(count, 1))
-    aug = aug * weight + np.diag(prior)
-    return np.linalg.cholesky(aug).T.copy(), float(m) + weight * count

@@ -7,6 +7,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .._docstrings import shared_parameters
 from .._progress import Progress, drain
 from .directions import scan_view
 
@@ -77,6 +78,18 @@ def _design_blocks(view, context, blocks, b0, b1):
         yield Z[~flat.ravel()] if flat.any() else Z
 
 
+# the Parameters of data_statistics and iter_data_statistics, written once
+_DATA_STATISTICS_PARAMETERS = """
+    centred : (H, W, C) ndarray of float64
+        The image, mean already subtracted.
+    context : Context
+        What goes into ``X_r`` and ``Y_r``.
+    direction : {'down', 'up', 'right', 'left'}, optional
+        The scan direction.
+"""
+
+
+@shared_parameters(_DATA_STATISTICS_PARAMETERS)
 def iter_data_statistics(centred, context, *, direction="down"):
     """Accumulate the data-gathering matrix, as a job: Progress per block of rows.
 
@@ -85,12 +98,7 @@ def iter_data_statistics(centred, context, *, direction="down"):
 
     Parameters
     ----------
-    centred : (H, W, C) ndarray of float64
-        The image, mean already subtracted.
-    context : Context
-        What goes into ``X_r`` and ``Y_r``.
-    direction : {'down', 'up', 'right', 'left'}, optional
-        The scan direction.
+    {parameters}
 
     Returns
     -------
@@ -131,6 +139,7 @@ def iter_data_statistics(centred, context, *, direction="down"):
     return V, count
 
 
+@shared_parameters(_DATA_STATISTICS_PARAMETERS)
 def data_statistics(centred, context, *, direction="down"):
     """The data-gathering matrix ``V = sum z z^T`` of ``z = [X_r; Y_r]``.
 
@@ -141,12 +150,7 @@ def data_statistics(centred, context, *, direction="down"):
 
     Parameters
     ----------
-    centred : (H, W, C) ndarray of float64
-        The image, mean already subtracted.
-    context : Context
-        What goes into ``X_r`` and ``Y_r``.
-    direction : {'down', 'up', 'right', 'left'}, optional
-        The scan direction.
+    {parameters}
 
     Returns
     -------

@@ -7,12 +7,12 @@ import math
 
 import numpy as np
 
-from .._progress import Progress, drain
+from .._progress import Progress, drain, row_blocks
 from .._validation import check_memory, check_real, check_seed, output_shape
 from ._kernels import synthesize_field
 from .blocks import row_ranges
 from .directions import unscan_view
-from .estimation import check_model
+from .fitted import check_model
 
 __all__ = ["iter_synthesize", "synthesize", "spectral_radius"]
 
@@ -139,7 +139,7 @@ def spectral_radius(model):
         If ``model`` is not a CARModel.
     ValueError
         If its parameters are inconsistent or not finite, or its offsets
-        reach too far (see :func:`~car_napari.model.estimation.check_model`).
+        reach too far (see :func:`~car_napari.model.fitted.check_model`).
 
     Examples
     --------
@@ -330,9 +330,7 @@ def iter_synthesize(model, shape, *, seed=None, margin=None, chunk_rows=None):
     limit = 1e8 * max(scale, 1e-300) / max(1.0 - radius, 1e-6)
     if chunk_rows is None:
         chunk_rows = _CHUNK_FLOPS // (n_cols * (gamma.size + d * d + 8))
-    chunk_rows = max(1, int(chunk_rows))
-    for start in range(0, n_rows, chunk_rows):
-        stop = min(start + chunk_rows, n_rows)
+    for start, stop in row_blocks(n_rows, chunk_rows):
         if not synthesize_field(gamma, chol, noise, tap_di, tap_dj, tap_ch, limit, start,
                                 stop):
             raise ValueError(

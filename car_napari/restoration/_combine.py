@@ -3,15 +3,15 @@ at a time, their precision-weighted average, and the edge rule (14.40)."""
 
 from __future__ import annotations
 
-import os
-from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 from functools import partial
 
 import numpy as np
 
+from .._progress import iter_chains, row_blocks
+from .._threads import pool_threads
 from .._validation import check_size
+from ..model.adaptive import adaptive_scanner
 from ..model.directions import scan_shape
-from ..model.recursive import adaptive_scanner
 from ._kernels import accumulate_direction, combine_directions
 from ._windowed import edge_weight
 
@@ -27,68 +27,17 @@ EDGE_SPREAD = 0.7
 CHUNK_VALUES = 1 << 20
 
 
-def in_halves(pool, kernel, n, *args):
-    """Run ``kernel(*args, start, stop)`` over [0, n) in two halves on ``pool``."""
-    half = (n + 1) // 2
-    futures = [pool.submit(kernel, *args, a, b) for a, b in ((0, half), (half, n)) if b > a]
-    for future in futures:
-        future.result()
-
-
-def row_chunks(start, stop, rows):
-    """[start, stop) as consecutive (a, b) ranges of at most ``rows`` rows."""
-    rows = max(1, int(rows))
-    return [(a, min(stop, a + rows)) for a in range(start, stop, rows)]
-
-
 def chunk_rows(width, per_pixel=1.0):
     """Rows of ``width`` pixels of ``per_pixel`` work each that make a chunk
     (of about ``CHUNK_VALUES`` units)."""
     return max(1, int(CHUNK_VALUES // max(1.0, width * per_pixel)))
 
 
-def iter_chains(pool, chains):
-    """Run chains of calls, the chains side by side on ``pool`` (the calls
-    release the GIL), each chain's calls one after the other.
-
-    ``chains`` are iterables of zero-argument callables, drawn lazily (the
-    next call of a chain is drawn when its previous call has finished, so it
-    may depend on it). Yields each call's return value as it finishes.
-    Without a pool, runs the chains one after the other here. Closing the
-    generator early starts no more calls (the ones running finish).
-    """
-    chains = [iter(chain) for chain in chains]
-    if pool is None:
-        for chain in chains:
-            for call in chain:
-                yield call()
-        return
-    pending = {}
-
-    def submit(k):
-        call = next(chains[k], None)
-        if call is not None:
-            pending[pool.submit(call)] = k
-
-    try:
-        for k in range(len(chains)):
-            submit(k)
-        while pending:
-            done, _ = wait(list(pending), return_when=FIRST_COMPLETED)
-            for future in sorted(done, key=pending.get):
-                k = pending.pop(future)
-                value = future.result()
-                submit(k)
-                yield value
-    finally:  # closing early: do not start what is queued
-        for future in pending:
-            future.cancel()
-
-
-def iter_calls(pool, calls, n_chains=2):
-    """:func:`iter_chains` of independent ``calls``, dealt out to
-    ``n_chains`` chains."""
+def iter_calls(pool, calls):
+    """:func:`~car_napari._progress.iter_chains` of independent ``calls``,
+    dealt out to a chain per thread of ``pool``."""
     calls = list(calls)
+    n_chains = pool_threads(pool)
     return iter_chains(pool, [calls[k::n_chains] for k in range(n_chains)])
 
 
@@ -109,9 +58,9 @@ def _scan_chain(directions, make):
 def iter_directions(source, context, targets_var, *, forgetting, directions, outputs, prior,
                     pool=None):
     """Adaptive scans in several directions, in chunks of rows
-    (:func:`~car_napari.model.recursive.adaptive_scanner`, each chunk one
+    (:func:`~car_napari.model.adaptive.adaptive_scanner`, each chunk one
     ``nogil`` kernel call of about 0.1-0.25 s), the directions side by side
-    on ``pool``'s two cores. Yields (pixels scanned, finished) after every
+    on ``pool``'s threads. Yields (pixels scanned, finished) after every
     chunk; ``finished`` lists the (direction, ScanResult) that are complete,
     in the order of ``directions``. Bit for bit the one-call scans."""
     for direction in directions:
@@ -123,7 +72,7 @@ def iter_directions(source, context, targets_var, *, forgetting, directions, out
         scanner.pixels = source.shape[0] * source.shape[1]
         return scanner
 
-    n_chains = 1 if pool is None else max(1, min(len(directions), os.cpu_count() or 1, 2))
+    n_chains = max(1, min(len(directions), pool_threads(pool)))
     chains = [_scan_chain(directions[k::n_chains], make) for k in range(n_chains)]
     ready = {}
     order = list(directions)
@@ -134,16 +83,6 @@ def iter_directions(source, context, targets_var, *, forgetting, directions, out
         while order and order[0] in ready:
             finished.append(ready.pop(order.pop(0)))
         yield pixels, finished
-
-
-def run_directions(source, context, targets_var, *, forgetting, directions, outputs, prior):
-    """The scans of :func:`iter_directions` to their end: yields (direction,
-    ScanResult) in the order of ``directions``."""
-    with ThreadPoolExecutor(max_workers=2) as pool:
-        for _, finished in iter_directions(source, context, targets_var, forgetting=forgetting,
-                                           directions=directions, outputs=outputs,
-                                           prior=prior, pool=pool):
-            yield from finished
 
 
 class DirectionalAverage:
@@ -187,7 +126,7 @@ class DirectionalAverage:
             return b - a
 
         rows = chunk_rows(W, 4 * C)
-        yield from iter_calls(pool, [partial(call, a, b) for a, b in row_chunks(0, H, rows)])
+        yield from iter_calls(pool, [partial(call, a, b) for a, b in row_blocks(H, rows)])
 
     def spread(self):
         """(H, W, C) variance of the directional predictions (0 with < 2)."""
@@ -208,13 +147,14 @@ class DirectionalAverage:
         chunks of rows (a 4000x4000 image is ~0.3 s in one call); yields the
         rows done after each chunk. Rows are independent: bit for bit one call."""
         H, W, C = self.observed.shape
-        for a, b in row_chunks(0, H, chunk_rows(W, C)):
+        for a, b in row_blocks(H, chunk_rows(W, C)):
             combine_directions(self.mean_sum, self.prob_sum, self.weight_sum, self.observed,
                                self.offset, pred, prob, a, b)
             yield b - a
 
 
-def edge_rule(observed, prediction, spread, noise, pool=None, blend=False, out=None):
+def edge_rule(observed, prediction, spread, noise, pool=None, blend=False, out=None,
+              halves=False):
     """The edge rule (14.40), our reading: the weight of the observation.
 
     1. Edges: where the directional models disagree (the variance of their
@@ -232,10 +172,12 @@ def edge_rule(observed, prediction, spread, noise, pool=None, blend=False, out=N
     of its neighbours: about 40 % of the pixels of a flat noisy region, so it
     hardly denoises.) ``spread`` is (H, W), already averaged over channels.
     With ``blend``, returns the restored image ``prediction + weight
-    (observed - prediction)`` instead (no weight array); rows run in two
-    halves on ``pool`` when given; the result goes into ``out`` if given.
+    (observed - prediction)`` instead (no weight array); with ``halves`` the
+    rows run in two halves (side by side on ``pool`` when given); the result
+    goes into ``out`` if given.
     """
-    job = iter_edge_rule(observed, prediction, spread, noise, pool, blend=blend, out=out)
+    job = iter_edge_rule(observed, prediction, spread, noise, pool, blend=blend, out=out,
+                         halves=halves)
     while True:
         try:
             next(job)
@@ -243,22 +185,24 @@ def edge_rule(observed, prediction, spread, noise, pool=None, blend=False, out=N
             return stop.value
 
 
-def iter_edge_rule(observed, prediction, spread, noise, pool=None, blend=False, out=None):
+def iter_edge_rule(observed, prediction, spread, noise, pool=None, blend=False, out=None,
+                   halves=False):
     """:func:`edge_rule` in chunks of rows: yields the rows done after each
     chunk, returns what :func:`edge_rule` returns, bit for bit the one-call
-    kernel (without ``pool`` one segment of rows, with it two halves, each
-    run in chunks that carry its running sums)."""
+    kernel (one segment of rows, or with ``halves`` two, each run in chunks
+    that carry its running sums; the halves side by side on ``pool`` when
+    given: the split does not depend on the pool)."""
     H, W, C = observed.shape
     out = np.empty(observed.shape) if out is None else out
     args = (observed, np.ascontiguousarray(prediction), np.ascontiguousarray(spread), noise**2,
             EDGE_WINDOW // 2, EDGE_SPREAD * float(np.mean(noise**2)), bool(blend), out)
     half = (H + 1) // 2
-    segments = [(0, H)] if pool is None else [(a, b) for a, b in ((0, half), (half, H)) if b > a]
+    segments = [(a, b) for a, b in ((0, half), (half, H)) if b > a] if halves else [(0, H)]
     rows = chunk_rows(W, 2 * C)
 
     def chain(r0, r1):
         cols, spread_cols = np.zeros((W, C)), np.zeros(W)
-        steps = row_chunks(r0, r1, rows)
+        steps = row_blocks(r1, rows, start=r0)
         steps[0] = (r0 - 2 * (EDGE_WINDOW // 2) - 1, steps[0][1])  # the sums fill first
         for a, b in steps:
             def call(a=a, b=b):

@@ -10,13 +10,14 @@ prediction probability exceeds ``kappa`` (14.50)-(14.52).
 from __future__ import annotations
 
 import operator
-from concurrent.futures import ThreadPoolExecutor
 from functools import partial
 from typing import NamedTuple
 
 import numpy as np
 
-from .._progress import Progress, drain, stage
+from .._docstrings import shared_parameters
+from .._progress import Progress, drain, row_blocks, spans, stage
+from .._threads import job_pool, submit
 from .._validation import (
     channel_last_shape,
     check_channel_axis,
@@ -33,11 +34,9 @@ from ._combine import (
     chunk_rows,
     iter_calls,
     iter_directions,
-    iter_edge_rule,
-    row_chunks,
 )
 from ._noise import estimate_noise, noise_from_medians
-from ._single import DEFAULT_WINDOW, RestorationResult, _spans, iter_restoration
+from ._single import DEFAULT_WINDOW, RestorationResult, _iter_edges, iter_restoration
 from ._windowed import median_abs_laplacian
 
 # Threshold on the prediction probability (the predictive density relative to
@@ -252,7 +251,7 @@ def _iter_sharpness(versions, pool=None):
     from scipy import ndimage
 
     H, W, C = versions[0].shape
-    rows = row_chunks(0, H, chunk_rows(W, 8.0))
+    rows = row_blocks(H, chunk_rows(W, 8.0))
     out = np.empty((H, W))
     values = []
     steps = len(versions) * C
@@ -318,6 +317,44 @@ def sharpness(stack, *, axis=0, channel_axis=-1):
     return _sharpness(versions)
 
 
+# the Parameters of both forms of the job, written once
+_PARAMETERS = """
+    stack : (n, H, W) or (n, H, W, C) array, or a sequence of versions
+        At least two registered versions of one shape (a telescope burst,
+        repeated scans, frames of a static scene), along ``axis``. With the
+        default ``channel_axis`` a 3-D stack is grey and a 4-D stack colour.
+    axis : int, optional
+        The axis holding the versions (default 0).
+    kappa : float in [0, 1), optional
+        Threshold on the prediction probability; default ``DEFAULT_KAPPA``
+        (0.05).
+    reference : 'auto' or int, optional
+        The version restored; 'auto' takes the sharpest by :func:`sharpness`.
+    neighbourhood : int, (eta, 2) array or 'auto', optional
+        Causal neighbourhood in every version (default order 1: 2 neighbours,
+        so ``3n - 1`` regressors; colour channels get one model each).
+    forgetting : float in [0.5, 1], optional
+        Forgetting factor of the adaptive estimator ((14.26)-(14.32),
+        docs/model.md); default 0.9995.
+    directions : 'all' or sequence of str, optional
+        The scan directions averaged, any of {'down', 'up', 'right', 'left'}.
+    keep_edges : bool, optional
+        Also apply the single-image edge rule (default on: +1.2 dB measured).
+    reference_prediction : bool, optional
+        Add the reference's single-image prediction (:func:`restore`'s four
+        directions, whose regressors never include ``X_r``) to the regression
+        vector at ``r``: +0.5 dB measured on 5 scenes of 8 versions. Our
+        extension of (14.52).
+    channel_axis : int or None, optional
+        The colour axis of a 4-D stack (default -1: the last); a 3-D stack
+        is always grey. None forces grey (and rejects a 4-D stack).
+    return_result : bool, optional
+        Return the :class:`RestorationResult` instead (``.reference``,
+        ``.prediction``, ``.probability``; ``.restored(kappa)``).
+"""
+
+
+@shared_parameters(_PARAMETERS)
 def iter_restore_multichannel(stack, *, axis=0, kappa=DEFAULT_KAPPA, reference="auto",
                               neighbourhood=1, forgetting=0.9995, directions="all",
                               keep_edges=True, reference_prediction=True, channel_axis=-1,
@@ -332,28 +369,7 @@ def iter_restore_multichannel(stack, *, axis=0, kappa=DEFAULT_KAPPA, reference="
 
     Parameters
     ----------
-    stack : (n, H, W) or (n, H, W, C) array, or a sequence of versions
-        See :func:`restore_multichannel`.
-    axis : int, optional
-        See :func:`restore_multichannel`.
-    kappa : float in [0, 1), optional
-        See :func:`restore_multichannel`.
-    reference : 'auto' or int, optional
-        See :func:`restore_multichannel`.
-    neighbourhood : int, (eta, 2) array or 'auto', optional
-        See :func:`restore_multichannel`.
-    forgetting : float in [0.5, 1], optional
-        See :func:`restore_multichannel`.
-    directions : 'all' or sequence of str, optional
-        See :func:`restore_multichannel`.
-    keep_edges : bool, optional
-        See :func:`restore_multichannel`.
-    reference_prediction : bool, optional
-        See :func:`restore_multichannel`.
-    channel_axis : int or None, optional
-        See :func:`restore_multichannel`.
-    return_result : bool, optional
-        Return the :class:`RestorationResult` (``reference`` set) instead.
+    {parameters}
 
     Returns
     -------
@@ -423,49 +439,38 @@ def iter_restore_multichannel(stack, *, axis=0, kappa=DEFAULT_KAPPA, reference="
     work = {"reading": 0.15 * n, "sharpness": 0.6 * n if reference == "auto" else 0.0,
             "reference": 1.0 if reference_prediction else 0.0,
             "directions": len(directions) * _SCAN_COST, "edges": 0.1 if keep_edges else 0.0}
-    span = _spans(work)
+    span = spans(work)
     yield Progress("start", 0.0, f"{n} versions")
     versions = yield from stage(_iter_versions(arr, position), *span("reading"))
-    shape = versions[0].shape
-    with ThreadPoolExecutor(max_workers=2) as pool:
-        if isinstance(reference, str):
-            sharp = yield from stage(_iter_sharpness(versions, pool), *span("sharpness"))
-            reference = int(np.argmax(sharp))
-        else:
-            reference = int(reference) % n
-        observed = versions[reference]
-        summary = summarize(observed)
-        check_not_constant(observed, name=f"the reference version {reference}",
-                           summary=summary)
-        offsets = resolve_offsets(neighbourhood, observed)
-        context = multichannel_context(offsets, n, reference,
-                                       with_prediction=reference_prediction)
-        # the noise level beside the scans, one channel per call
-        noise_futures = [pool.submit(median_abs_laplacian, np.ascontiguousarray(
-            observed[..., c])) for c in range(C)] if keep_edges else []
-        try:
-            result = yield from _iter_scans(
-                versions, observed, reference, context, forgetting, directions,
-                reference_prediction, position, pool, span, steps)
-            pred, prob, spread = result
-            noise = (noise_from_medians([f.result() for f in noise_futures]) if keep_edges
-                     else estimate_noise(observed))
-        finally:
-            for future in noise_futures:
-                future.cancel()
+    pool = job_pool()  # None: one thread (CAR_NAPARI_JOB_THREADS=1)
+    if isinstance(reference, str):
+        sharp = yield from stage(_iter_sharpness(versions, pool), *span("sharpness"))
+        reference = int(np.argmax(sharp))
+    else:
+        reference = int(reference) % n
+    observed = versions[reference]
+    summary = summarize(observed)
+    check_not_constant(observed, name=f"the reference version {reference}",
+                       summary=summary)
+    offsets = resolve_offsets(neighbourhood, observed)
+    context = multichannel_context(offsets, n, reference,
+                                   with_prediction=reference_prediction)
+    # the noise level beside the scans, one channel per call
+    noise_futures = [submit(pool, median_abs_laplacian, np.ascontiguousarray(
+        observed[..., c])) for c in range(C)] if keep_edges else []
+    try:
+        result = yield from _iter_scans(
+            versions, observed, reference, context, forgetting, directions,
+            reference_prediction, position, pool, span, steps)
+        pred, prob, spread = result
+        noise = (noise_from_medians([f.result() for f in noise_futures]) if keep_edges
+                 else estimate_noise(observed))
+    finally:
+        for future in noise_futures:
+            future.cancel()
     weight = None
-    if keep_edges:
-        lo, hi = span("edges")
-        H = shape[0]
-        done = 0
-        job = iter_edge_rule(observed, pred, spread.mean(axis=-1), noise)
-        while True:
-            try:
-                done += next(job)
-            except StopIteration as stop:
-                weight = stop.value
-                break
-            yield Progress("edges", lo + (hi - lo) * done / H, f"edge rule: rows {done}/{H}")
+    if keep_edges:  # one segment of rows, in chunks here
+        weight = yield from _iter_edges(observed, pred, spread.mean(axis=-1), noise, None, span)
     if exponent:  # back to the stack's units; probabilities and weights have none
         observed, pred, noise = (np.ldexp(a, exponent) for a in (observed, pred, noise))
     result = RestorationResult(observed, pred, prob, weight, reference, kappa, noise)
@@ -478,7 +483,7 @@ def iter_restore_multichannel(stack, *, axis=0, kappa=DEFAULT_KAPPA, reference="
 def _iter_scans(versions, observed, reference, context, forgetting, directions,
                 reference_prediction, position, pool, span, steps):
     """The reference's single-image prediction, then the 2.5D scans of every
-    colour channel in chunks of rows (two directions at a time on ``pool``),
+    colour channel in chunks of rows (the directions side by side on ``pool``),
     with a preview after each direction; returns (prediction, probability,
     spread per channel)."""
     shape = observed.shape
@@ -496,7 +501,7 @@ def _iter_scans(versions, observed, reference, context, forgetting, directions,
             channel_axis=-1, live=False, probability=False, blend=False),
             *span("reference"), name="reference")
         extra = [prediction.prediction]
-    lo, hi = span("directions")
+    share = span("directions")
     pred = np.empty(shape)
     prob_sum = np.zeros(shape[:2])
     spread = np.zeros(shape)
@@ -505,7 +510,7 @@ def _iter_scans(versions, observed, reference, context, forgetting, directions,
     channel_pred, channel_prob = np.empty(shape[:2] + (1,)), np.empty(shape[:2])
     rows = chunk_rows(shape[1], len(versions) + len(extra))
     for c in range(C):  # colour versions: one 2.5D model per colour channel
-        fraction = lo + (hi - lo) * scanned / total
+        fraction = share.at(scanned, total)
         message = f"channel {c + 1}/{C}: preparing"
         source, means, var = yield from _iter_centred_source(
             versions + extra, c, rows, Progress("directions", fraction, message))
@@ -515,7 +520,7 @@ def _iter_scans(versions, observed, reference, context, forgetting, directions,
                 source, context, var[[reference]], forgetting=forgetting,
                 directions=directions, outputs=("mean", "logrel"), prior=1e-6, pool=pool):
             scanned += pixels
-            fraction = lo + (hi - lo) * scanned / total
+            fraction = share.at(scanned, total)
             yield Progress("directions", fraction,
                            f"channel {c + 1}/{C}: scans {100 * scanned // total} %")
             for _, result in finished:
@@ -532,7 +537,7 @@ def _iter_scans(versions, observed, reference, context, forgetting, directions,
                 for _ in average.iter_prediction(channel_pred, channel_prob):
                     yield Progress("directions", fraction, message)
                 running = np.empty(shape)
-                for a, b in row_chunks(0, shape[0], rows):
+                for a, b in row_blocks(shape[0], rows):
                     pred[a:b, :, c] = channel_pred[a:b, :, 0]
                     running[a:b, :, : c + 1] = pred[a:b, :, : c + 1]
                     running[a:b, :, c + 1 :] = observed[a:b, :, c + 1 :]
@@ -554,7 +559,7 @@ def _iter_centred_source(versions, c, rows, record):
     sums, so that any chunking gives the same bits."""
     H, W = versions[0].shape[:2]
     n = len(versions)
-    chunks = row_chunks(0, H, rows)
+    chunks = row_blocks(H, rows)
     source = np.empty((H, W, n))
     row_sums = np.empty((H, n))
     for a, b in chunks:
@@ -575,6 +580,7 @@ def _iter_centred_source(versions, c, rows, record):
     return source, means, np.where(var > 0, var, 1.0)
 
 
+@shared_parameters(_PARAMETERS)
 def restore_multichannel(stack, *, axis=0, kappa=DEFAULT_KAPPA, reference="auto",
                          neighbourhood=1, forgetting=0.9995, directions="all", keep_edges=True,
                          reference_prediction=True, channel_axis=-1, return_result=False):
@@ -591,38 +597,7 @@ def restore_multichannel(stack, *, axis=0, kappa=DEFAULT_KAPPA, reference="auto"
 
     Parameters
     ----------
-    stack : (n, H, W) or (n, H, W, C) array, or a sequence of versions
-        At least two registered versions of one shape (a telescope burst,
-        repeated scans, frames of a static scene), along ``axis``. With the
-        default ``channel_axis`` a 3-D stack is grey and a 4-D stack colour.
-    axis : int, optional
-        The axis holding the versions (default 0).
-    kappa : float in [0, 1), optional
-        Threshold on the prediction probability; default ``DEFAULT_KAPPA``
-        (0.05).
-    reference : 'auto' or int, optional
-        The version restored; 'auto' takes the sharpest by :func:`sharpness`.
-    neighbourhood : int, (eta, 2) array or 'auto', optional
-        Causal neighbourhood in every version (default order 1: 2 neighbours,
-        so ``3n - 1`` regressors; colour channels get one model each).
-    forgetting : float in [0.5, 1], optional
-        Forgetting factor of the adaptive estimator ((14.26)-(14.32),
-        docs/model.md); default 0.9995.
-    directions : 'all' or sequence of str, optional
-        The scan directions averaged, any of {'down', 'up', 'right', 'left'}.
-    keep_edges : bool, optional
-        Also apply the single-image edge rule (default on: +1.2 dB measured).
-    reference_prediction : bool, optional
-        Add the reference's single-image prediction (:func:`restore`'s four
-        directions, whose regressors never include ``X_r``) to the regression
-        vector at ``r``: +0.5 dB measured on 5 scenes of 8 versions. Our
-        extension of (14.52).
-    channel_axis : int or None, optional
-        The colour axis of a 4-D stack (default -1: the last); a 3-D stack
-        is always grey. None forces grey (and rejects a 4-D stack).
-    return_result : bool, optional
-        Return the :class:`RestorationResult` instead (``.reference``,
-        ``.prediction``, ``.probability``; ``.restored(kappa)``).
+    {parameters}
 
     Returns
     -------

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from functools import partial
 
+from .._docstrings import shared_parameters
 from .._progress import drain
 from .._tiles import is_lazy
 from ._single import DEFAULT_WINDOW, restore_job
@@ -14,7 +15,62 @@ from ._tiled import iter_restore_lazy
 
 __all__ = ["iter_restore", "restore"]
 
+# the Parameters of both forms of the job, written once
+_PARAMETERS = """
+    image : (H, W) or (H, W, C) array
+        The degraded image; integers are scaled to [0, 1]. A dask or zarr
+        array (larger than memory) is restored by tiles
+        (:func:`~car_napari.restoration.restore_tiled`, windowed estimator):
+        a dask image gives a lazy dask array, a zarr one a NumPy array.
+    neighbourhood : int, (eta, 2) array or 'auto', optional
+        Causal neighbourhood order (default 1: the pixels above and before)
+        or offsets; 'auto' chooses the order by the decision rule (14.6) on
+        the image. Order 2 gains 0.13 dB on the benchmark at a third more time.
+    estimator : {'windowed', 'recursive'}, optional
+        How the local model is estimated. 'windowed' (default): least
+        squares over a ``window`` x ``window`` square around the pixel, as
+        the chapter estimates local PSFs (14.46)-(14.47); the four
+        neighbourhoods are the causal one mirrored up-left, up-right,
+        down-left and down-right. 'recursive': the adaptive estimator of
+        (14.26)-(14.32), section 14.2.1, docs/model.md (recursive,
+        square-root, with ``forgetting``) along the four scan directions
+        down, up, right and left. Same quality on the benchmark (26.26 vs
+        26.21 dB at orders 1 and 2); 'windowed' is about six times faster,
+        'recursive' is the chapter's adaptive model to the letter.
+    window : int, optional
+        Side in pixels of the windowed estimator's square (3 x 3 blocks of a
+        third of it; default 48). 24 gains 0.1 dB at a quarter more time.
+    forgetting : float in [0.5, 1], optional
+        Forgetting factor of the recursive estimator ((14.26)-(14.32),
+        docs/model.md).
+    directions : 'all' or sequence of str, optional
+        The neighbourhoods whose predictions are combined: for 'windowed' any
+        of {'up-left', 'up-right', 'down-left', 'down-right'}; for
+        'recursive' any of {'down', 'up', 'right', 'left'}.
+    keep_edges : bool, optional
+        Apply the edge rule: keep the observed value where the local
+        prediction error exceeds what the noise explains (see
+        :class:`RestorationResult`). (14.40) read literally (keep ``X_r`` when
+        its error exceeds the mean error of its neighbours) keeps about 40 %
+        of the pixels of a flat noisy region, so no denoising; we compare with
+        the noise level instead and blend smoothly.
+    kappa : float in [0, 1), optional
+        Also keep observed pixels whose prediction probability is at most
+        ``kappa`` (14.50); 0 (default) disables this.
+    noise : float or (C,) array, optional
+        Noise standard deviation (image units after scaling); default
+        :func:`estimate_noise`.
+    channel_axis : int or None, optional
+        The colour axis of a 3-D image (default -1); None for a grey image.
+        A 2-D image is always grey.
+    return_result : bool, optional
+        Return the :class:`RestorationResult` instead (prediction, prediction
+        probability, edge weights; ``.restored(kappa)`` re-thresholds: the
+        widget's choice).
+"""
 
+
+@shared_parameters(_PARAMETERS)
 def iter_restore(image, *, neighbourhood=1, estimator="windowed", window=DEFAULT_WINDOW,
                  forgetting=0.995, directions="all", keep_edges=True, kappa=0.0, noise=None,
                  channel_axis=-1, return_result=False):
@@ -29,29 +85,7 @@ def iter_restore(image, *, neighbourhood=1, estimator="windowed", window=DEFAULT
 
     Parameters
     ----------
-    image : (H, W) or (H, W, C) array
-        The degraded image; integers are scaled to [0, 1].
-    neighbourhood : int, (eta, 2) array or 'auto', optional
-        See :func:`restore`.
-    estimator : {'windowed', 'recursive'}, optional
-        See :func:`restore`.
-    window : int, optional
-        See :func:`restore`.
-    forgetting : float in [0.5, 1], optional
-        See :func:`restore`.
-    directions : 'all' or sequence of str, optional
-        See :func:`restore`.
-    keep_edges : bool, optional
-        See :func:`restore`.
-    kappa : float in [0, 1), optional
-        See :func:`restore`.
-    noise : float or (C,) array, optional
-        See :func:`restore`.
-    channel_axis : int or None, optional
-        See :func:`restore`.
-    return_result : bool, optional
-        Return the :class:`RestorationResult` (the widget's choice: it
-        re-thresholds without recomputing) instead of the array.
+    {parameters}
 
     Returns
     -------
@@ -104,6 +138,7 @@ def iter_restore(image, *, neighbourhood=1, estimator="windowed", window=DEFAULT
         noise=noise, channel_axis=channel_axis, return_result=return_result))
 
 
+@shared_parameters(_PARAMETERS)
 def restore(image, *, neighbourhood=1, estimator="windowed", window=DEFAULT_WINDOW,
             forgetting=0.995, directions="all", keep_edges=True, kappa=0.0, noise=None,
             channel_axis=-1, return_result=False):
@@ -117,55 +152,7 @@ def restore(image, *, neighbourhood=1, estimator="windowed", window=DEFAULT_WIND
 
     Parameters
     ----------
-    image : (H, W) or (H, W, C) array
-        The degraded image; integers are scaled to [0, 1]. A dask or zarr
-        array (larger than memory) is restored by tiles
-        (:func:`~car_napari.restoration.restore_tiled`, windowed estimator):
-        a dask image gives a lazy dask array, a zarr one a NumPy array.
-    neighbourhood : int, (eta, 2) array or 'auto', optional
-        Causal neighbourhood order (default 1: the pixels above and before)
-        or offsets; 'auto' chooses the order by the decision rule (14.6) on
-        the image. Order 2 gains 0.13 dB on the benchmark at a third more time.
-    estimator : {'windowed', 'recursive'}, optional
-        How the local model is estimated. 'windowed' (default): least
-        squares over a ``window`` x ``window`` square around the pixel, as
-        the chapter estimates local PSFs (14.46)-(14.47); the four
-        neighbourhoods are the causal one mirrored up-left, up-right,
-        down-left and down-right. 'recursive': the adaptive estimator of
-        (14.26)-(14.32), section 14.2.1, docs/model.md (recursive,
-        square-root, with ``forgetting``) along the four scan directions
-        down, up, right and left. Same quality on the benchmark (26.26 vs
-        26.21 dB at orders 1 and 2); 'windowed' is about six times faster,
-        'recursive' is the chapter's adaptive model to the letter.
-    window : int, optional
-        Side in pixels of the windowed estimator's square (3 x 3 blocks of a
-        third of it; default 48). 24 gains 0.1 dB at a quarter more time.
-    forgetting : float in [0.5, 1], optional
-        Forgetting factor of the recursive estimator ((14.26)-(14.32),
-        docs/model.md).
-    directions : 'all' or sequence of str, optional
-        The neighbourhoods whose predictions are combined: for 'windowed' any
-        of {'up-left', 'up-right', 'down-left', 'down-right'}; for
-        'recursive' any of {'down', 'up', 'right', 'left'}.
-    keep_edges : bool, optional
-        Apply the edge rule: keep the observed value where the local
-        prediction error exceeds what the noise explains (see
-        :class:`RestorationResult`). (14.40) read literally (keep ``X_r`` when
-        its error exceeds the mean error of its neighbours) keeps about 40 %
-        of the pixels of a flat noisy region, so no denoising; we compare with
-        the noise level instead and blend smoothly.
-    kappa : float in [0, 1), optional
-        Also keep observed pixels whose prediction probability is at most
-        ``kappa`` (14.50); 0 (default) disables this.
-    noise : float or (C,) array, optional
-        Noise standard deviation (image units after scaling); default
-        :func:`estimate_noise`.
-    channel_axis : int or None, optional
-        The colour axis of a 3-D image (default -1); None for a grey image.
-        A 2-D image is always grey.
-    return_result : bool, optional
-        Return the :class:`RestorationResult` instead (prediction, prediction
-        probability, edge weights; ``.restored(kappa)`` re-thresholds).
+    {parameters}
 
     Returns
     -------

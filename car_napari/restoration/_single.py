@@ -17,13 +17,14 @@ four scan directions.
 from __future__ import annotations
 
 import queue
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import wait
 from dataclasses import dataclass, replace
 from functools import partial
 
 import numpy as np
 
-from .._progress import Progress, stage
+from .._progress import Progress, row_blocks, spans, stage
+from .._threads import job_pool, pool_threads, submit
 from .._validation import (
     channel_last_shape,
     check_flag,
@@ -48,7 +49,6 @@ from ._combine import (
     iter_calls,
     iter_directions,
     iter_edge_rule,
-    row_chunks,
 )
 from ._noise import noise_channel_last, noise_from_medians
 from ._windowed import (
@@ -248,12 +248,12 @@ def _iter_windowed(planes, mean, var, offsets, directions, window, pool, live, p
     A = len(positions) * C + 1
     moments = np.zeros((nbi, nbj, A, A))
     # block rows are independent: chunks of them, two at a time, a record each
-    lo, hi = span("moments")
-    ranges = row_chunks(0, nbi, chunk_rows(nbj * block * block, A * (A + 1) / 8))
+    share = span("moments")
+    ranges = row_blocks(nbi, chunk_rows(nbj * block * block, A * (A + 1) / 8))
     for k, _ in enumerate(iter_calls(pool, [
             partial(block_moments, planes, disp_i, disp_j, block, moments, a, b)
             for a, b in ranges]), start=1):
-        yield Progress("moments", lo + (hi - lo) * k / len(ranges),
+        yield Progress("moments", share.at(k, len(ranges)),
                        f"statistics {k}/{len(ranges)}")
 
     taps = []
@@ -273,29 +273,29 @@ def _iter_windowed(planes, mean, var, offsets, directions, window, pool, live, p
     x_inv = np.empty((K, *density_shape, p, p))
     lam_inv = np.empty((K, *density_shape, C, C))
     exponent = np.empty((nbi, nbj))
-    lo, hi = span("models")
+    share = span("models")
     # work of one block's models: the window's sums, then per direction a
     # Cholesky factor and solves (and the inverses for the density)
     per_block = 9 * A * A + K * (p * p * (p + C) + (p * p * p if probability else 0))
-    ranges = row_chunks(0, nbi, chunk_rows(nbj, per_block / 16))
+    ranges = row_blocks(nbi, chunk_rows(nbj, per_block / 16))
     for k, _ in enumerate(iter_calls(pool, [
             partial(window_models, moments, ix, iy, prior_x, np.full(C, 1e-6 * var),
                     bool(probability), gamma, x_inv, lam_inv, exponent, a, b)
             for a, b in ranges]), start=1):
-        yield Progress("models", lo + (hi - lo) * k / len(ranges),
+        yield Progress("models", share.at(k, len(ranges)),
                        f"{min(nbi, ranges[k - 1][1]) * nbj}/{nbi * nbj} local models")
     boxes = np.array([valid_box(H, W, tap[0], tap[1]) for tap in taps], np.int64)
 
-    # Strips of rows, two at a time on two cores, each with its own buffers:
+    # Strips of rows, one a thread of the pool at a time, each with its own buffers:
     # the image fills in row by row, and the per-direction arrays stay small.
     # live: rows not yet restored show the observation (pred holds it)
     spread = np.zeros((H, W))
     density = np.empty((H, W)) if probability else None  # every strip writes its rows
     block_of_column = np.arange(W) // block
     height = int(np.clip(H // 8, 8, STRIP_ROWS))  # small images: still a few strips
-    strips = [(r, min(H, r + height)) for r in range(0, H, height)]
+    strips = row_blocks(H, height)
     buffers = queue.SimpleQueue()
-    for _ in range(2):
+    for _ in range(pool_threads(pool)):
         rows = height + 2
         buffers.put((np.empty((K, C, rows, W)), np.empty((K, rows, W)),
                      np.empty((K, rows, W) if probability else (K, 0, 0)),
@@ -323,27 +323,32 @@ def _iter_windowed(planes, mean, var, offsets, directions, window, pool, live, p
         finally:
             buffers.put((means, err2, ratio, weight, scratch))
 
-    futures = [pool.submit(run, *strip) for strip in strips]
+    if pool is None:  # one strip after the other, here, drawn as the loop asks
+        futures = (submit(None, run, *strip) for strip in strips)
+    else:
+        futures = [pool.submit(run, *strip) for strip in strips]
     every = max(1, len(strips) // 8)  # a live image costs a copy: about 8 of them
-    lo, hi = span("rows")
+    share = span("rows")
     try:
         for done, future in enumerate(futures, start=1):
             future.result()
-            fraction = lo + (hi - lo) * done / len(strips)
+            fraction = share.at(done, len(strips))
             message = f"rows {strips[done - 1][1]}/{H}"
             running = None
             if live and done < len(strips) and done % every == 0:
                 # the copy in strips, a record between them (fresh memory of a
                 # large image is slow to touch)
                 running = np.empty_like(pred)
-                for a, b in row_chunks(0, H, chunk_rows(W, 4 * C)):
+                for a, b in row_blocks(H, chunk_rows(W, 4 * C)):
                     np.copyto(running[a:b], pred[a:b])  # NumPy releases the GIL
                     yield Progress("rows", fraction, message)
                 running = show(running)
             yield Progress("rows", fraction, message, running)
     finally:  # closing the generator early: do not start what is queued
-        for future in futures:
-            future.cancel()
+        if pool is not None:
+            for future in futures:
+                future.cancel()
+            wait(futures)  # the running strips write into pred
     return pred, density, spread
 
 
@@ -357,13 +362,13 @@ def _iter_recursive(centred, mean, context, var, forgetting, directions, live, s
     n = len(directions)
     H, W = centred.shape[:2]
     total = n * H * W
-    lo, hi = span("directions")
+    share = span("directions")
     done = k = 0
     for pixels, finished in iter_directions(
             centred, context, var, forgetting=forgetting, directions=directions,
             outputs=("mean", "logrel"), prior=1e-6, pool=pool):
         done += pixels
-        fraction = lo + (hi - lo) * done / total
+        fraction = share.at(done, total)
         yield Progress("directions", fraction, f"scans {100 * done // total} %")
         for _, result in finished:
             k += 1
@@ -382,17 +387,6 @@ def _iter_recursive(centred, mean, context, var, forgetting, directions, live, s
 def _median(c, plane):
     """(c, :func:`median_abs_laplacian` of ``plane``)."""
     return c, median_abs_laplacian(plane)
-
-
-def _spans(work):
-    """``span(stage) -> (start, stop)``: the stages' parts of [0, 1] in
-    proportion to their ``work`` (a dict in the order they run)."""
-    total = sum(work.values())
-    bounds, at = {}, 0.0
-    for name, value in work.items():
-        bounds[name] = (at / total, (at + value) / total)
-        at += value
-    return bounds.__getitem__
 
 
 def iter_restoration(image, *, neighbourhood, estimator, window, forgetting, directions,
@@ -434,7 +428,7 @@ def iter_restoration(image, *, neighbourhood, estimator, window, forgetting, dir
         work = dict(RECURSIVE_WORK)
     if not keep_edges:
         work.pop("edges")
-    span = _spans(work)
+    span = spans(work)
     ndim = np.ndim(image)
 
     def show(running):  # a preview in the input's layout
@@ -453,81 +447,85 @@ def iter_restoration(image, *, neighbourhood, estimator, window, forgetting, dir
     else:
         offsets = given
     context = Context.spatial(offsets, data.shape[2])
-    lo, hi = span("centre")
-    rows = row_chunks(0, H, chunk_rows(W, 2 * C))
-    with ThreadPoolExecutor(max_workers=2) as pool:
-        if estimator == "windowed":
-            # channel-first: every kernel runs along contiguous rows
-            planes = np.empty(np.roll(data.shape, 1))
-            source = np.moveaxis(data, -1, 0)
-            # live: rows not yet restored show the observation
-            pred = np.empty((H, W, C))
+    share = span("centre")
+    rows = row_blocks(H, chunk_rows(W, 2 * C))
+    pool = job_pool()  # None: one thread (CAR_NAPARI_JOB_THREADS=1)
+    if estimator == "windowed":
+        # channel-first: every kernel runs along contiguous rows
+        planes = np.empty(np.roll(data.shape, 1))
+        source = np.moveaxis(data, -1, 0)
+        # live: rows not yet restored show the observation
+        pred = np.empty((H, W, C))
 
-            def centre(a, b):  # NumPy releases the GIL
-                np.subtract(source[:, a:b], summary.mean[:, None, None], out=planes[:, a:b])
-                if live:
-                    np.add(np.moveaxis(planes[:, a:b], 0, -1), summary.mean, out=pred[a:b])
+        def centre(a, b):  # NumPy releases the GIL
+            np.subtract(source[:, a:b], summary.mean[:, None, None], out=planes[:, a:b])
+            if live:
+                np.add(np.moveaxis(planes[:, a:b], 0, -1), summary.mean, out=pred[a:b])
 
-            for k, _ in enumerate(iter_calls(pool, [partial(centre, a, b) for a, b in rows]),
-                                  start=1):
-                yield Progress("centre", lo + (hi - lo) * k / len(rows), "centring")
-            pred, prob, spread = yield from _iter_windowed(
-                planes, summary.mean, summary.var, offsets, directions, window, pool,
-                live, probability, show, span, pred)
-            if noise is None:  # one channel per call, two at a time
-                lo, hi = span("noise")
-                medians = {}
-                for k, (c, value) in enumerate(iter_calls(pool, [
-                        partial(_median, c, plane) for c, plane in enumerate(planes)]),
-                        start=1):
-                    medians[c] = value
-                    yield Progress("noise", lo + (hi - lo) * k / C, f"channel {k}/{C}")
-                noise = noise_from_medians([medians[c] for c in range(C)])
-            weight = None
-            if keep_edges and blend:  # the restored image straight away, no weight array,
-                # written over the planes, which are no longer needed (fresh memory is
-                # slow to touch: page faults cost as much as a kernel here)
-                pred = yield from _iter_edges(data, pred, spread, noise, pool, span, blend=True,
-                                              out=planes.reshape(data.shape))
-            elif keep_edges:
-                weight = yield from _iter_edges(data, pred, spread, noise, pool, span)
-        else:
-            centred = np.empty(data.shape)
+        for k, _ in enumerate(iter_calls(pool, [partial(centre, a, b) for a, b in rows]),
+                              start=1):
+            yield Progress("centre", share.at(k, len(rows)), "centring")
+        pred, prob, spread = yield from _iter_windowed(
+            planes, summary.mean, summary.var, offsets, directions, window, pool,
+            live, probability, show, span, pred)
+        if noise is None:  # one channel per call, side by side
+            share = span("noise")
+            medians = {}
+            for k, (c, value) in enumerate(iter_calls(pool, [
+                    partial(_median, c, plane) for c, plane in enumerate(planes)]),
+                    start=1):
+                medians[c] = value
+                yield Progress("noise", share.at(k, C), f"channel {k}/{C}")
+            noise = noise_from_medians([medians[c] for c in range(C)])
+        weight = None
+        if keep_edges and blend:  # the restored image straight away, no weight array,
+            # written over the planes, which are no longer needed (fresh memory is
+            # slow to touch: page faults cost as much as a kernel here)
+            pred = yield from _iter_edges(data, pred, spread, noise, pool, span, blend=True,
+                                          out=planes.reshape(data.shape), halves=True)
+        elif keep_edges:
+            weight = yield from _iter_edges(data, pred, spread, noise, pool, span, halves=True)
+    else:
+        centred = np.empty(data.shape)
 
-            def centre(a, b):
-                np.subtract(data[a:b], summary.mean, out=centred[a:b])
+        def centre(a, b):
+            np.subtract(data[a:b], summary.mean, out=centred[a:b])
 
-            for k, _ in enumerate(iter_calls(pool, [partial(centre, a, b) for a, b in rows]),
-                                  start=1):
-                yield Progress("centre", lo + (hi - lo) * k / len(rows), "centring")
-            noise_future = pool.submit(noise_channel_last, data) if noise is None else None
-            pred, prob, spread = yield from _iter_recursive(
-                centred, summary.mean, context, summary.var, forgetting, directions, live, show,
-                pool, span)
-            if noise_future is not None:
-                noise = noise_future.result()
-            pred += summary.mean
-            weight = None
-            # one segment of rows, in chunks here (bit for bit the one-call rule)
-            if keep_edges and blend:
-                pred = yield from _iter_edges(data, pred, spread, noise, None, span, blend=True)
-            elif keep_edges:
-                weight = yield from _iter_edges(data, pred, spread, noise, None, span)
+        for k, _ in enumerate(iter_calls(pool, [partial(centre, a, b) for a, b in rows]),
+                              start=1):
+            yield Progress("centre", share.at(k, len(rows)), "centring")
+        noise_future = submit(pool, noise_channel_last, data) if noise is None else None
+        pred, prob, spread = yield from _iter_recursive(
+            centred, summary.mean, context, summary.var, forgetting, directions, live, show,
+            pool, span)
+        if noise_future is not None:
+            noise = noise_future.result()
+        pred += summary.mean
+        weight = None
+        # one segment of rows, in chunks here (bit for bit the one-call rule)
+        if keep_edges and blend:
+            pred = yield from _iter_edges(data, pred, spread, noise, None, span, blend=True)
+        elif keep_edges:
+            weight = yield from _iter_edges(data, pred, spread, noise, None, span)
     return RestorationResult(data, pred, prob, weight, None, kappa, noise)
 
 
-def _iter_edges(observed, prediction, spread, noise, pool, span, blend=False, out=None):
-    """The edge rule in chunks of rows, a Progress record after each."""
-    lo, hi = span("edges")
+def _iter_edges(observed, prediction, spread, noise, pool, span, blend=False, out=None,
+                halves=False):
+    """The edge rule in chunks of rows (``halves``: see
+    :func:`~car_napari.restoration._combine.iter_edge_rule`), a Progress
+    record after each."""
+    share = span("edges")
     H = observed.shape[0]
-    job = iter_edge_rule(observed, prediction, spread, noise, pool, blend=blend, out=out)
+    job = iter_edge_rule(observed, prediction, spread, noise, pool, blend=blend, out=out,
+                         halves=halves)
     done = 0
     while True:
         try:
             done += next(job)
         except StopIteration as stop:
             return stop.value
-        yield Progress("edges", lo + (hi - lo) * done / H, f"edge rule: rows {done}/{H}")
+        yield Progress("edges", share.at(done, H), f"edge rule: rows {done}/{H}")
 
 
 def restore_job(image, *, neighbourhood, estimator, window, forgetting, directions,

@@ -31,11 +31,11 @@ benchmark, docs/restoration.md).
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
-
 import numpy as np
 
-from .._progress import Progress, drain
+from .._docstrings import shared_parameters
+from .._progress import Progress, Span, drain, spans
+from .._threads import job_pool
 from .._tiles import is_lazy, iter_map_tiles, lazy_map_tiles, read_tile, require, tile_grid
 from .._validation import (
     MAX_SIDE,
@@ -54,7 +54,6 @@ from ._single import (
     WINDOWED_WORK,
     _iter_edges,
     _iter_windowed,
-    _spans,
 )
 
 __all__ = ["DEFAULT_TILE", "iter_restore_tiled", "restore_tiled", "tile_halo"]
@@ -65,6 +64,32 @@ DEFAULT_TILE = 2048
 # the noise pass's histogram bins: a float64's top 20 bits (sign, exponent,
 # 8 bits of mantissa: bins 0.4 % wide)
 _SHIFT = 44
+
+# the Parameters of both forms of the job, written once
+_PARAMETERS = """
+    image : (H, W) or (H, W, C) array
+        A dask or zarr array (or any sliceable array: a memory map, NumPy);
+        integers are scaled to [0, 1]. Read a tile at a time.
+    out : array, optional
+        Where the restored image (float64 values; an integer array gets them
+        as they are, so pass a float array) is written, tile by tile: a zarr
+        array, a NumPy array or memory map of ``image``'s shape. Default: a
+        lazy dask array when ``image`` is dask (its tiles computed when it
+        is; the global passes already done), else a NumPy array.
+    tile : int, optional
+        Side of a tile's core (rounded up to whole blocks).
+    neighbourhood : int or (eta, 2) array, optional
+        As :func:`restore` ('auto' needs the whole image: not here).
+    estimator : {'windowed'}, optional
+        Only the windowed estimator is tile-local (see the module's notes).
+    window, directions, keep_edges, kappa, noise : optional
+        As :func:`restore`.
+    forgetting : float in [0.5, 1], optional
+        As :func:`restore`: checked as there, and unused (only the recursive
+        estimator, which cannot run by tiles, forgets).
+    channel_axis : -1 or None, optional
+        A 3-D image is (H, W, C).
+"""
 
 
 def tile_halo(window=DEFAULT_WINDOW, reach=1):
@@ -104,7 +129,7 @@ def _block(window):
 
 
 def _check(image, neighbourhood, estimator, window, directions, kappa, noise, channel_axis,
-           tile):
+           tile, forgetting=0.995):
     """The options validated up front: (offsets, directions, kappa, C, noise)."""
     if estimator != "windowed":
         raise ValueError(
@@ -121,7 +146,7 @@ def _check(image, neighbourhood, estimator, window, directions, kappa, noise, ch
     # window's buffers larger than the image)
     window = check_real(window, "window (an integer of at least 6 pixels)", low=6,
                         high=MAX_SIDE, integer=True)
-    _, directions = check_options(0.995, directions, CORNERS)
+    _, directions = check_options(forgetting, directions, CORNERS)  # as restore checks it
     kappa = check_kappa(kappa)
     tile = check_real(tile, "tile (a positive number of pixels)", low=1, high=MAX_SIDE,
                       integer=True)
@@ -223,7 +248,7 @@ def _iter_statistics(image, channel_axis, want_noise, tile, span):
     C = 1 if image.ndim == 2 else image.shape[2]
     tiles = tile_grid((H, W), tile, 1)
     lo, hi = span
-    step = (hi - lo) / 2
+    passes = Span(lo, (lo + hi) / 2), Span((lo + hi) / 2, hi)  # the two passes' halves
     summary = SummaryPasses(C)
     empty = np.zeros(0, np.int64)
     hist = [(empty, empty)] * C  # per channel: sorted bins, their counts
@@ -234,7 +259,7 @@ def _iter_statistics(image, channel_axis, want_noise, tile, span):
             r = _responses(data, t, H, W)
             for c in range(C):
                 hist[c] = _add_counts(*hist[c], _bins(r[:, c]))
-        yield Progress("statistics", lo + step * k / len(tiles), f"mean: tile {k}/{len(tiles)}")
+        yield Progress("statistics", passes[0].at(k, len(tiles)), f"mean: tile {k}/{len(tiles)}")
     # the min and max are known: refuse a constant channel before a second pass
     check_not_constant(None, summary=summary.result())
     n = (H - 2) * (W - 2)
@@ -255,7 +280,7 @@ def _iter_statistics(image, channel_axis, want_noise, tile, span):
             for c in range(C):
                 b = _bins(r[:, c])
                 picked[c].append(r[:, c][(b == bins[c][0]) | (b == bins[c][1])])
-        yield Progress("statistics", lo + step * (1 + k / len(tiles)),
+        yield Progress("statistics", passes[1].at(k, len(tiles)),
                        f"variance: tile {k}/{len(tiles)}")
     result = summary.result()
     if not want_noise:
@@ -277,25 +302,27 @@ def _restore_part(part, *, mean, var, noise, offsets, directions, window, keep_e
     data = _channel_last(part, None)
     H, W, C = data.shape
     probability = kappa > 0
-    span = _spans(dict(WINDOWED_WORK))
+    span = spans(dict(WINDOWED_WORK))
     planes = np.empty((C, H, W))
     np.subtract(np.moveaxis(data, -1, 0), mean[:, None, None], out=planes)
     pred = np.empty((H, W, C))
-    with ThreadPoolExecutor(max_workers=2) as pool:
-        pred, prob, spread = drain(_iter_windowed(
-            planes, mean, var, offsets, directions, window, pool, False, probability,
-            None, span, pred))
-        if keep_edges:
-            pred = drain(_iter_edges(data, pred, spread, noise, pool, span, blend=True,
-                                     out=planes.reshape(data.shape)))
+    pool = job_pool()
+    pred, prob, spread = drain(_iter_windowed(
+        planes, mean, var, offsets, directions, window, pool, False, probability,
+        None, span, pred))
+    if keep_edges:
+        pred = drain(_iter_edges(data, pred, spread, noise, pool, span, blend=True,
+                                 out=planes.reshape(data.shape), halves=True))
     if probability:
         pred = np.where((prob > kappa)[..., None], pred, data)
     return pred[..., 0] if part.ndim == 2 else pred
 
 
+@shared_parameters(_PARAMETERS)
 def iter_restore_tiled(image, *, out=None, tile=DEFAULT_TILE, neighbourhood=1,
-                       estimator="windowed", window=DEFAULT_WINDOW, directions="all",
-                       keep_edges=True, kappa=0.0, noise=None, channel_axis=-1):
+                       estimator="windowed", window=DEFAULT_WINDOW, forgetting=0.995,
+                       directions="all", keep_edges=True, kappa=0.0, noise=None,
+                       channel_axis=-1):
     """Restore an image larger than memory by tiles, as a job.
 
     The same result as :func:`~car_napari.restoration.restore` with the
@@ -306,25 +333,7 @@ def iter_restore_tiled(image, *, out=None, tile=DEFAULT_TILE, neighbourhood=1,
 
     Parameters
     ----------
-    image : (H, W) or (H, W, C) array
-        A dask or zarr array (or any sliceable array: a memory map, NumPy);
-        integers are scaled to [0, 1]. Read a tile at a time.
-    out : array, optional
-        Where the restored image (float64 values; an integer array gets them
-        as they are, so pass a float array) is written, tile by tile: a zarr
-        array, a NumPy array or memory map of ``image``'s shape. Default: a
-        lazy dask array when ``image`` is dask (its tiles computed when it
-        is; the global passes already done), else a NumPy array.
-    tile : int, optional
-        Side of a tile's core (rounded up to whole blocks).
-    neighbourhood : int or (eta, 2) array, optional
-        As :func:`restore` ('auto' needs the whole image: not here).
-    estimator : {'windowed'}, optional
-        Only the windowed estimator is tile-local (see the module's notes).
-    window, directions, keep_edges, kappa, noise : optional
-        As :func:`restore`.
-    channel_axis : -1 or None, optional
-        A 3-D image is (H, W, C).
+    {parameters}
 
     Returns
     -------
@@ -363,7 +372,8 @@ def iter_restore_tiled(image, *, out=None, tile=DEFAULT_TILE, neighbourhood=1,
     if not (hasattr(image, "shape") and hasattr(image, "__getitem__")):
         image = np.asarray(image)  # a nested list: as restore takes it
     offsets, directions, kappa, C, noise, window, tile = _check(
-        image, neighbourhood, estimator, window, directions, kappa, noise, channel_axis, tile)
+        image, neighbourhood, estimator, window, directions, kappa, noise, channel_axis, tile,
+        forgetting)
     _check_out(out, image.shape)
     H, W = image.shape[:2]
     yield Progress("start", 0.0, f"{H} x {W} image by tiles")
@@ -396,30 +406,18 @@ class _TilePart:
         return _restore_part(part, **self.options)
 
 
+@shared_parameters(_PARAMETERS)
 def restore_tiled(image, *, out=None, tile=DEFAULT_TILE, neighbourhood=1,
-                  estimator="windowed", window=DEFAULT_WINDOW, directions="all",
-                  keep_edges=True, kappa=0.0, noise=None, channel_axis=-1):
+                  estimator="windowed", window=DEFAULT_WINDOW, forgetting=0.995,
+                  directions="all", keep_edges=True, kappa=0.0, noise=None,
+                  channel_axis=-1):
     """Restore an image larger than memory by tiles.
 
-    ``drain(iter_restore_tiled(image, ...))``: see :func:`iter_restore_tiled`
-    for the parameters.
+    ``drain(iter_restore_tiled(image, ...))``.
 
     Parameters
     ----------
-    image : (H, W) or (H, W, C) array
-        A dask or zarr array, or any sliceable array.
-    out : array, optional
-        Where the result goes, tile by tile.
-    tile : int, optional
-        Side of a tile's core.
-    neighbourhood : int or (eta, 2) array, optional
-        As :func:`restore`.
-    estimator : {'windowed'}, optional
-        Only 'windowed' runs by tiles.
-    window, directions, keep_edges, kappa, noise : optional
-        As :func:`restore`.
-    channel_axis : -1 or None, optional
-        A 3-D image is (H, W, C).
+    {parameters}
 
     Returns
     -------
@@ -443,19 +441,20 @@ def restore_tiled(image, *, out=None, tile=DEFAULT_TILE, neighbourhood=1,
     """
     return drain(iter_restore_tiled(
         image, out=out, tile=tile, neighbourhood=neighbourhood, estimator=estimator,
-        window=window, directions=directions, keep_edges=keep_edges, kappa=kappa, noise=noise,
-        channel_axis=channel_axis))
+        window=window, forgetting=forgetting, directions=directions, keep_edges=keep_edges,
+        kappa=kappa, noise=noise, channel_axis=channel_axis))
 
 
 def iter_restore_lazy(image, *, neighbourhood, estimator, window, forgetting, directions,
                       keep_edges, kappa, noise, channel_axis, return_result):
     """What ``iter_restore`` and ``restore`` run for a dask or zarr image:
-    :func:`iter_restore_tiled` (``forgetting`` is the recursive estimator's,
-    which tiles refuse)."""
+    :func:`iter_restore_tiled`, every option passed on (``forgetting`` is
+    checked as for an image in memory; only the recursive estimator, which
+    tiles refuse, uses it)."""
     if return_result:
         raise ValueError("return_result needs the image in memory; a dask or zarr image is "
                          "restored by tiles into an array (restore_tiled).")
     return (yield from iter_restore_tiled(
         image, neighbourhood=neighbourhood, estimator=estimator, window=window,
-        directions=directions, keep_edges=keep_edges, kappa=kappa, noise=noise,
-        channel_axis=channel_axis))
+        forgetting=forgetting, directions=directions, keep_edges=keep_edges, kappa=kappa,
+        noise=noise, channel_axis=channel_axis))

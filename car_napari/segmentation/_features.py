@@ -24,7 +24,7 @@ import time
 import numpy as np
 
 from .._docstrings import shared_parameters
-from .._progress import Progress, drain, side_by_side, stage
+from .._progress import Progress, drain, row_blocks, side_by_side, stage
 from .._threads import job_pool
 from .._validation import (
     check_forgetting,
@@ -33,10 +33,11 @@ from .._validation import (
     check_seed,
     summarize,
 )
+from ..model.adaptive import adaptive_scanner, adaptive_start
 from ..model.blocks import iter_channel_last_float, row_ranges
 from ..model.directions import DIRECTIONS, scan_view
 from ..model.neighbourhood import Context, as_offsets
-from ..model.recursive import adaptive_scanner, adaptive_start, scan_work
+from ..model.recursive import scan_work
 
 __all__ = ["iter_local_features", "iter_pseudo_colour", "local_features", "pseudo_colour"]
 
@@ -279,7 +280,7 @@ def _iter_whiten_channels(level, work, message):
     mean = flat.mean(axis=0)
     out = np.empty_like(level)
     out_flat = out.reshape(-1, d)
-    blocks = _long_blocks(n)
+    blocks = row_blocks(n, _LONG_ROWS, merge_tail=True)
     step = _NS_VALUE * d
     if d == 1:
         std = flat.std()
@@ -316,16 +317,6 @@ def _iter_whiten_channels(level, work, message):
 
 
 _LONG_ROWS = 1 << 16
-
-
-def _long_blocks(n):
-    """Blocks of ``_LONG_ROWS`` rows of an (n, k) array, a short tail merged
-    into the block before it (a BLAS product then sees the shapes one call
-    would, up to its tiles)."""
-    blocks = row_ranges(n, 1, _LONG_ROWS)
-    if len(blocks) > 1 and blocks[-1][1] - blocks[-1][0] < _LONG_ROWS // 2:
-        blocks[-2:] = [(blocks[-2][0], n)]
-    return blocks
 
 
 def _scan_coords(index, shape, direction):
@@ -621,7 +612,7 @@ def iter_local_features(
         rec = work.step(_NS_VALUE * hm * wm * d / 2, f"{label}: centring")
         if rec:
             yield rec
-        for start, stop in _long_blocks(hm * wm):
+        for start, stop in row_blocks(hm * wm, _LONG_ROWS, merge_tail=True):
             centred.reshape(-1, d)[start:stop] -= source_summary.mean
             rec = work.step(_NS_VALUE * (stop - start) * d, f"{label}: centring")
             if rec:
@@ -667,7 +658,7 @@ def iter_local_features(
         else:
             result = np.empty((hm, wm, per_level), np.float32)
         out_flat = result.reshape(hm * wm, per_level)
-        for start, stop in _long_blocks(hm * wm):
+        for start, stop in row_blocks(hm * wm, _LONG_ROWS, merge_tail=True):
             out_flat[start:stop, : components + 1] = (flat[start:stop] - mean) @ axes
             rec = work.step(_NS_VALUE * flat.shape[1] * (stop - start), f"{label}: reducing")
             if rec:

@@ -33,7 +33,7 @@ def controls(container):
 def test_manifest_lists_every_dock_widget():
     from pathlib import Path
 
-    manifest = (Path(__file__).parents[2] / "napari.yaml").read_text()
+    manifest = (Path(__file__).parents[2] / "car_napari" / "napari.yaml").read_text()
     listed = set(re.findall(r"python_name: car_napari\._widgets\.\w+:(\w+)", manifest))
     assert listed == {cls.__name__ for cls in DOCK_WIDGETS}
 

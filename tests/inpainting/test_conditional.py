@@ -9,15 +9,10 @@ from scipy import ndimage
 from skimage import data as skdata
 from skimage.restoration import inpaint_biharmonic
 
-from car_napari.inpainting import _conditional, inpaint
-from car_napari.inpainting._conditional import (
-    BAND_WIDTH,
-    LocalModels,
-    conditional_mean,
-    direction_offsets,
-    fit_local_models,
-    stencil_solve,
-)
+from car_napari.inpainting import _conditional, _solver, inpaint
+from car_napari.inpainting._conditional import conditional_mean, direction_offsets
+from car_napari.inpainting._local_fits import LocalModels, fit_local_models
+from car_napari.inpainting._solver import BAND_WIDTH, stencil_solve
 from car_napari.model import causal_neighbourhood
 
 
@@ -60,7 +55,7 @@ def _random_model(rng, offsets, C, mean):
 
 @pytest.mark.parametrize("band_width", [BAND_WIDTH, -1], ids=["band", "superlu"])
 def test_conditional_mean_matches_the_dense_gaussian_conditional(band_width, monkeypatch):
-    monkeypatch.setattr(_conditional, "BAND_WIDTH", band_width)
+    monkeypatch.setattr(_solver, "BAND_WIDTH", band_width)
     rng = np.random.default_rng(0)
     H, W, C = 9, 11, 2
     mean = np.array([0.5, -0.2])
@@ -82,7 +77,7 @@ def test_conditional_mean_matches_the_dense_gaussian_conditional(band_width, mon
 def test_band_cholesky_solves_a_group_and_refuses_an_indefinite_one():
     """Two groups of a row of grey pixels, each a tridiagonal block: the
     second solved alone against a dense solve; a negative pivot refused."""
-    from car_napari.inpainting._conditional import _band_cholesky, _block_bandwidth
+    from car_napari.inpainting._solver import _band_cholesky, _block_bandwidth
 
     rng = np.random.default_rng(1)
     n = 10
@@ -192,7 +187,8 @@ def test_draws_have_the_conditional_covariance():
     """The edge test's draws (random signs pushed through the rows, then
     solved) have covariance ``Q_UU^-1``: against the dense precision."""
     from car_napari._progress import drain
-    from car_napari.inpainting._conditional import _row_sets, iter_stencil_solve
+    from car_napari.inpainting._local_fits import _row_sets
+    from car_napari.inpainting._solver import iter_stencil_solve
 
     rng = np.random.default_rng(3)
     H, W, C = 8, 9, 2
@@ -274,7 +270,7 @@ def test_conditional_fill_yields_often_and_stops_when_closed():
 def test_edge_statistics_match_a_pixel_by_pixel_computation():
     """The edge test's blend, its chi-square and the blend pooled over the
     ring nearby, against plain loops over the ring pixels."""
-    from car_napari.inpainting._conditional import EDGE_POOL, edge_statistics
+    from car_napari.inpainting._edges import EDGE_POOL, edge_statistics
 
     rng = np.random.default_rng(5)
     H, W, C, probes, region = 24, 26, 3, 4, 3

@@ -73,7 +73,8 @@ def test_manifest_names_the_reader_for_what_it_reads():
 
     from npe2 import PluginManifest
 
-    manifest = PluginManifest.from_file(str(Path(__file__).parents[2] / "napari.yaml"))
+    manifest = PluginManifest.from_file(
+        str(Path(__file__).parents[2] / "car_napari" / "napari.yaml"))
     # napari's reader chooser lists a reader by its plugin's display name
     assert manifest.display_name == "car-napari"
     (reader,) = manifest.contributions.readers

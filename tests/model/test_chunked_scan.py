@@ -10,13 +10,11 @@ from car_fields import ORDERS
 from car_napari import Context, local_parameters
 from car_napari._progress import drain
 from car_napari.model import iter_local_parameters
+from car_napari.model.adaptive import adaptive_scanner
 from car_napari.model.recursive import (
     OUTPUTS,
     RecursiveScan,
-    adaptive_scan,
-    adaptive_scanner,
     default_prior,
-    iter_adaptive_scan,
     iter_scan,
     scan,
     scan_view,
@@ -69,7 +67,7 @@ def test_chunks_equal_one_call(direction, phi, warm, d):
     img = _image(d)
     ctx = Context.spatial(np.array(ORDERS[2]), d)
     kwargs = dict(forgetting=phi, direction=direction, warm_start=warm, outputs=OUTPUTS)
-    whole = adaptive_scan(img.copy(), ctx, img.var(axis=(0, 1)), **kwargs)
+    whole = adaptive_scanner(img.copy(), ctx, img.var(axis=(0, 1)), **kwargs).run()
     assert whole["count"] > 0
     for rows in (1, 3, [2, 5, 1], 1000):
         for stream in (False, True):
@@ -121,9 +119,9 @@ def test_many_rescales_and_injections_across_chunks():
     img = _image(3, (60, 50))
     ctx = Context.spatial(np.array(ORDERS[3]), 3)
     kwargs = dict(forgetting=0.7, direction="right", outputs=("gamma",))
-    whole = adaptive_scan(img.copy(), ctx, img.var(axis=(0, 1)), **kwargs)
-    chunked = drain(iter_adaptive_scan(img.copy(), ctx, img.var(axis=(0, 1)), chunk_rows=1,
-                                       **kwargs))
+    whole = adaptive_scanner(img.copy(), ctx, img.var(axis=(0, 1)), **kwargs).run()
+    chunked = drain(adaptive_scanner(img.copy(), ctx, img.var(axis=(0, 1)),
+                                     **kwargs).iter_run(chunk_rows=1))
     _same(chunked, whole)
 
 

@@ -15,9 +15,9 @@ from skimage.transform import pyramid_reduce, resize
 from car_napari._progress import drain
 from car_napari._validation import as_channel_last_float, check_not_constant, summarize
 from car_napari.model import recursive
+from car_napari.model.adaptive import adaptive_scanner
 from car_napari.model.directions import DIRECTIONS, scan_view, unscan_view
 from car_napari.model.neighbourhood import Context, as_offsets
-from car_napari.model.recursive import adaptive_scan
 from car_napari.segmentation import _features as F
 from car_napari.segmentation import iter_local_features, local_features, pseudo_colour
 
@@ -100,8 +100,8 @@ def _reference(image, *, levels=3, neighbourhood=2, forgetting=0.98, components=
         ctx = Context.spatial(offsets, d)
         reduced, err = [], np.zeros((hm, wm))
         for direction in DIRECTIONS:
-            res = adaptive_scan(centred, ctx, summary.var, forgetting=forgetting,
-                                direction=direction, outputs=("gamma", "mean"))
+            res = adaptive_scanner(centred, ctx, summary.var, forgetting=forgetting,
+                                   direction=direction, outputs=("gamma", "mean")).run()
             shift = min(lag, (wm if direction in ("down", "up") else hm) // 4)
             gamma = recentre(res["gamma"].reshape(hm, wm, -1), direction, shift)
             if energy:
