@@ -180,10 +180,10 @@ def test_moving_the_operating_point_changes_the_marks_without_recomputing(
     marks change with it, and neither the detection job nor the segmentation
     runs again (the job, ROIs and tissue, segments once)."""
     from car_napari._widgets import mammography as widget_module
-    from car_napari.mammography import _tissue, score_threshold
+    from car_napari.mammography import _rois, score_threshold
 
     calls = {"detect": 0, "segment": 0}
-    detect, segment = widget_module.iter_analyse_mammogram, _tissue._iter_segment_grey
+    detect, segment = widget_module.iter_analyse_mammogram, _rois._iter_segment_grey
 
     def counted_detect(*args, **kwargs):
         calls["detect"] += 1
@@ -194,7 +194,7 @@ def test_moving_the_operating_point_changes_the_marks_without_recomputing(
         return segment(*args, **kwargs)
 
     monkeypatch.setattr(widget_module, "iter_analyse_mammogram", counted_detect)
-    monkeypatch.setattr(_tissue, "_iter_segment_grey", counted_segment)
+    monkeypatch.setattr(_rois, "_iter_segment_grey", counted_segment)
     viewer, w = widget
     w._image.value = viewer.add_image(small_mammogram, name="mdb001")
     w._marks.value = 0.25
