@@ -168,19 +168,27 @@ def spectral_radius(model):
         comp[:d, :] = np.hstack(row)
         comp[d:, :-d] = np.eye((len(row) - 1) * d)
         frequencies = np.r_[frequencies, -np.angle(np.linalg.eigvals(comp))]
-    for omega in frequencies:
-        phase = np.exp(1j * omega * dj)
-        lead = np.eye(d, dtype=complex)
-        coeffs = [np.zeros((d, d), complex) for _ in range(K)]
-        for a, i, ph in zip(A, di, phase, strict=True):
-            if i == 0:
-                lead -= a * ph
-            else:
-                coeffs[i - 1] = coeffs[i - 1] + a * ph
-        if abs(np.linalg.det(lead)) < 1e-12:
-            return math.inf
-        radius = max(radius, _companion_radius(coeffs, lead))
-    return radius
+    # every frequency at once: the same sums, in the same order, as one
+    # frequency at a time (LAPACK factors each matrix of a stack on its own)
+    n_freq = len(frequencies)
+    phases = np.exp((1j * frequencies[:, None]) * dj[None, :])  # (F, eta)
+    lead = np.broadcast_to(np.eye(d, dtype=complex), (n_freq, d, d)).copy()
+    coeffs = np.zeros((n_freq, K, d, d), complex)
+    for s, (a, i) in enumerate(zip(A, di, strict=True)):
+        term = a[None] * phases[:, s, None, None]
+        if i == 0:
+            lead -= term
+        else:
+            coeffs[:, i - 1] = coeffs[:, i - 1] + term
+    if np.any(np.abs(np.linalg.det(lead)) < 1e-12):
+        return math.inf
+    if K == 0:
+        return radius
+    solved = np.linalg.solve(lead[:, None], coeffs)  # (F, K, d, d): lead^-1 C_k
+    comp = np.zeros((n_freq, K * d, K * d), dtype=complex)
+    comp[:, :d, :] = solved.transpose(0, 2, 1, 3).reshape(n_freq, d, K * d)
+    comp[:, d:, :-d] = np.eye((K - 1) * d)
+    return max(radius, float(np.max(np.abs(np.linalg.eigvals(comp)))))
 
 
 def synthesize(model, shape, *, seed=None, margin=None):
