@@ -618,3 +618,31 @@ def test_version_2_files_load_as_the_gaussian_pyramid_they_were(tmp_path):
     np.savez(bad, **{**arrays, "header": np.array(json.dumps(header))})
     with pytest.raises(ValueError, match="format-version-3 .* 'wavelet'"):
         TextureModel.load(bad)
+
+
+@pytest.mark.parametrize("q", [3, 32, 64])
+def test_histogram_matching_kernels_equal_plain_numpy(q, monkeypatch):
+    """The compiled matching (_kernels) against the plain NumPy one, bit for
+    bit: heavy tails, a constant channel, ties, clipping, blocks of rows."""
+    from car_napari.texture import _model
+
+    rng = np.random.default_rng(q)
+    values = np.stack([rng.standard_t(3, (150, 131)), rng.random((150, 131)),
+                       np.full((150, 131), 0.25), np.round(rng.normal(size=(150, 131)), 1)],
+                      axis=-1)
+    quantiles = np.sort(rng.normal(size=(q, 4)) * [1.0, 2.0, 1.0, 0.5], axis=0)
+    clip = np.stack([quantiles[1], quantiles[-2]])
+    want = _reference_match(values, quantiles)
+    np.testing.assert_array_equal(_model._match(values, quantiles), want)
+    for pixels in (_model._CHUNK_PIXELS, 97 * 4):
+        monkeypatch.setattr(_model, "_CHUNK_PIXELS", pixels)
+        got = drain(_model._iter_match(values, quantiles, clip=clip))
+        np.testing.assert_array_equal(got, np.clip(want, clip[0], clip[1]))
+    # numpy.histogram's counts, edges included
+    from car_napari.texture import _kernels
+
+    v = values[..., 0]
+    lo, hi = float(v.min()), float(v.max())
+    counts = np.zeros(4096, np.int64)
+    _kernels.block_histogram(values, 0, lo, hi, np.linspace(lo, hi, 4097), counts)
+    np.testing.assert_array_equal(counts, np.histogram(v, bins=4096, range=(lo, hi))[0])
