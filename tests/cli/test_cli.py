@@ -431,3 +431,23 @@ def test_missing_inputs_leave_no_output_folder(tmp_path, capsys, command):
     assert main([part.format(**names) for part in command]) == 2
     assert "no such" in capsys.readouterr().err
     assert sorted(p.name for p in tmp_path.iterdir()) == before
+
+
+def test_fit_texture_levels_are_the_widgets(tmp_path):
+    """No --levels: TextureModel.levels_for the texture (5, fewer when small),
+    as the widget; --levels N is the most, fewer for a small texture."""
+    from car_napari.texture import TextureModel
+
+    small, large = tmp_path / "small.png", tmp_path / "in" / "large.png"
+    large.parent.mkdir()
+    io.imsave(small, skdata.gravel()[:128, :128])
+    io.imsave(large, skdata.gravel()[:512, :512])
+    assert TextureModel.levels_for((128, 128)) == 4
+    for src, options, levels in ((small, [], 4), (small, ["--levels", "8"], 4),
+                                 (small, ["--levels", "2"], 2), (large, [], 5)):
+        out = tmp_path / f"{src.stem}{len(options)}{levels}.npz"
+        assert main(["fit-texture", str(src), "-o", str(out), "--quiet", *options]) == 0
+        assert TextureModel.load(out).levels == levels, (src, options)
+    # several textures into a folder: the same rule
+    assert main(["fit-texture", str(large.parent), "-o", str(tmp_path / "models"), "--quiet"]) == 0
+    assert TextureModel.load(tmp_path / "models" / "large.npz").levels == 5
