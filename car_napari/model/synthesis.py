@@ -14,7 +14,7 @@ from .blocks import row_ranges
 from .directions import unscan_view
 from .estimation import check_model
 
-__all__ = ["iter_synthesize", "synthesize", "spectral_radius"]
+__all__ = ["burn_in", "iter_synthesize", "synthesize", "spectral_radius"]
 
 # rows of the (enlarged) lattice per kernel call: about this many multiply-adds
 # (~0.1-0.2 s of one core)
@@ -40,6 +40,36 @@ def cached_radius(model):
             _RADIUS_CACHE.clear()
         radius = _RADIUS_CACHE[key] = spectral_radius(model)
     return radius
+
+
+def burn_in(radius, tolerance=_MARGIN_TOLERANCE):
+    """The default burn-in margin of a model of spectral ``radius``.
+
+    The field starts from zeros; its transient decays like
+    ``radius ** rows`` (:func:`spectral_radius` bounds the decay of every
+    frequency of the row-to-row and the in-row recursions), so the margin
+    is the rows after which that is below ``tolerance``, between 16 and 256.
+
+    Parameters
+    ----------
+    radius : float
+        The model's spectral radius (below 1).
+    tolerance : float, optional
+        The transient's amplitude left at the output's edge, relative to
+        the stationary field's (1e-4 by default: a variance share of 1e-8).
+
+    Returns
+    -------
+    int
+        The margin in pixels.
+
+    Examples
+    --------
+    >>> burn_in(0.5), burn_in(0.9), burn_in(0.9, 1e-2), burn_in(0.999)
+    (16, 88, 44, 256)
+    """
+    margin = math.ceil(math.log(tolerance) / math.log(max(radius, 1e-3)))
+    return int(min(max(margin, 16), 256))
 
 
 def innovation_factor(sigma):
@@ -312,8 +342,7 @@ def iter_synthesize(model, shape, *, seed=None, margin=None, chunk_rows=None):
             "or shrink gamma."
         )
     if margin is None:
-        margin = math.ceil(math.log(_MARGIN_TOLERANCE) / math.log(max(radius, 1e-3)))
-        margin = int(min(max(margin, 16), 256))
+        margin = burn_in(radius)
     else:  # a negative margin would crop into the output: (4, 0) for margin=-5
         margin = check_real(margin, "margin (burn-in pixels)", low=0, high=_MAX_MARGIN,
                             integer=True)
