@@ -358,7 +358,7 @@ def iter_synthesize(model, shape, *, seed=None, margin=None, chunk_rows=None):
     edges = (np.concatenate([[0.0], np.cumsum(work)]) / work.sum()).tolist()
     # the draws by blocks of rows: the same stream, in the same order, as one call
     for start, stop in row_ranges(n_rows, n_cols * d):
-        noise[start:stop] = rng.standard_normal((stop - start,) + noise.shape[1:])
+        rng.standard_normal(out=noise[start:stop])  # (no temporary: the same draws)
         yield Progress("synthesis", edges[1] * stop / n_rows, f"noise {stop}/{n_rows}")
     taps = model.context.taps
     chol = innovation_factor(model.sigma)
