@@ -31,17 +31,30 @@ def add_parser(sub):
                    help="example texture (grey or RGB); or several, folders or globs "
                         "with -o FOLDER (a model <name>.npz each)")
     add_output(p, "model file (.npz), or a folder for several textures")
-    p.add_argument("--levels", type=positive_int, default=3, help="pyramid levels (default 3)")
+    p.add_argument("--levels", type=positive_int, default=None,
+                   help="the most pyramid levels (default 5, as the widget); fewer for a "
+                        "small texture (TextureModel.levels_for)")
     add_order(p)
     add_quiet(p)
     add_cluster(p)
     p.set_defaults(run=run)
 
 
+def fit_levels(image, levels):
+    """The pyramid levels of a fit to ``image``, as the widget chooses them:
+    :meth:`TextureModel.levels_for` its size, with at most ``levels`` (None:
+    the default most, 5)."""
+    from ..texture import TextureModel
+
+    if levels is None:
+        return TextureModel.levels_for(image.shape[:2])
+    return TextureModel.levels_for(image.shape[:2], levels)
+
+
 def texture_model(args):
     """(model, example image): a TextureModel loaded from a saved model
-    (.npz; no image) or fitted to an example image (``args.levels``,
-    ``args.order``)."""
+    (.npz; no image) or fitted to an example image (at most ``args.levels``
+    levels, see :func:`fit_levels`; ``args.order``)."""
     from ..texture import TextureModel
 
     if str(args.source).lower().endswith(".npz"):
@@ -49,8 +62,8 @@ def texture_model(args):
             raise ValueError(f"no such file: {args.source}")
         return TextureModel.load(args.source), None
     image = one_image(read_image(args.source, on_note=print_note), args.source)
-    model = TextureModel.fit(image, levels=args.levels, neighbourhood=args.order,
-                             channel_axis=channel_axis(image))
+    model = TextureModel.fit(image, levels=fit_levels(image, args.levels),
+                             neighbourhood=args.order, channel_axis=channel_axis(image))
     return model, image
 
 
@@ -87,7 +100,7 @@ def run_many(args, paths):
         if path.suffix.lower() == ".npz":
             raise ValueError("a model file, not an example image")
         image = one_image(read_image(path, on_note=print_note), path)
-        model = TextureModel.fit(image, levels=levels, neighbourhood=order,
+        model = TextureModel.fit(image, levels=fit_levels(image, levels), neighbourhood=order,
                                  channel_axis=channel_axis(image))
         model.save(outputs(path)[0])
         return (f"orders {list(model.orders)}, {model.nbytes} bytes, "

@@ -31,7 +31,9 @@ def add_parser(sub):
                    help="random seed: the same seed, the same texture (default: a new one "
                         "each run)")
     p.add_argument("--tileable", action="store_true", help="wrap seamlessly (toroidal)")
-    p.add_argument("--levels", type=positive_int, default=3, help="pyramid levels when fitting")
+    p.add_argument("--levels", type=positive_int, default=None,
+                   help="the most pyramid levels when fitting (default 5; fewer for a small "
+                        "texture)")
     add_order(p, help="neighbourhood order when fitting, or 'auto' (default)")
     add_quiet(p)
     p.set_defaults(run=run)

@@ -14,7 +14,7 @@ from .blocks import row_ranges
 from .directions import unscan_view
 from .fitted import check_model
 
-__all__ = ["iter_synthesize", "synthesize", "spectral_radius"]
+__all__ = ["burn_in", "iter_synthesize", "synthesize", "spectral_radius"]
 
 # rows of the (enlarged) lattice per kernel call: about this many multiply-adds
 # (~0.1-0.2 s of one core)
@@ -40,6 +40,36 @@ def cached_radius(model):
             _RADIUS_CACHE.clear()
         radius = _RADIUS_CACHE[key] = spectral_radius(model)
     return radius
+
+
+def burn_in(radius, tolerance=_MARGIN_TOLERANCE):
+    """The default burn-in margin of a model of spectral ``radius``.
+
+    The field starts from zeros; its transient decays like
+    ``radius ** rows`` (:func:`spectral_radius` bounds the decay of every
+    frequency of the row-to-row and the in-row recursions), so the margin
+    is the rows after which that is below ``tolerance``, between 16 and 256.
+
+    Parameters
+    ----------
+    radius : float
+        The model's spectral radius (below 1).
+    tolerance : float, optional
+        The transient's amplitude left at the output's edge, relative to
+        the stationary field's (1e-4 by default: a variance share of 1e-8).
+
+    Returns
+    -------
+    int
+        The margin in pixels.
+
+    Examples
+    --------
+    >>> burn_in(0.5), burn_in(0.9), burn_in(0.9, 1e-2), burn_in(0.999)
+    (16, 88, 44, 256)
+    """
+    margin = math.ceil(math.log(tolerance) / math.log(max(radius, 1e-3)))
+    return int(min(max(margin, 16), 256))
 
 
 def innovation_factor(sigma):
@@ -168,19 +198,27 @@ def spectral_radius(model):
         comp[:d, :] = np.hstack(row)
         comp[d:, :-d] = np.eye((len(row) - 1) * d)
         frequencies = np.r_[frequencies, -np.angle(np.linalg.eigvals(comp))]
-    for omega in frequencies:
-        phase = np.exp(1j * omega * dj)
-        lead = np.eye(d, dtype=complex)
-        coeffs = [np.zeros((d, d), complex) for _ in range(K)]
-        for a, i, ph in zip(A, di, phase, strict=True):
-            if i == 0:
-                lead -= a * ph
-            else:
-                coeffs[i - 1] = coeffs[i - 1] + a * ph
-        if abs(np.linalg.det(lead)) < 1e-12:
-            return math.inf
-        radius = max(radius, _companion_radius(coeffs, lead))
-    return radius
+    # every frequency at once: the same sums, in the same order, as one
+    # frequency at a time (LAPACK factors each matrix of a stack on its own)
+    n_freq = len(frequencies)
+    phases = np.exp((1j * frequencies[:, None]) * dj[None, :])  # (F, eta)
+    lead = np.broadcast_to(np.eye(d, dtype=complex), (n_freq, d, d)).copy()
+    coeffs = np.zeros((n_freq, K, d, d), complex)
+    for s, (a, i) in enumerate(zip(A, di, strict=True)):
+        term = a[None] * phases[:, s, None, None]
+        if i == 0:
+            lead -= term
+        else:
+            coeffs[:, i - 1] = coeffs[:, i - 1] + term
+    if np.any(np.abs(np.linalg.det(lead)) < 1e-12):
+        return math.inf
+    if K == 0:
+        return radius
+    solved = np.linalg.solve(lead[:, None], coeffs)  # (F, K, d, d): lead^-1 C_k
+    comp = np.zeros((n_freq, K * d, K * d), dtype=complex)
+    comp[:, :d, :] = solved.transpose(0, 2, 1, 3).reshape(n_freq, d, K * d)
+    comp[:, d:, :-d] = np.eye((K - 1) * d)
+    return max(radius, float(np.max(np.abs(np.linalg.eigvals(comp)))))
 
 
 def synthesize(model, shape, *, seed=None, margin=None):
@@ -304,8 +342,7 @@ def iter_synthesize(model, shape, *, seed=None, margin=None, chunk_rows=None):
             "or shrink gamma."
         )
     if margin is None:
-        margin = math.ceil(math.log(_MARGIN_TOLERANCE) / math.log(max(radius, 1e-3)))
-        margin = int(min(max(margin, 16), 256))
+        margin = burn_in(radius)
     else:  # a negative margin would crop into the output: (4, 0) for margin=-5
         margin = check_real(margin, "margin (burn-in pixels)", low=0, high=_MAX_MARGIN,
                             integer=True)
@@ -321,7 +358,7 @@ def iter_synthesize(model, shape, *, seed=None, margin=None, chunk_rows=None):
     edges = (np.concatenate([[0.0], np.cumsum(work)]) / work.sum()).tolist()
     # the draws by blocks of rows: the same stream, in the same order, as one call
     for start, stop in row_ranges(n_rows, n_cols * d):
-        noise[start:stop] = rng.standard_normal((stop - start,) + noise.shape[1:])
+        rng.standard_normal(out=noise[start:stop])  # (no temporary: the same draws)
         yield Progress("synthesis", edges[1] * stop / n_rows, f"noise {stop}/{n_rows}")
     taps = model.context.taps
     chol = innovation_factor(model.sigma)

@@ -61,8 +61,10 @@ def fit_palette(image, k=PALETTE_COLOURS, *, seed=0):
     n = len(pixels)
     sample = pixels[np.sort(rng.choice(n, _SAMPLE, replace=False))] if n > _SAMPLE else pixels
     centres = sample[[int(rng.integers(len(sample)))]]
-    for _ in range(k - 1):  # k-means++
-        _, d2 = _nearest(sample, centres)
+    d2 = None
+    for _ in range(k - 1):  # k-means++: the distances to the nearest centre so far
+        _, new = _nearest(sample, centres[-1:])
+        d2 = new if d2 is None else np.minimum(d2, new)
         total = d2.sum()
         if total <= 0:
             break
@@ -70,8 +72,9 @@ def fit_palette(image, k=PALETTE_COLOURS, *, seed=0):
     for _ in range(_ITERATIONS):
         index, _ = _nearest(sample, centres)
         counts = np.bincount(index, minlength=len(centres))
-        sums = np.zeros_like(centres)
-        np.add.at(sums, index, sample)
+        # the sums of each centre's pixels, in pixel order (as np.add.at adds)
+        sums = np.stack([np.bincount(index, weights=sample[:, j], minlength=len(centres))
+                         for j in range(sample.shape[1])], axis=1)
         filled = counts > 0
         centres[filled] = sums[filled] / counts[filled, None]
     index, d2 = _nearest(sample, centres)

@@ -461,3 +461,23 @@ def test_mammo_tissue_writes_density_and_class(tmp_path):
     out2 = tmp_path / "out2"
     assert main(["mammo", str(src / "mdb001.png"), "-o", str(out2), "--quiet"]) == 0
     assert not (out2 / "tissue.csv").exists() and not (out2 / "mdb001_tissue.png").exists()
+
+
+def test_fit_texture_levels_are_the_widgets(tmp_path):
+    """No --levels: TextureModel.levels_for the texture (5, fewer when small),
+    as the widget; --levels N is the most, fewer for a small texture."""
+    from car_napari.texture import TextureModel
+
+    small, large = tmp_path / "small.png", tmp_path / "in" / "large.png"
+    large.parent.mkdir()
+    io.imsave(small, skdata.gravel()[:128, :128])
+    io.imsave(large, skdata.gravel()[:512, :512])
+    assert TextureModel.levels_for((128, 128)) == 4
+    for src, options, levels in ((small, [], 4), (small, ["--levels", "8"], 4),
+                                 (small, ["--levels", "2"], 2), (large, [], 5)):
+        out = tmp_path / f"{src.stem}{len(options)}{levels}.npz"
+        assert main(["fit-texture", str(src), "-o", str(out), "--quiet", *options]) == 0
+        assert TextureModel.load(out).levels == levels, (src, options)
+    # several textures into a folder: the same rule
+    assert main(["fit-texture", str(large.parent), "-o", str(tmp_path / "models"), "--quiet"]) == 0
+    assert TextureModel.load(tmp_path / "models" / "large.npz").levels == 5

@@ -199,3 +199,57 @@ def test_job_closed_midway_stops():
             break
     job.close()  # a Cancel: no error, nothing more
     assert list(job) == []
+
+
+def _reference_spectral_radius(model):
+    """The stability test one frequency at a time (the form before issue 34's
+    batched one), kept as the reference of its numbers."""
+    import math
+
+    from car_napari.model.synthesis import _FREQUENCIES, _companion_radius
+
+    A = model.A
+    di, dj = model.offsets[:, 0], model.offsets[:, 1]
+    d = model.n_channels
+    row = [np.zeros((d, d), complex) for _ in range(int(dj[di == 0].max(initial=0)))]
+    for a, i, j in zip(A, di, dj, strict=True):
+        if i == 0:
+            row[j - 1] = row[j - 1] + a
+    radius = _companion_radius(row)
+    K = int(di.max())
+    frequencies = np.linspace(0.0, 2 * np.pi, _FREQUENCIES, endpoint=False)
+    if row:
+        comp = np.zeros((len(row) * d, len(row) * d), dtype=complex)
+        comp[:d, :] = np.hstack(row)
+        comp[d:, :-d] = np.eye((len(row) - 1) * d)
+        frequencies = np.r_[frequencies, -np.angle(np.linalg.eigvals(comp))]
+    for omega in frequencies:
+        phase = np.exp(1j * omega * dj)
+        lead = np.eye(d, dtype=complex)
+        coeffs = [np.zeros((d, d), complex) for _ in range(K)]
+        for a, i, ph in zip(A, di, phase, strict=True):
+            if i == 0:
+                lead -= a * ph
+            else:
+                coeffs[i - 1] = coeffs[i - 1] + a * ph
+        if abs(np.linalg.det(lead)) < 1e-12:
+            return math.inf
+        radius = max(radius, _companion_radius(coeffs, lead))
+    return radius
+
+
+@pytest.mark.parametrize("channels, order", [(1, 1), (1, 4), (3, 2), (3, 5), (2, 3)])
+def test_batched_spectral_radius_equals_the_per_frequency_loop(channels, order):
+    rng = np.random.default_rng(order + 10 * channels)
+    model = fit_car(rng.random((40, 40, channels)) if channels > 1 else rng.random((40, 40)),
+                    order)
+    for scale in (0.5, 1.0, 3.0):  # stable and unstable
+        model.gamma = model.gamma * scale
+        got, want = spectral_radius(model), _reference_spectral_radius(model)
+        assert got == want, (scale, got, want)  # bit for bit
+    # only vertical taps (no in-row recursion) and a singular in-row filter
+    vertical = fit_car(rng.random((30, 30)), np.array([[1, 0], [2, 0]]))
+    assert spectral_radius(vertical) == _reference_spectral_radius(vertical)
+    singular = fit_car(rng.random((30, 30)), 1)
+    singular.gamma = np.array([[1.0, 0.0]])  # (0, 1) tap of 1: A(0, w2) = 0 at w2 = 1
+    assert spectral_radius(singular) == _reference_spectral_radius(singular) == np.inf

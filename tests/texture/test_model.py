@@ -458,7 +458,8 @@ def _reference_torus(field, shape, mean):
 
 def _reference_synthesis(self, shape, seed, tileable=False):
     from car_napari import synthesize
-    from car_napari.texture._model import _blend_width, _expand, _level_shapes
+    from car_napari.model.synthesis import burn_in, spectral_radius
+    from car_napari.texture._model import _BAND_TRANSIENT, _blend_width, _expand, _level_shapes
 
     h, w = shape
     rng = np.random.default_rng(seed)
@@ -466,12 +467,14 @@ def _reference_synthesis(self, shape, seed, tileable=False):
     bands = []
     for k, (model, (hk, wk)) in enumerate(zip(self.models, _level_shapes((h, w), self.levels),
                                               strict=True)):
+        margin = burn_in(spectral_radius(model), _BAND_TRANSIENT)
         if tileable:
             bh, bw = _blend_width(hk), _blend_width(wk)
-            big = synthesize(model, (hk + bh, wk + bw), seed=streams[k])
+            big = synthesize(model, (hk + bh, wk + bw), seed=streams[k], margin=margin)
             band = _reference_torus(big.reshape(hk + bh, wk + bw, -1), (hk, wk), model.mean)
         else:
-            band = synthesize(model, (hk, wk), seed=streams[k]).reshape(hk, wk, -1)
+            band = synthesize(model, (hk, wk), seed=streams[k], margin=margin).reshape(hk, wk,
+                                                                                     -1)
         if self.pyramid == "spectral" and k < self.levels - 1:
             band = drain(_spectral.iter_highpass(band, wrap=bool(tileable)))
         if self.band_quantiles is not None:
@@ -618,3 +621,75 @@ def test_version_2_files_load_as_the_gaussian_pyramid_they_were(tmp_path):
     np.savez(bad, **{**arrays, "header": np.array(json.dumps(header))})
     with pytest.raises(ValueError, match="format-version-3 .* 'wavelet'"):
         TextureModel.load(bad)
+
+
+@pytest.mark.parametrize("q", [3, 32, 64])
+def test_histogram_matching_kernels_equal_plain_numpy(q, monkeypatch):
+    """The compiled matching (_kernels) against the plain NumPy one, bit for
+    bit: heavy tails, a constant channel, ties, clipping, blocks of rows."""
+    from car_napari.texture import _model
+
+    rng = np.random.default_rng(q)
+    values = np.stack([rng.standard_t(3, (150, 131)), rng.random((150, 131)),
+                       np.full((150, 131), 0.25), np.round(rng.normal(size=(150, 131)), 1)],
+                      axis=-1)
+    quantiles = np.sort(rng.normal(size=(q, 4)) * [1.0, 2.0, 1.0, 0.5], axis=0)
+    clip = np.stack([quantiles[1], quantiles[-2]])
+    want = _reference_match(values, quantiles)
+    np.testing.assert_array_equal(_model._match(values, quantiles), want)
+    for pixels in (_model._CHUNK_PIXELS, 97 * 4):
+        monkeypatch.setattr(_model, "_CHUNK_PIXELS", pixels)
+        got = drain(_model._iter_match(values, quantiles, clip=clip))
+        np.testing.assert_array_equal(got, np.clip(want, clip[0], clip[1]))
+    # numpy.histogram's counts, edges included
+    from car_napari.texture import _kernels
+
+    v = values[..., 0]
+    lo, hi = float(v.min()), float(v.max())
+    counts = np.zeros(4096, np.int64)
+    _kernels.block_histogram(values, 0, lo, hi, np.linspace(lo, hi, 4097), counts)
+    np.testing.assert_array_equal(counts, np.histogram(v, bins=4096, range=(lo, hi))[0])
+
+
+def _reference_fit_palette(image, k, seed=0):
+    """The palette fit before issue 34's speed-up (every centre's distances
+    recomputed each k-means++ round, np.add.at sums), kept as the reference."""
+    from car_napari.texture._palette import _COVER, _ITERATIONS, _SAMPLE, _nearest
+
+    rng = np.random.default_rng(seed)
+    pixels = image.reshape(-1, image.shape[-1])
+    n = len(pixels)
+    sample = pixels[np.sort(rng.choice(n, _SAMPLE, replace=False))] if n > _SAMPLE else pixels
+    centres = sample[[int(rng.integers(len(sample)))]]
+    for _ in range(k - 1):
+        _, d2 = _nearest(sample, centres)
+        total = d2.sum()
+        if total <= 0:
+            break
+        centres = np.vstack([centres, sample[rng.choice(len(sample), p=d2 / total)]])
+    for _ in range(_ITERATIONS):
+        index, _ = _nearest(sample, centres)
+        counts = np.bincount(index, minlength=len(centres))
+        sums = np.zeros_like(centres)
+        np.add.at(sums, index, sample)
+        filled = counts > 0
+        centres[filled] = sums[filled] / counts[filled, None]
+    index, d2 = _nearest(sample, centres)
+    radius = np.zeros(len(centres))
+    for c in range(len(centres)):
+        mine = d2[index == c]
+        if mine.size:
+            radius[c] = np.sqrt(np.quantile(mine, _COVER))
+    return centres, radius
+
+
+@pytest.mark.parametrize("k", [1, 5, 32])
+def test_palette_fit_equals_its_reference(k):
+    from car_napari.texture import _palette
+
+    image = skdata.astronaut()[100:300, 150:350] / 255.0
+    few = np.repeat(np.array([[0.1, 0.2, 0.3], [0.9, 0.8, 0.7]]), 50, axis=0).reshape(10, 10, 3)
+    for img in (image, few):  # (few: k-means++ stops early, fewer distinct colours)
+        got, want = _palette.fit_palette(img, k), _reference_fit_palette(img, k)
+        np.testing.assert_array_equal(got[0], want[0])
+        np.testing.assert_array_equal(got[1], want[1])
