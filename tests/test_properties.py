@@ -589,7 +589,8 @@ _ITER = ["iter_compensate_motion", "iter_detect_mammogram_rois", "iter_detect_sc
          "iter_estimate_motion", "iter_fit_btf", "iter_fit_car", "iter_fit_dynamic_texture",
          "iter_fit_texture", "iter_inpaint", "iter_local_features", "iter_local_parameters",
          "iter_rank", "iter_restore", "iter_restore_multichannel", "iter_segment",
-         "iter_segment_breast", "iter_select_support", "iter_synthesize"]
+         "iter_segment_breast", "iter_segment_tissue", "iter_select_support", "iter_synthesize",
+         "iter_analyse_mammogram"]
 # the frame functions write into `restored` (and return the frames done)
 _ITER_FRAMES = ["iter_descratch_frames", "iter_inpaint_frames", "iter_inpaint_large",
                 "iter_restore_frames", "iter_restore_tiled"]
@@ -613,7 +614,8 @@ def test_every_public_function_is_called():
     missing = set()
     results = {"BreastDetection", "BreastSegmentation", "MammogramROIs", "Mixture",
                "MultichannelRestoration", "Prediction", "Progress", "Ranking",
-               "RestorationResult", "SegmentationResult", "SupportSelection", "CARModel"}
+               "RestorationResult", "SegmentationResult", "SupportSelection", "CARModel",
+               "TissueResult", "MammogramAnalysis"}
     for name in modules:
         module = importlib.import_module(name)
         for attr in getattr(module, "__all__", []):
@@ -699,6 +701,8 @@ def test_iter_forms_drain_to_the_function(name, h, w, seed_):
         "restore_multichannel": ((clip,), {}),
         "segment": ((img,), dict(levels=1, n_segments=2, n_init=2)),
         "segment_breast": ((breast,), dict(levels=1, n_segments=3, n_init=3, work_side=96)),
+        "segment_tissue": ((breast,), dict(n_init=3, work_side=96, pool=(2, 3))),
+        "analyse_mammogram": ((breast,), dict(n_init=3, work_side=96, pool=(2, 3))),
         "select_support": ((img, [1, 2]), {}),
         "synthesize": ((model, (8, 8)), {"seed": 0}),
     }
@@ -707,8 +711,9 @@ def test_iter_forms_drain_to_the_function(name, h, w, seed_):
     direct = {"fit_btf": car.texture.BTFModel.fit,
               "fit_texture": car.texture.TextureModel.fit,
               "fit_dynamic_texture": car.texture.DynamicTextureModel.fit}.get(base) \
-        or getattr(car, base)
-    got, want = _drained_and_direct(lambda: getattr(car, name)(*positional, **options),
+        or getattr(car, base, None) or getattr(car.mammography, base)
+    job = getattr(car, name, None) or getattr(car.mammography, name)
+    got, want = _drained_and_direct(lambda: job(*positional, **options),
                                     lambda: direct(*positional, **options),
                                     positional, options)
     _same(got, want)
@@ -798,3 +803,31 @@ def test_every_public_job_is_checked_above():
                 methods |= {f"{attr}.{m}" for m in vars(obj) if m.startswith("iter_")}
     assert functions == set(_ITER + _ITER_FRAMES)
     assert methods == set(_ITER_METHODS)
+
+
+@seed(16)
+@settings(LIGHT, max_examples=2)
+@given(st.integers(0, 2**16))
+def test_tissue_density_is_the_masks_share_of_the_breast(seed_):
+    """segment_tissue: the mask inside the breast, the density its share in
+    percent, class probabilities summing to 1; analyse_mammogram gives the
+    same tissue and the ROIs of detect_mammogram_rois."""
+    from car_napari.mammography import (
+        analyse_mammogram,
+        detect_mammogram_rois,
+        segment_tissue,
+    )
+
+    rng = np.random.default_rng(seed_)
+    image = np.zeros((96, 96))
+    image[:, :60] = 0.5 + 0.05 * rng.random((96, 60))
+    image[30:50, 20:40] += 0.2 * rng.random((20, 20))
+    options = dict(n_init=3, work_side=96, pool=(2, 3))
+    tissue = segment_tissue(image, **options)
+    assert not (tissue.fibroglandular & ~tissue.breast).any()
+    assert tissue.density == pytest.approx(
+        100.0 * tissue.fibroglandular.sum() / tissue.breast.sum())
+    assert sum(tissue.probabilities.values()) == pytest.approx(1.0)
+    rois, again = analyse_mammogram(image, **options)
+    _same(again, tissue)
+    _same(rois, detect_mammogram_rois(image, **options))
