@@ -46,7 +46,15 @@ from .._validation import (
 from ..model.neighbourhood import as_offsets
 from ._features import iter_local_features, local_features, pseudo_colour
 from ._labelling import _iter_label, _renumber
-from ._mixture import _block_grid, _choose_k, _drop_weak, _iter_block_init, _iter_em, _merge_closest
+from ._mixture import (
+    _block_grid,
+    _choose_k,
+    _drop_weak,
+    _iter_block_init,
+    _iter_em,
+    _merge_closest,
+    _stops,
+)
 
 __all__ = ["SegmentationResult", "iter_segment", "segment"]
 
@@ -687,8 +695,7 @@ def _is_final(history, i, n_segments, merge_threshold, relative=0.0):
     labelled again); else the last state with at least ``n_segments``
     components."""
     if n_segments is None:
-        costs = [history[j].loglik - history[j + 1].loglik for j in range(i + 1)]
-        return costs[i] > max(merge_threshold, relative * max(costs))
+        return _stops(history[:i + 2], i, merge_threshold, relative)
     return history[i + 1].k < min(n_segments, history[0].k)
 
 
