@@ -38,6 +38,7 @@ from .._progress import Progress, drain, stage
 from .._validation import (
     as_channel_last_float,
     channel_last_shape,
+    check_channel_axis,
     check_forgetting,
     check_mask,
     check_not_constant,
@@ -392,9 +393,7 @@ def _check_options(image, features, mask, channel_axis, options):
                 f"feature_options has unknown or reserved keys {bad}; allowed: "
                 f"{sorted(known - set(_OWN_FEATURE_OPTIONS))} (levels, neighbourhood, "
                 "forgetting, channel_axis and seed are segment's own options).")
-    if channel_axis is not None and not isinstance(channel_axis, (int, np.integer)) \
-            or isinstance(channel_axis, (bool, np.bool_)):
-        raise TypeError(f"channel_axis must be an int or None; got {channel_axis!r}.")
+    check_channel_axis(channel_axis)
 
     # the shape: the features' if given, else the image's
     if features is not None:
