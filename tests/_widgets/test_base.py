@@ -285,7 +285,7 @@ def test_run_record_puts_everything_back(make_napari_viewer):
     record.put("a", np.full((4, 4), 9.0), None)
     record.put("a", np.full((4, 4), 8.0), None)  # backed up once: the original comes back
     record.put("new", np.zeros((4, 4)), lambda d, n: viewer.add_image(d, name=n))
-    record.replace("b", lambda n: viewer.add_labels(np.zeros((4, 4), int), name=n))
+    record.replace("b", np.zeros((4, 4), int), lambda d, n: viewer.add_labels(d, name=n))
     record.remove("c")
     assert [lay.name for lay in viewer.layers] == ["a", "new", "b"]
     record.undo()
@@ -379,7 +379,8 @@ class ShownInStepsWidget(JobWidget):
         try:
             for k in range(3):
                 self.at.append(self.turns)
-                self.record.add(lambda k=k: self._viewer.add_image(result, name=f"part {k}"))
+                self.record.add(f"part {k}", result,
+                                lambda d, n: self._viewer.add_image(d, name=n))
                 if k == 1 and self.fail:
                     raise ValueError("showing failed")
                 yield
