@@ -277,6 +277,8 @@ def test_segmentation_error_names_the_controls(docked):
 
 
 def test_run_record_puts_everything_back(make_napari_viewer):
+    # the real viewer: the test checks that the layer objects themselves come
+    # back (a proxy viewer wraps each layer it hands out anew)
     viewer = make_napari_viewer()
     a = viewer.add_image(np.zeros((4, 4)), name="a")
     viewer.add_image(np.ones((4, 4)), name="b")
@@ -306,8 +308,8 @@ def test_run_record_puts_everything_back(make_napari_viewer):
     assert a.data.all()
 
 
-def test_layer_array_crops_and_copies(make_napari_viewer):
-    viewer = make_napari_viewer()
+def test_layer_array_crops_and_copies(make_napari_viewer_proxy):
+    viewer = make_napari_viewer_proxy()
     rgba = np.random.default_rng(1).random((20, 30, 4))
     layer = viewer.add_image(rgba, rgb=True, name="rgba")
     box = viewer.add_shapes([[[2, 3], [2, 13], [9, 13], [9, 3]]], shape_type="rectangle")
