@@ -794,7 +794,7 @@ def _inpainting_calls():
         (lambda: estimate_motion(frame, frame, iterations=np.inf), ValueError, "iterations"),
         (lambda: fit_mask(mask, (10**6, 10**6)), ValueError, "shape"),
         (lambda: fit_mask(mask, 5), ValueError, "shape"),
-        (lambda: fit_mask(mask, (48, 48), channel_axis=np.nan), ValueError, "channel_axis"),
+        (lambda: fit_mask(mask, (48, 48), channel_axis=np.nan), TypeError, "channel_axis"),
         (lambda: detect_scratches(frame, kinds=3), TypeError, "kinds"),
         (lambda: detect_scratches(frame, blotch_threshold=[1]), TypeError, "blotch_threshold"),
         (lambda: inpaint(frame, mask, forgetting=None), TypeError, "forgetting"),

@@ -41,7 +41,7 @@ def test_the_global_noise_is_the_exact_median(camera):
     kernel = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], float)
     response = np.abs(ndimage.convolve(camera, kernel))[1:-1, 1:-1]
     expected = np.median(response) / (6 * 0.6745)
-    summary, noise = drain(_iter_statistics(camera, None, True, 48, (0.0, 1.0)))
+    summary, noise = drain(_iter_statistics(camera, True, 48, (0.0, 1.0)))
     assert noise[0] == pytest.approx(expected, rel=1e-12)
     assert noise[0] == pytest.approx(estimate_noise(camera)[0], rel=1e-12)
     assert summary.mean[0] == pytest.approx(camera.mean(), rel=1e-12)
@@ -119,7 +119,7 @@ def test_the_halo_is_enough_and_one_block_less_is_not(camera):
 
     halo = tile_halo(48, 1)
     assert halo == 48  # blocks of 16: two blocks and the reach, rounded up
-    summary, noise = drain(_iter_statistics(camera, None, True, 64, (0.0, 1.0)))
+    summary, noise = drain(_iter_statistics(camera, True, 64, (0.0, 1.0)))
     options = dict(mean=summary.mean, var=summary.var, noise=noise, offsets=as_offsets(1)[0],
                    directions=CORNERS, window=48, keep_edges=True, kappa=0.0)
     full = restore(camera)

@@ -262,7 +262,8 @@ class RunRecord:
             Its new data.
         add : callable
             ``add(data, name)`` creates the layer (with its display options)
-            when there is none of that name.
+            when there is none of that name (the one shape of every
+            method's ``add``).
 
         Returns
         -------
@@ -278,17 +279,19 @@ class RunRecord:
                 self._undo.append(lambda: setattr(layer, "data", old))
             layer.data = data
             return layer
-        return self.add(lambda: add(data, name))  # created: removing it undoes all
+        return self.add(name, data, add)  # created: removing it undoes all
 
-    def replace(self, name, add):
+    def replace(self, name, data, add):
         """Remove layer ``name`` if there is one, then create it anew.
 
         Parameters
         ----------
         name : str
             The layer's name.
+        data : array
+            Its data.
         add : callable
-            ``add(name)`` creates the new layer.
+            ``add(data, name)`` creates the new layer.
 
         Returns
         -------
@@ -296,22 +299,26 @@ class RunRecord:
             The new layer.
         """
         self.remove(name)
-        return self.add(lambda: add(name))
+        return self.add(name, data, add)
 
-    def add(self, add):
-        """Create a layer with ``add()``; undo removes it.
+    def add(self, name, data, add):
+        """Create a layer with ``add(data, name)``; undo removes it.
 
         Parameters
         ----------
+        name : str
+            The layer's name (napari renames a duplicate name).
+        data : array
+            Its data.
         add : callable
-            ``add()`` creates the layer (napari renames a duplicate name).
+            ``add(data, name)`` creates the layer.
 
         Returns
         -------
         napari.layers.Layer
             The new layer.
         """
-        layer = add()
+        layer = add(data, name)
         self._saved[id(layer)] = layer
         self._undo.append(lambda: self._drop(layer))
         return layer

@@ -128,9 +128,9 @@ class CARModelWidget(ModelWidget):
         # beside the fitted layer, not over it (while it is in the viewer)
         source = self._source_layer if self._source_layer in self._viewer.layers else None
         place = beside(source, sample.ndim - rgb)
-        self.record.add(lambda: self._viewer.add_image(sample, name=f"{self._source} CAR sample",
-                                                       rgb=rgb, contrast_limits=self._range,
-                                                       **place))
+        self.record.add(f"{self._source} CAR sample", sample,
+                        lambda data, name: self._viewer.add_image(
+                            data, name=name, rgb=rgb, contrast_limits=self._range, **place))
         # The layer is made (napari's cost, whatever the size); its first paint (the
         # texture upload, growing with the size) comes on the next turn, not in this one.
         yield

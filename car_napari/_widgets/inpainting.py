@@ -197,20 +197,20 @@ class InpaintingWidget(JobWidget):
         if name in layers and layers[name].data.shape == shape:
             mask = layers[name]
         else:
-            def add(name):
-                # a lazy clip's mask on disk (zarr, a chunk a frame): not the clip's size in memory
-                empty = (lazy_output(shape, np.uint8, name="mask") if _lazy(layer.data)
-                         and len(shape) == 3 else np.zeros(shape, np.uint8))
+            def add(data, name):
                 return self._viewer.add_labels(
-                    empty, name=name, opacity=0.6,
+                    data, name=name, opacity=0.6,
                     scale=layer.scale[-len(shape):], translate=layer.translate[-len(shape):])
 
+            # a lazy clip's mask on disk (zarr, a chunk a frame): not the clip's size in memory
+            empty = (lazy_output(shape, np.uint8, name="mask") if _lazy(layer.data)
+                     and len(shape) == 3 else np.zeros(shape, np.uint8))
             if record is not None:
-                mask = record.replace(name, add)
+                mask = record.replace(name, empty, add)
             else:
                 if name in layers:
                     layers.remove(name)
-                mask = add(name)
+                mask = add(empty, name)
         mask.brush_size = BRUSH_SIZE
         mask.selected_label = 1
         layers.selection.active = mask

@@ -208,9 +208,11 @@ class MammogramWidget(JobWidget):
         if tissue is None:
             return
         mask = tissue.fibroglandular.astype(np.uint8)
-        self.record.replace(self._tissue_name(), lambda layer_name: self._viewer.add_labels(
-            mask, name=layer_name, opacity=0.35, visible=bool(self._overlay.value),
-            **geometry))
+        self.record.replace(
+            self._tissue_name(), mask,
+            lambda data, layer_name: self._viewer.add_labels(
+                data, name=layer_name, opacity=0.35, visible=bool(self._overlay.value),
+                **geometry))
         yield
         values = (tissue.density, tissue.tissue_class,
                   *(tissue.probabilities[c] for c in TISSUE_CLASSES))
@@ -261,15 +263,15 @@ class MammogramWidget(JobWidget):
         if ours(labels_name, Labels):
             self.record.put(labels_name, cut_labels, add_labels)
         else:
-            self.record.replace(labels_name, lambda layer_name: add_labels(cut_labels, layer_name))
+            self.record.replace(labels_name, cut_labels, add_labels)
         yield
         if ours(outlines_name, Shapes):  # in place: emptied when no region is marked
             _set_outlines(layers[outlines_name], outlines[:m], cut)
         elif m:
             self.record.replace(
-                outlines_name,
-                lambda layer_name: self._viewer.add_shapes(
-                    outlines[:m], shape_type="path", name=layer_name, features=cut,
+                outlines_name, outlines[:m],
+                lambda data, layer_name: self._viewer.add_shapes(
+                    data, shape_type="path", name=layer_name, features=cut,
                     text=OUTLINE_TEXT, **OUTLINE_STYLE, **geometry),
             )
         else:

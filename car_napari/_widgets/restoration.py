@@ -422,8 +422,9 @@ class RestorationWidget(JobWidget):
                 name, restored, lambda data, n: self._add_restored(data, n, scale=(f, f)))
             self._preview_owned = True
         else:  # an older result's layer stays as it is until the result: one of its own
-            self._preview_layer = self.record.add(lambda: self._add_restored(
-                restored, f"{name} (preview)", scale=(f, f)))
+            self._preview_layer = self.record.add(
+                f"{name} (preview)", restored,
+                lambda data, n: self._add_restored(data, n, scale=(f, f)))
             self._preview_owned = False
         self.updates += 1
 

@@ -221,8 +221,8 @@ class TextureSynthesisWidget(ModelWidget):
             # beside the fitted layer, not over it (while it is in the viewer)
             source = self._source_layer if self._source_layer in self._viewer.layers else None
             place = beside(source, synthesis.ndim - rgb)
-            self.record.replace(name, lambda name: self._viewer.add_image(
-                synthesis, name=name, rgb=rgb, contrast_limits=limits, **place))
+            self.record.replace(name, synthesis, lambda data, name: self._viewer.add_image(
+                data, name=name, rgb=rgb, contrast_limits=limits, **place))
         # the layer made or updated in this turn, its first paint (the texture
         # upload, growing with the size) on the next one
         yield

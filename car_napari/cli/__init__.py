@@ -21,7 +21,9 @@ from . import (
     _segment,
     _synthesize,
 )
-from ._common import INPUT_ERRORS, BatchFailed, expand_inputs, quiet_mode
+from ._batch import INPUT_ERRORS, BatchFailed
+from ._console import quiet_mode
+from ._files import expand_inputs
 
 __all__ = ["build_parser", "expand_inputs", "main"]
 

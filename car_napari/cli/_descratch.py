@@ -13,16 +13,9 @@ from .._frames import DEFAULT_BLOCK
 from .._progress import drain
 from ..inpainting import iter_descratch_frames
 from ..io.images import IMAGE_SUFFIXES, read_image, write_image
-from ._common import (
-    ProgressBar,
-    add_output,
-    add_quiet,
-    names_a_folder,
-    output_folder,
-    positive_int,
-    print_note,
-    say,
-)
+from ._arguments import add_output, add_quiet, positive_int
+from ._console import ProgressBar, print_note, say
+from ._files import names_a_folder, output_folder
 
 
 def add_parser(sub):

@@ -6,7 +6,9 @@ import json
 import sys
 
 from ..io.images import read_image
-from ._common import add_order, channel_axis, one_image, print_note
+from ._arguments import add_order
+from ._console import print_note
+from ._files import channel_axis, one_image
 
 
 def add_parser(sub):

@@ -7,21 +7,10 @@ import time
 from pathlib import Path
 
 from ..io.images import read_image
-from ._common import (
-    add_cluster,
-    add_order,
-    add_output,
-    add_quiet,
-    channel_axis,
-    expand_inputs,
-    one_image,
-    output_file,
-    output_folder,
-    positive_int,
-    print_note,
-    run_batch,
-    say,
-)
+from ._arguments import add_cluster, add_order, add_output, add_quiet, positive_int
+from ._batch import run_batch
+from ._console import print_note, say
+from ._files import channel_axis, expand_inputs, one_image, output_file, output_folder
 
 
 def add_parser(sub):

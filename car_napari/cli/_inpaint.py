@@ -14,21 +14,16 @@ import numpy as np
 from ..inpainting import MOSTLY_MASKED, fit_mask
 from ..io.arrays import is_large_path
 from ..io.images import IMAGE_SUFFIXES, check_format, read_image, write_image
-from ._common import (
-    add_cluster,
-    add_output,
-    add_quiet,
+from ._arguments import add_cluster, add_output, add_quiet, positive_int
+from ._batch import run_batch, run_large_job
+from ._console import print_note, say
+from ._files import (
     channel_axis,
     expand_inputs,
     image_suffix,
     one_image,
     output_file,
     output_folder,
-    positive_int,
-    print_note,
-    run_batch,
-    run_large_job,
-    say,
 )
 
 

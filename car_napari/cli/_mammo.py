@@ -10,21 +10,16 @@ import numpy as np
 
 from .._progress import drain
 from ..io.images import read_image, write_image
-from ._common import (
+from ._arguments import add_cluster, add_inputs, add_quiet, non_negative_float, non_negative_int
+from ._batch import run_batch
+from ._console import print_note, say
+from ._files import (
     LABEL_SUFFIXES,
-    add_cluster,
-    add_inputs,
-    add_quiet,
     channel_axis,
     expand_inputs,
-    non_negative_float,
-    non_negative_int,
     one_image,
     output_file,
     output_folder,
-    print_note,
-    run_batch,
-    say,
     write_labels,
 )
 

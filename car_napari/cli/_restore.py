@@ -9,24 +9,19 @@ import time
 import numpy as np
 
 from .._progress import drain
+from .._validation import from_unit, unit_dtype
 from ..io.arrays import is_large_path
 from ..io.images import check_format, read_image, write_image
-from ._common import (
-    add_cluster,
-    add_inputs,
-    add_quiet,
+from ._arguments import add_cluster, add_inputs, add_quiet, positive_int
+from ._batch import run_batch, run_large_job
+from ._console import print_note
+from ._files import (
     channel_axis,
     expand_inputs,
-    from_unit,
     image_suffix,
     one_image,
     output_file,
     output_folder,
-    positive_int,
-    print_note,
-    run_batch,
-    run_large_job,
-    unit_dtype,
 )
 
 

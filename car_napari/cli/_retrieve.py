@@ -11,15 +11,10 @@ from pathlib import Path
 import numpy as np
 
 from ..io.images import DICOM_SUFFIXES, IMAGE_SUFFIXES, is_colour, read_image
-from ._common import (
-    BatchFailed,
-    add_cluster,
-    channel_axis,
-    one_image,
-    positive_int,
-    print_note,
-    run_batch,
-)
+from ._arguments import add_cluster, positive_int
+from ._batch import BatchFailed, run_batch
+from ._console import print_note
+from ._files import channel_axis, one_image
 
 
 def add_parser(sub):

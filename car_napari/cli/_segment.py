@@ -7,19 +7,16 @@ import time
 
 from .._progress import drain
 from ..io.images import read_image
-from ._common import (
+from ._arguments import add_cluster, add_inputs, add_quiet, positive_int
+from ._batch import run_batch
+from ._console import print_note
+from ._files import (
     LABEL_SUFFIXES,
-    add_cluster,
-    add_inputs,
-    add_quiet,
     channel_axis,
     expand_inputs,
     one_image,
     output_file,
     output_folder,
-    positive_int,
-    print_note,
-    run_batch,
     write_labels,
 )
 

@@ -7,16 +7,10 @@ from pathlib import Path
 
 import numpy as np
 
+from .._validation import from_unit
 from ..io.images import write_image
-from ._common import (
-    add_order,
-    add_output,
-    add_quiet,
-    from_unit,
-    non_negative_int,
-    positive_int,
-    say,
-)
+from ._arguments import add_order, add_output, add_quiet, non_negative_int, positive_int
+from ._console import say
 from ._fit_texture import texture_model
 
 

@@ -19,10 +19,10 @@ from typing import NamedTuple
 import numpy as np
 
 from .._validation import (
+    check_axis,
     check_channel_axis,
     check_mask,
     check_memory,
-    check_real,
     check_shape,
 )
 
@@ -92,15 +92,7 @@ def read_layout(arr, channel_axis):
 
 
 def _normalised_axis(channel_axis, ndim):
-    if isinstance(channel_axis, (bool, np.bool_)) or not isinstance(
-        channel_axis, (int, np.integer)
-    ):
-        raise TypeError(f"channel_axis must be an int or None; got {channel_axis!r}.")
-    if not -ndim <= channel_axis < ndim:
-        raise ValueError(
-            f"channel_axis {channel_axis} is out of range for a {ndim}-D image; pass an axis "
-            f"from {-ndim} to {ndim - 1}, or None for grey.")
-    return int(channel_axis) % ndim
+    return check_axis(channel_axis, ndim, "channel_axis") % ndim
 
 
 def fit_mask(mask, shape, *, channel_axis=None, invert=False):
@@ -139,7 +131,8 @@ def fit_mask(mask, shape, *, channel_axis=None, invert=False):
     Raises
     ------
     TypeError
-        If the mask is not boolean or numeric, or ``invert`` not a bool.
+        If the mask is not boolean or numeric, ``invert`` not a bool, or
+        ``channel_axis`` not None or an integer.
     ValueError
         If ``shape`` is not ``(H, W)`` or ``(T, H, W)`` of positive sizes,
         the mask is empty or has another number of axes, or a mask per
@@ -166,8 +159,7 @@ def fit_mask(mask, shape, *, channel_axis=None, invert=False):
         raise ValueError(f"shape must be a frame (H, W) or a clip (T, H, W) of positive "
                          f"sizes; got {shape!r}.") from None
     check_memory(math.prod(shape), "shape")
-    if channel_axis is not None:
-        check_real(channel_axis, "channel_axis", integer=True)
+    check_channel_axis(channel_axis)
     if not isinstance(invert, (bool, np.bool_)):
         raise TypeError(f"invert must be True or False; got {invert!r}.")
     m = check_mask(mask, "mask", meaning="True (non-zero) where pixels are damaged")

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._docstrings import shared_parameters
 from .._progress import drain
 from .._validation import (
     as_channel_last_float,
@@ -24,6 +25,33 @@ from .statistics import data_statistics
 __all__ = ["adaptive_scanner", "adaptive_start", "iter_local_parameters", "local_parameters"]
 
 
+_PARAMETERS = """
+image : (H, W) or (H, W, C) array
+    Grey or multichannel image; any dtype (integers are scaled to [0, 1]).
+neighbourhood : int or (eta, 2) array of int, optional
+    Order of the hierarchical causal neighbourhood, or explicit offsets.
+forgetting : float in [0.5, 1], optional
+    Exponential forgetting factor ``phi``; the effective window is about
+    ``1 / (1 - phi**2)`` pixels along the scan. 1 means no forgetting;
+    below 0.5 (a window of about one pixel) is refused.
+direction : {'down', 'up', 'right', 'left'}, optional
+    Where the scan moves: 'down' is the raster (rows top to bottom, each
+    left to right), 'up' bottom to top, 'right' columns left to right,
+    'left' columns right to left. Offsets are relative to the scan.
+channel_axis : int or None, optional
+    Axis of the channels; None for a grey image.
+prior : float, optional
+    Strength of the prior ``V_0 = prior * var(image) * I`` relative to one
+    pixel's data; also the floor the statistics never fall below.
+warm_start : bool, optional
+    Start the scan from the whole image's statistics weighted as one
+    forgetting window (``1 / (1 - phi**2)`` pixels) instead of the bare
+    prior: the first pixels of the scan then get the global model, not a
+    transient fitted to a handful of pixels. Ignored when ``forgetting=1``.
+"""
+
+
+@shared_parameters(_PARAMETERS)
 def local_parameters(
     image,
     neighbourhood=2,
@@ -43,28 +71,7 @@ def local_parameters(
 
     Parameters
     ----------
-    image : (H, W) or (H, W, C) array
-        Grey or multichannel image; any dtype (integers are scaled to [0, 1]).
-    neighbourhood : int or (eta, 2) array of int, optional
-        Order of the hierarchical causal neighbourhood, or explicit offsets.
-    forgetting : float in [0.5, 1], optional
-        Exponential forgetting factor ``phi``; the effective window is about
-        ``1 / (1 - phi**2)`` pixels along the scan. 1 means no forgetting;
-        below 0.5 (a window of about one pixel) is refused.
-    direction : {'down', 'up', 'right', 'left'}, optional
-        Where the scan moves: 'down' is the raster (rows top to bottom, each
-        left to right), 'up' bottom to top, 'right' columns left to right,
-        'left' columns right to left. Offsets are relative to the scan.
-    channel_axis : int or None, optional
-        Axis of the channels; None for a grey image.
-    prior : float, optional
-        Strength of the prior ``V_0 = prior * var(image) * I`` relative to one
-        pixel's data; also the floor the statistics never fall below.
-    warm_start : bool, optional
-        Start the scan from the whole image's statistics weighted as one
-        forgetting window (``1 / (1 - phi**2)`` pixels) instead of the bare
-        prior: the first pixels of the scan then get the global model, not a
-        transient fitted to a handful of pixels. Ignored when ``forgetting=1``.
+    {parameters}
 
     Returns
     -------
@@ -101,6 +108,7 @@ def local_parameters(
         channel_axis=channel_axis, prior=prior, warm_start=warm_start))
 
 
+@shared_parameters(_PARAMETERS)
 def iter_local_parameters(
     image,
     neighbourhood=2,
@@ -121,21 +129,7 @@ def iter_local_parameters(
 
     Parameters
     ----------
-    image : (H, W) or (H, W, C) array
-        Grey or multichannel image; any dtype (integers are scaled to [0, 1]).
-    neighbourhood : int or (eta, 2) array of int, optional
-        Order of the hierarchical causal neighbourhood, or explicit offsets.
-    forgetting : float in [0.5, 1], optional
-        Exponential forgetting factor ``phi``.
-    direction : {'down', 'up', 'right', 'left'}, optional
-        Where the scan moves.
-    channel_axis : int or None, optional
-        Axis of the channels; None for a grey image.
-    prior : float, optional
-        Strength of the prior relative to one pixel's data.
-    warm_start : bool, optional
-        Start the scan from the whole image's statistics (see
-        :func:`local_parameters`).
+    {parameters}
     chunk_rows : int, optional
         Scan rows per chunk (default: about 0.1-0.25 s of work).
 

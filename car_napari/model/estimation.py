@@ -134,7 +134,7 @@ def _candidate_label(key, k, n):
     return f"order {key}" if isinstance(key, int) else f"candidate {k}/{n}"
 
 
-def _iter_scores(centred, candidates, direction, channel_var):
+def _iter_scores(centred, candidates, direction):
     """Score every candidate on the same pixels (the first condition of the
     decision rule (14.6), docs/model.md): Progress records, then the scores."""
     d = centred.shape[2]
@@ -276,9 +276,9 @@ def iter_select_support(image, orders=range(1, 6), *, channel_axis=-1, direction
     d = _channels(image, channel_axis)
     prep = _prepare_cost(d)
     split = prep / (prep + _scores_cost(candidates, d))
-    centred, _, var = yield from stage(_iter_prepare(image, channel_axis), 0.0, split,
+    centred, _, _ = yield from stage(_iter_prepare(image, channel_axis), 0.0, split,
                                        name="support")
-    scores = yield from stage(_iter_scores(centred, candidates, direction, var), split, 1.0)
+    scores = yield from stage(_iter_scores(centred, candidates, direction), split, 1.0)
     best = max(scores, key=scores.get)
     return SupportSelection(best, scores)
 
@@ -514,7 +514,7 @@ def _iter_fit_centred(centred, mean, channel_var, neighbourhood, orders, directi
             )
         candidates = _candidate_offsets(orders)
         split = _support_share(candidates, d)
-        scores = yield from stage(_iter_scores(centred, candidates, direction, channel_var),
+        scores = yield from stage(_iter_scores(centred, candidates, direction),
                                   0.0, split)
         best = max(scores, key=scores.get)
         offsets = dict(candidates)[best]

@@ -9,6 +9,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .._docstrings import shared_parameters
 from .._progress import Progress
 from ._kernels import finish_factor, recursive_scan
 from .directions import DIRECTIONS, scan_shape, scan_view, unscan_view
@@ -510,6 +511,49 @@ class RecursiveScan:
 _EMPTY = np.empty(0)
 
 
+_SCAN_PARAMETERS = """
+data : (H, W, C) ndarray of float64
+    C-contiguous, already centred; modified in place only where
+    ``missing`` asks for fills.
+context : Context
+    What goes into ``X_r`` and ``Y_r``; ``C >= context.n_channels``.
+direction : {'down', 'up', 'right', 'left'}, optional
+    The scan direction.
+forgetting : float in (0, 1], optional
+    The forgetting factor ``phi``.
+intercept : bool, optional
+    Add a constant regressor.
+prior : (n,) array_like, optional
+    Diagonal of ``V_0`` (``n = m + intercept + d``); required unless
+    ``initial`` is given.
+initial : tuple, optional
+    ``(U0, beta0)`` to start from given statistics instead of the prior:
+    ``U0`` the upper Cholesky factor of the augmented ``V = U0^T U0`` of
+    ``[X; (1); Y]`` (prior included). ``prior``, if also given, is still
+    the floor that forgetting re-injects.
+update : bool, optional
+    False predicts with fixed statistics.
+outputs : subset of {'gamma', 'mean', 'logp', 'q', 'maha', 'logrel'}, optional
+    The per-pixel arrays to return (``logrel``: log predictive density
+    relative to its peak, <= 0).
+missing : (H, W) array of bool or uint8, optional
+    Pixels to fill in place in ``data`` (its target channels) with the
+    conditional mean as the scan reaches them (section 14.7,
+    docs/inpainting.md); they and pixels whose neighbourhood holds one do
+    not update the statistics.
+fill_range : tuple of 2 arrays of d values, optional
+    ``(lo, hi)`` bounds for the filled values (default: unbounded).
+suspect_logrel : float <= 0, optional
+    ``missing`` may also be a uint8 array holding 2 at suspect known
+    pixels (the edge of the damage): one the model finds improbable when
+    the scan reaches it (log predictive density relative to its peak, as
+    the ``logrel`` output, below this) is filled too. Such a ``missing``
+    is modified in place (1 where filled, 0 where kept).
+
+"""
+
+
+@shared_parameters(_SCAN_PARAMETERS)
 def iter_scan(
     data,
     context,
@@ -535,31 +579,7 @@ def iter_scan(
 
     Parameters
     ----------
-    data : (H, W, C) ndarray of float64
-        C-contiguous, already centred; modified in place only where
-        ``missing`` asks for fills.
-    context : Context
-        What goes into ``X_r`` and ``Y_r``.
-    direction : {'down', 'up', 'right', 'left'}, optional
-        The scan direction.
-    forgetting : float in (0, 1], optional
-        The forgetting factor ``phi``.
-    intercept : bool, optional
-        Add a constant regressor.
-    prior : (n,) array_like, optional
-        Diagonal of ``V_0``.
-    initial : tuple, optional
-        ``(U0, beta0)`` start statistics.
-    update : bool, optional
-        False predicts with fixed statistics.
-    outputs : subset of {'gamma', 'mean', 'logp', 'q', 'maha', 'logrel'}, optional
-        The per-pixel arrays to return.
-    missing : (H, W) array of bool or uint8, optional
-        Pixels to fill in place.
-    fill_range : tuple of 2 arrays of d values, optional
-        Bounds of the filled values.
-    suspect_logrel : float <= 0, optional
-        Outlier threshold of suspect pixels.
+    {parameters}
     chunk_rows : int, optional
         Scan rows per chunk (default: about 0.1-0.25 s of work).
 
@@ -617,6 +637,7 @@ def iter_scan(
     return (yield from scanner.iter_run(chunk_rows))
 
 
+@shared_parameters(_SCAN_PARAMETERS)
 def scan(
     data,
     context,
@@ -640,44 +661,7 @@ def scan(
 
     Parameters
     ----------
-    data : (H, W, C) ndarray of float64
-        C-contiguous, already centred; modified in place only where
-        ``missing`` asks for fills.
-    context : Context
-        What goes into ``X_r`` and ``Y_r``; ``C >= context.n_channels``.
-    direction : {'down', 'up', 'right', 'left'}, optional
-        The scan direction.
-    forgetting : float in (0, 1], optional
-        The forgetting factor ``phi``.
-    intercept : bool, optional
-        Add a constant regressor.
-    prior : (n,) array_like, optional
-        Diagonal of ``V_0`` (``n = m + intercept + d``); required unless
-        ``initial`` is given.
-    initial : tuple, optional
-        ``(U0, beta0)`` to start from given statistics instead of the prior:
-        ``U0`` the upper Cholesky factor of the augmented ``V = U0^T U0`` of
-        ``[X; (1); Y]`` (prior included). ``prior``, if also given, is still
-        the floor that forgetting re-injects.
-    update : bool, optional
-        False predicts with fixed statistics.
-    outputs : subset of {'gamma', 'mean', 'logp', 'q', 'maha', 'logrel'}, optional
-        The per-pixel arrays to return (``logrel``: log predictive density
-        relative to its peak, <= 0).
-    missing : (H, W) array of bool or uint8, optional
-        Pixels to fill in place in ``data`` (its target channels) with the
-        conditional mean as the scan reaches them (section 14.7,
-        docs/inpainting.md); they and pixels whose neighbourhood holds one do
-        not update the statistics.
-    fill_range : tuple of 2 arrays of d values, optional
-        ``(lo, hi)`` bounds for the filled values (default: unbounded).
-    suspect_logrel : float <= 0, optional
-        ``missing`` may also be a uint8 array holding 2 at suspect known
-        pixels (the edge of the damage): one the model finds improbable when
-        the scan reaches it (log predictive density relative to its peak, as
-        the ``logrel`` output, below this) is filled too. Such a ``missing``
-        is modified in place (1 where filled, 0 where kept).
-
+    {parameters}
     Returns
     -------
     ScanResult

@@ -191,7 +191,7 @@ def _check_out(out, shape):
                          f"{tuple(shape)}.")
 
 
-def _channel_last(part, channel_axis):
+def _channel_last(part):
     return as_channel_last_float(part, channel_axis=None if part.ndim == 2 else -1)
 
 
@@ -233,7 +233,7 @@ def _add_counts(keys, counts, bins):
     return merged, total
 
 
-def _iter_statistics(image, channel_axis, want_noise, tile, span):
+def _iter_statistics(image, want_noise, tile, span):
     """The global quantities: (Summary, noise or None), in two passes over
     the tiles, Progress records after each tile.
 
@@ -253,7 +253,7 @@ def _iter_statistics(image, channel_axis, want_noise, tile, span):
     empty = np.zeros(0, np.int64)
     hist = [(empty, empty)] * C  # per channel: sorted bins, their counts
     for k, t in enumerate(tiles, start=1):
-        data = _channel_last(read_tile(image, t), channel_axis)
+        data = _channel_last(read_tile(image, t))
         summary.first(data[t.inner].reshape(-1, C))
         if want_noise:
             r = _responses(data, t, H, W)
@@ -273,7 +273,7 @@ def _iter_statistics(image, channel_axis, want_noise, tile, span):
         first.append(int(upto[i] - counts[i]))  # rank of the first value kept
     picked = [[] for _ in range(C)]
     for k, t in enumerate(tiles, start=1):
-        data = _channel_last(read_tile(image, t), channel_axis)
+        data = _channel_last(read_tile(image, t))
         summary.second(data[t.inner].reshape(-1, C))
         if median:
             r = _responses(data, t, H, W)
@@ -299,7 +299,7 @@ def _restore_part(part, *, mean, var, noise, offsets, directions, window, keep_e
     global mean, variance and noise: what :func:`restore` computes there
     (:func:`~car_napari.restoration._single.iter_restoration`, windowed
     branch), in the part's layout."""
-    data = _channel_last(part, None)
+    data = _channel_last(part)
     H, W, C = data.shape
     probability = kappa > 0
     span = spans(dict(WINDOWED_WORK))
@@ -378,7 +378,7 @@ def iter_restore_tiled(image, *, out=None, tile=DEFAULT_TILE, neighbourhood=1,
     H, W = image.shape[:2]
     yield Progress("start", 0.0, f"{H} x {W} image by tiles")
     lazy = out is None and is_lazy(image) and type(image).__module__.startswith("dask.")
-    summary, estimated = yield from _iter_statistics(image, channel_axis, noise is None, tile,
+    summary, estimated = yield from _iter_statistics(image, noise is None, tile,
                                                      (0.0, 1.0 if lazy else 0.3))
     noise = estimated if noise is None else noise
     function = _TilePart(mean=summary.mean, var=summary.var, noise=noise, offsets=offsets,

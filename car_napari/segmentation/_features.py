@@ -106,15 +106,22 @@ class _Work:
             return None
 
 
+_PSEUDO_COLOUR_PARAMETERS = """
+grey : (H, W) array_like
+    Grey image, any numeric dtype; it is scaled to [0, 1] by its own
+    minimum and maximum (a constant image becomes zeros).
+gammas : sequence of float, optional
+    The gamma exponents of the channels after the first.
+"""
+
+
+@shared_parameters(_PSEUDO_COLOUR_PARAMETERS)
 def iter_pseudo_colour(grey, gammas=(0.5, 2.0)):
     """:func:`pseudo_colour` as a job: Progress per block of rows, then the image.
 
     Parameters
     ----------
-    grey : (H, W) array_like
-        Grey image, any numeric dtype.
-    gammas : sequence of float, optional
-        The gamma exponents of the channels after the first.
+    {parameters}
 
     Returns
     -------
@@ -161,6 +168,7 @@ def iter_pseudo_colour(grey, gammas=(0.5, 2.0)):
     return out
 
 
+@shared_parameters(_PSEUDO_COLOUR_PARAMETERS)
 def pseudo_colour(grey, gammas=(0.5, 2.0)):
     """Pseudo-colour ``[Y, Y^g1, Y^g2]`` of a grey image scaled to [0, 1].
 
@@ -169,11 +177,7 @@ def pseudo_colour(grey, gammas=(0.5, 2.0)):
 
     Parameters
     ----------
-    grey : (H, W) array_like
-        Grey image, any numeric dtype; it is scaled to [0, 1] by its own
-        minimum and maximum (a constant image becomes zeros).
-    gammas : sequence of float, optional
-        The gamma exponents of the channels after the first.
+    {parameters}
 
     Returns
     -------

@@ -307,7 +307,15 @@ def _choose_k(history, threshold, relative=0.0):
     >>> _choose_k(history, 1.0), _choose_k(history, 1.0, relative=0.3)
     (4, 2)
     """
+    return next((history[i].k for i in range(len(history) - 1)
+                 if _stops(history, i, threshold, relative)), history[-1].k)
+
+
+def _stops(history, i, threshold, relative=0.0):
+    """The stop rule of the KL merging, in this one place: whether the merge
+    from state ``i`` to state ``i + 1`` of ``history`` costs more than
+    ``threshold`` nats of mean log-likelihood per pixel and more than
+    ``relative`` times the costliest merge of ``history`` (the states known
+    so far, for :func:`~car_napari.segmentation._segment._is_final`)."""
     costs = [prev.loglik - nxt.loglik for prev, nxt in pairwise(history)]
-    limit = max(threshold, relative * max(costs, default=0.0))
-    return next((history[i].k for i, cost in enumerate(costs) if cost > limit),
-                history[-1].k)
+    return costs[i] > max(threshold, relative * max(costs))

@@ -38,6 +38,7 @@ from .._progress import Progress, drain, stage
 from .._validation import (
     as_channel_last_float,
     channel_last_shape,
+    check_channel_axis,
     check_forgetting,
     check_mask,
     check_not_constant,
@@ -46,7 +47,15 @@ from .._validation import (
 from ..model.neighbourhood import as_offsets
 from ._features import iter_local_features, local_features, pseudo_colour
 from ._labelling import _iter_label, _renumber
-from ._mixture import _block_grid, _choose_k, _drop_weak, _iter_block_init, _iter_em, _merge_closest
+from ._mixture import (
+    _block_grid,
+    _choose_k,
+    _drop_weak,
+    _iter_block_init,
+    _iter_em,
+    _merge_closest,
+    _stops,
+)
 
 __all__ = ["SegmentationResult", "iter_segment", "segment"]
 
@@ -384,9 +393,7 @@ def _check_options(image, features, mask, channel_axis, options):
                 f"feature_options has unknown or reserved keys {bad}; allowed: "
                 f"{sorted(known - set(_OWN_FEATURE_OPTIONS))} (levels, neighbourhood, "
                 "forgetting, channel_axis and seed are segment's own options).")
-    if channel_axis is not None and not isinstance(channel_axis, (int, np.integer)) \
-            or isinstance(channel_axis, (bool, np.bool_)):
-        raise TypeError(f"channel_axis must be an int or None; got {channel_axis!r}.")
+    check_channel_axis(channel_axis)
 
     # the shape: the features' if given, else the image's
     if features is not None:
@@ -687,8 +694,7 @@ def _is_final(history, i, n_segments, merge_threshold, relative=0.0):
     labelled again); else the last state with at least ``n_segments``
     components."""
     if n_segments is None:
-        costs = [history[j].loglik - history[j + 1].loglik for j in range(i + 1)]
-        return costs[i] > max(merge_threshold, relative * max(costs))
+        return _stops(history[:i + 2], i, merge_threshold, relative)
     return history[i + 1].k < min(n_segments, history[0].k)
 
 

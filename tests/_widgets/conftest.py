@@ -5,11 +5,13 @@ import pytest
 
 
 @pytest.fixture
-def docked(make_napari_viewer):
-    """Factory: a real viewer with ``widget_class`` docked; returns both."""
+def docked(make_napari_viewer_proxy):
+    """Factory: a viewer (its public side, as napari gives a plugin's dock
+    widget) with ``widget_class`` docked; returns both. The proxy wraps each
+    layer it hands out anew: compare layers with ``==``, not ``is``."""
 
     def make(widget_class, name):
-        viewer = make_napari_viewer()
+        viewer = make_napari_viewer_proxy()
         widget = widget_class(viewer)
         viewer.window.add_dock_widget(widget, name=name)
         return viewer, widget

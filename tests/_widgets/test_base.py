@@ -277,6 +277,8 @@ def test_segmentation_error_names_the_controls(docked):
 
 
 def test_run_record_puts_everything_back(make_napari_viewer):
+    # the real viewer: the test checks that the layer objects themselves come
+    # back (a proxy viewer wraps each layer it hands out anew)
     viewer = make_napari_viewer()
     a = viewer.add_image(np.zeros((4, 4)), name="a")
     viewer.add_image(np.ones((4, 4)), name="b")
@@ -285,7 +287,7 @@ def test_run_record_puts_everything_back(make_napari_viewer):
     record.put("a", np.full((4, 4), 9.0), None)
     record.put("a", np.full((4, 4), 8.0), None)  # backed up once: the original comes back
     record.put("new", np.zeros((4, 4)), lambda d, n: viewer.add_image(d, name=n))
-    record.replace("b", lambda n: viewer.add_labels(np.zeros((4, 4), int), name=n))
+    record.replace("b", np.zeros((4, 4), int), lambda d, n: viewer.add_labels(d, name=n))
     record.remove("c")
     assert [lay.name for lay in viewer.layers] == ["a", "new", "b"]
     record.undo()
@@ -306,8 +308,8 @@ def test_run_record_puts_everything_back(make_napari_viewer):
     assert a.data.all()
 
 
-def test_layer_array_crops_and_copies(make_napari_viewer):
-    viewer = make_napari_viewer()
+def test_layer_array_crops_and_copies(make_napari_viewer_proxy):
+    viewer = make_napari_viewer_proxy()
     rgba = np.random.default_rng(1).random((20, 30, 4))
     layer = viewer.add_image(rgba, rgb=True, name="rgba")
     box = viewer.add_shapes([[[2, 3], [2, 13], [9, 13], [9, 3]]], shape_type="rectangle")
@@ -379,7 +381,8 @@ class ShownInStepsWidget(JobWidget):
         try:
             for k in range(3):
                 self.at.append(self.turns)
-                self.record.add(lambda k=k: self._viewer.add_image(result, name=f"part {k}"))
+                self.record.add(f"part {k}", result,
+                                lambda d, n: self._viewer.add_image(d, name=n))
                 if k == 1 and self.fail:
                     raise ValueError("showing failed")
                 yield

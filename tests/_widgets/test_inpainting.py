@@ -19,7 +19,7 @@ def test_paint_a_stroke_and_restore(widget, qtbot):
     layer = viewer.add_image(frame, name="frame")
     w._image.value = layer
     mask_layer = w.mask_layer()
-    assert mask_layer.mode == "paint" and viewer.layers.selection.active is mask_layer
+    assert mask_layer.mode == "paint" and viewer.layers.selection.active == mask_layer
     # paint the scratch as a user would: a stroke of brush dabs down the column
     for row in range(0, 160, 2):
         mask_layer.paint((row, 81), 1)
@@ -139,7 +139,7 @@ def test_a_labels_mask_is_choosable_and_the_own_mask_is_the_default(widget, qtbo
     painted.data[:, 10] = 3  # any label value marks damage
     viewer.add_points([[5, 5]], name="points")
     own = w.mask_layer()
-    assert w._mask.value is own  # the new "scratch mask" is chosen
+    assert w._mask.value == own  # the new "scratch mask" is chosen
     listed = {lay.name for lay in w._mask.choices if lay is not None}
     assert listed == {"cam", "painted", "cam scratch mask"}  # Labels and Image layers only
     w._mask.value = painted

@@ -65,7 +65,7 @@ def test_restoration_of_a_lazy_clip_is_each_frame_restored(docked, qtbot, film):
     np.testing.assert_array_equal(np.asarray(restored.data), expected)
     probability = viewer.layers["film prediction probability"]
     assert not probability.visible and probability.data.shape == clip.shape
-    assert viewer.layers.selection.active is restored  # what the user sees first
+    assert viewer.layers.selection.active == restored  # what the user sees first
     assert [x.name for x in viewer.layers][-1] == "film restored"
     assert not w._kappa.enabled  # nothing in memory to re-threshold
 

@@ -126,14 +126,14 @@ def test_restored_image_is_what_the_user_sees_first(widget, qtbot):
     probability = viewer.layers["camera prediction probability"]
     assert restored.visible and restored.opacity == 1.0  # on top, opaque, shown
     assert not probability.visible  # there to look at, hidden below
-    assert viewer.layers.selection.active is restored
+    assert viewer.layers.selection.active == restored
     assert "probability: hidden" in w._status.value
     # a second run keeps the arrangement the user made of the layers
     probability.visible = True
     job = w.start()
     qtbot.waitUntil(lambda: job.done, timeout=120000)
     assert names(viewer) == ["camera", "camera prediction probability", "camera restored"]
-    assert probability.visible and viewer.layers.selection.active is restored
+    assert probability.visible and viewer.layers.selection.active == restored
 
 
 def test_versions_must_lie_along_a_stack_axis(widget, qtbot, last_notification):
@@ -280,7 +280,7 @@ def test_large_image_previews_are_decimated_and_the_result_full(widget, qtbot, m
     assert restored.data.shape == noisy.shape and tuple(restored.scale) == (1.0, 1.0)
     np.testing.assert_array_equal(restored.data, w.result.restored()[..., 0]
                                   .astype(np.float32))
-    assert viewer.layers.selection.active is restored
+    assert viewer.layers.selection.active == restored
     # a second run: the first result stays as it is, the previews in a layer of their
     # own, which the new result replaces
     seen.clear()

@@ -46,7 +46,7 @@ def test_rank_the_open_layers_and_click(widget, qtbot, textures):
     viewer.layers["vistex other tile"].visible = False
     layer = w.show(0)
     assert layer.name == "vistex other tile" and layer.visible
-    assert viewer.layers.selection.active is layer
+    assert viewer.layers.selection.active == layer
 
 
 def test_folder_gallery(widget, qtbot, textures, tmp_path, last_notification):

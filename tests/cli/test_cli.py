@@ -233,7 +233,7 @@ class _Terminal(io_module.StringIO):
 
 def test_progress_bar_on_a_terminal(monkeypatch):
     from car_napari._progress import Progress
-    from car_napari.cli._common import ProgressBar
+    from car_napari.cli._console import ProgressBar
 
     err = _Terminal()
     monkeypatch.setattr(sys, "stderr", err)
@@ -246,7 +246,7 @@ def test_progress_bar_on_a_terminal(monkeypatch):
 
 
 def test_restore_drives_the_bar_to_the_end(tmp_path, monkeypatch):
-    from car_napari.cli._common import ProgressBar
+    from car_napari.cli._console import ProgressBar
 
     noisy = np.random.default_rng(1).integers(0, 256, (40, 40)).astype(np.uint8)
     io.imsave(tmp_path / "noisy.png", noisy, check_contrast=False)
@@ -320,7 +320,7 @@ def test_grey_plus_alpha_is_grey_with_a_note(tmp_path, capsys):
 
 
 def test_outputs_go_to_a_format_that_holds_them(tmp_path):
-    from car_napari.cli._common import image_suffix
+    from car_napari.cli._files import image_suffix
     from car_napari.io.images import read_image, write_image
 
     rgb16 = np.random.default_rng(0).integers(0, 65535, (8, 8, 3)).astype(np.uint16)

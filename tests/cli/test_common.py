@@ -1,4 +1,4 @@
-"""The commands' shared rules (car_napari/cli/_common.py): where -o puts the outputs."""
+"""The commands' shared rules (car_napari/cli/_files.py): where -o puts the outputs."""
 
 from pathlib import Path
 
@@ -7,7 +7,7 @@ import pytest
 from skimage import io
 
 from car_napari.cli import main
-from car_napari.cli._common import LABEL_SUFFIXES, names_a_folder, output_file
+from car_napari.cli._files import LABEL_SUFFIXES, names_a_folder, output_file
 
 
 def _noise_png(path, seed=0, shape=(40, 40)):

@@ -62,7 +62,7 @@ class _Terminal(io_module.StringIO):
 
 def test_the_bar_counts_the_frame_its_percentage_is_at(tmp_path, monkeypatch):
     from car_napari._progress import Progress
-    from car_napari.cli._common import ProgressBar
+    from car_napari.cli._console import ProgressBar
 
     err = _Terminal()
     monkeypatch.setattr(sys, "stderr", err)

@@ -137,7 +137,7 @@ def _finish(block, prepared, carried, on_progress):
 def test_chained_blocks_on_two_workers_are_the_serial_chain(tmp_path, capsys, cluster):
     from types import SimpleNamespace
 
-    from car_napari.cli._common import run_blocks
+    from car_napari.cli._batch import run_blocks
 
     outputs = {}
     for name, options in (("serial", None), ("cluster", SimpleNamespace(scheduler=cluster))):

@@ -57,8 +57,8 @@ def test_reader_hook(tmp_path, ramp):
     assert kind == "image" and data.shape == ramp.shape and kwargs["scale"] == (0.1, 0.1)
 
 
-def test_napari_opens_dicom(make_napari_viewer, tmp_path, ramp):
-    viewer = make_napari_viewer()
+def test_napari_opens_dicom(make_napari_viewer_proxy, tmp_path, ramp):
+    viewer = make_napari_viewer_proxy()
     path = str(_write(tmp_path / "f.dcm", ramp, photometric="MONOCHROME1"))
     (layer,) = viewer.open(path, plugin="car-napari")
     np.testing.assert_allclose(layer.data, 1.0 - ramp / 4095.0, atol=1e-6)
