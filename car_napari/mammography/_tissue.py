@@ -433,15 +433,8 @@ def _check_segmentation(segmentation, shape):
                          f"{_LEVELS}, keep_features=True)).")
 
 
-_TISSUE_PARAMETERS = """
-image : (H, W) array_like
-    Grey mammogram (bright = dense), any numeric dtype (integer images are
-    scaled by their range; a uint16 image whose maximum is at most 4,095 is
-    12-bit); an RGB(A) export of one, with ``channel_axis``, is reduced to
-    its luminance.
-breast : (H, W) array_like of bool, optional
-    The breast mask (pectoral muscle excluded); default :func:`detect_breast`.
-levels : int, optional
+# the breast segmentation's options, shared by the tissue and combined jobs
+_SEGMENTATION_PARAMETERS = """levels : int, optional
     Resolutions of the segmentation's features (at least 3: the tissue
     model's).
 neighbourhood : int or (eta, 2) array_like, optional
@@ -452,7 +445,17 @@ work_side : int, optional
     Working resolution of the segmentation (long side, pixels).
 seed : int, optional
     Seed of the segmentation's random subsamples.
-pool : sequence of int, optional
+"""
+
+_TISSUE_PARAMETERS = """
+image : (H, W) array_like
+    Grey mammogram (bright = dense), any numeric dtype (integer images are
+    scaled by their range; a uint16 image whose maximum is at most 4,095 is
+    12-bit); an RGB(A) export of one, with ``channel_axis``, is reduced to
+    its luminance.
+breast : (H, W) array_like of bool, optional
+    The breast mask (pectoral muscle excluded); default :func:`detect_breast`.
+""" + _SEGMENTATION_PARAMETERS + """pool : sequence of int, optional
     Numbers of segments read from the merge history; each labelling's
     segments are classified and a pixel's probability is their mean.
 segmentation : BreastSegmentation, optional
@@ -500,12 +503,8 @@ def iter_segment_tissue(image, *, breast=None, levels=3, neighbourhood=2, n_init
 
     Raises
     ------
-    ValueError
-        If the image is constant or has no breast, ``breast`` does not match
-        it, an option is out of range or ``segmentation`` is not of this
-        image.
-    TypeError
-        If ``segmentation`` is not a BreastSegmentation.
+    ValueError, TypeError
+        As :func:`segment_tissue`, before any work.
 
     Examples
     --------
@@ -616,18 +615,7 @@ tolerance : float or None, optional
     Advanced: the width of that filter; None turns it off.
 breast : (H, W) array_like of bool, optional
     The breast mask; default :func:`detect_breast`.
-levels : int, optional
-    Resolutions of the segmentation's features (at least 3: the tissue
-    model's).
-neighbourhood : int or (eta, 2) array_like, optional
-    Causal neighbourhood of the segmentation's local models.
-n_init : int, optional
-    Components of the segmentation's initial block division.
-work_side : int, optional
-    Working resolution of the segmentation (long side, pixels).
-seed : int, optional
-    Seed of the segmentation's random subsamples.
-pool : sequence of int, optional
+""" + _SEGMENTATION_PARAMETERS + """pool : sequence of int, optional
     Numbers of segments read from the merge history (both analyses use them).
 channel_axis : int or None, optional
     The colour axis of an RGB(A) export; a 2-D image is grey, None forces
@@ -662,8 +650,7 @@ def iter_analyse_mammogram(image, *, marks_per_image=DEFAULT_MARKS_PER_IMAGE, ma
     Raises
     ------
     ValueError
-        If the image is constant or has no breast, or an option is out of
-        range.
+        As :func:`analyse_mammogram`, before any work.
 
     Examples
     --------
