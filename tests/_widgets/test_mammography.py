@@ -227,7 +227,7 @@ def test_moving_the_operating_point_changes_the_marks_without_recomputing(
     assert len(w.table["label"]) == seen[1]
     w._marks.value = 0.25
     assert len(w.table["label"]) == seen[0]
-    assert viewer.layers["mdb001 ROI outlines"] is outlines and len(outlines.data) == seen[0]
+    assert viewer.layers["mdb001 ROI outlines"] == outlines and len(outlines.data) == seen[0]
     # a layer of another kind under the outlines' name is replaced, not written into
     viewer.layers.remove(outlines)
     viewer.add_points(np.zeros((1, 2)), name="mdb001 ROI outlines")
