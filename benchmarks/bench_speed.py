@@ -16,7 +16,8 @@ own. Cases:
   job runs in one thread, so on a quiet machine it is about the seconds);
 * mammogram: ``detect_mammogram_rois`` on mini-MIAS mdb001 (1024x1024,
   shipped sample) and on the CBIS-DDSM film 00001_LEFT_CC (800x800, from
-  ``../shared/data``);
+  ``../shared/data``); ``segment_tissue`` and ``analyse_mammogram`` (ROIs
+  and tissue from one segmentation) on mdb001;
 * restoration: ``restore`` on scikit-image's astronaut resized to
   1024x1024x3, blurred by 1 px, noise 0.05; and, in the same process,
   ``scipy.ndimage.median_filter(size=(5, 5, 1))`` on the same image.
@@ -69,6 +70,22 @@ image = io.imread({root!r} + "/../shared/data/mammograms/cbis-ddsm-masses/00001_
 t0 = time.perf_counter(); labels, table = detect_mammogram_rois(image)
 seconds = time.perf_counter() - t0
 extra = {"regions": int(len(table["label"]))}
+""",
+    "mammogram tissue 1024x1024": """
+from car_napari.io.sample_data import mammogram
+from car_napari.mammography import segment_tissue
+(image, _, _), = mammogram()
+t0 = time.perf_counter(); tissue = segment_tissue(image)
+seconds = time.perf_counter() - t0
+extra = {"density": round(float(tissue.density), 1), "class": tissue.tissue_class}
+""",
+    "mammogram ROIs and tissue 1024x1024": """
+from car_napari.io.sample_data import mammogram
+from car_napari.mammography import analyse_mammogram
+(image, _, _), = mammogram()
+t0 = time.perf_counter(); rois, tissue = analyse_mammogram(image)
+seconds = time.perf_counter() - t0
+extra = {"regions": int(len(rois.table["label"])), "density": round(float(tissue.density), 1)}
 """,
     "restore 1024x1024x3": """
 import numpy as np
