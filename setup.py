@@ -1,7 +1,8 @@
 """Ship ``resources/`` inside the package.
 
 The npe2 manifest lives in the package (``car_napari/napari.yaml``, the
-entry point; package data in pyproject.toml). The sample data stay at the
+entry point; package data in pyproject.toml; the top-level napari.yaml is
+the same file, where the project's layout shows it). The sample data stay at the
 top of the repository: a regular build copies them into the wheel
 (``car_napari/_resources/``); an editable install serves the package from
 the source tree, and the sample loader reads ``resources/`` in place.

@@ -37,12 +37,17 @@ def test_manifest_validates_and_is_the_package_one():
     assert keys == {"texture", "mammogram", "film", "burst"}
 
 
-def test_the_manifest_lives_in_the_package_only():
-    """napari.yaml is package data, as the napari plugin template has it: no
-    top-level copy, no copy step in setup.py, no git-ignored copy."""
+def test_the_manifest_is_package_data_and_shown_at_the_top():
+    """napari.yaml is package data, as the napari plugin template has it (no
+    copy step in setup.py, no git-ignored copy); the project's layout shows
+    it at the top level too: a committed file, byte for byte the package's
+    (no symlink: they break on Windows and in wheels)."""
     import tomllib
 
-    assert MANIFEST_FILE.is_file() and not (TOP / "napari.yaml").exists()
+    top = TOP / "napari.yaml"
+    assert MANIFEST_FILE.is_file() and top.is_file() and not top.is_symlink()
+    assert top.read_bytes() == MANIFEST_FILE.read_bytes(), (
+        "napari.yaml and car_napari/napari.yaml differ: edit both the same way")
     assert not [line for line in (TOP / "setup.py").read_text().splitlines()
                 if "napari.yaml" in line and "copy" in line]
     assert "napari.yaml" not in (TOP / ".gitignore").read_text()
