@@ -1,21 +1,36 @@
-"""Parameter sections shared by a job ``iter_<name>`` and its ``<name>``."""
+"""Docstring sections shared by a job ``iter_<name>`` and its ``<name>``.
+
+The two forms of one job take the same options, raise the same errors and
+start their examples from the same image: those sections are written once,
+as module constants, and put into each docstring at a ``{name}`` line (the
+line holds only the placeholder, indented like a section's body).
+"""
 
 from __future__ import annotations
 
 import textwrap
 
-_PLACEHOLDER = "    {parameters}"
+
+def shared_sections(**sections):
+    """Decorator: put each text of ``sections`` at the docstring's
+    ``    {name}`` line (every placeholder given must be there)."""
+    blocks = {name: textwrap.indent(textwrap.dedent(text).strip("\n"), "    ")
+              for name, text in sections.items()}
+
+    def decorate(func):
+        doc = func.__doc__ or ""
+        for name, block in blocks.items():
+            placeholder = "    {" + name + "}"
+            if placeholder not in doc:
+                raise AssertionError(f"{func.__name__}'s docstring has no {placeholder!r} line")
+            doc = doc.replace(placeholder, block)
+        func.__doc__ = doc
+        return func
+
+    return decorate
 
 
 def shared_parameters(parameters):
     """Decorator: put the numpydoc entries ``parameters`` at the docstring's
-    ``{parameters}`` line (the two forms of one job take the same options)."""
-    block = textwrap.indent(textwrap.dedent(parameters).strip("\n"), "    ")
-
-    def decorate(func):
-        if _PLACEHOLDER not in (func.__doc__ or ""):
-            raise AssertionError(f"{func.__name__}'s docstring has no {_PLACEHOLDER!r} line")
-        func.__doc__ = func.__doc__.replace(_PLACEHOLDER, block)
-        return func
-
-    return decorate
+    ``{parameters}`` line."""
+    return shared_sections(parameters=parameters)

@@ -101,6 +101,13 @@ def _texture_indices(n_features):
     return params, energy
 
 
+def linear_terms(spec):
+    """``(mean, scale, coef, intercept)`` float arrays of a standardised
+    linear model stored in a model file (``((x - mean) / scale) . coef +
+    intercept``)."""
+    return tuple(np.asarray(spec[k], float) for k in ("mean", "scale", "coef", "intercept"))
+
+
 class Candidate:
     """One candidate region on the analysis grid: its box ``(r0, r1, c0,
     c1)``, the mask inside the box, and its centroid (analysis pixels)."""
@@ -152,6 +159,38 @@ def _generate(grey, labellings, breast, *, split, sigmas, delta, min_area):
     return out
 
 
+def _crop(cc, i, sl, area, shape):
+    """A candidate's crop: component ``i`` of ``cc`` (bounding slices
+    ``sl``, ``area`` pixels) with a margin of half its equivalent radius
+    (at least 2). Returns the equivalent radius, the crop ``(r0, r1, c0,
+    c1)`` within ``shape`` and the candidate's mask in it."""
+    req = np.sqrt(area / np.pi)
+    width = _ring_width(req)
+    r0, r1 = max(0, sl[0].start - width), min(shape[0], sl[0].stop + width)
+    c0, c1 = max(0, sl[1].start - width), min(shape[1], sl[1].stop + width)
+    return req, (r0, r1, c0, c1), cc[r0:r1, c0:c1] == i
+
+
+def _ring_width(req):
+    return max(2, round(0.5 * req))
+
+
+def _ring(inside, req, breast):
+    """The ring around a candidate (its crop's mask ``inside``): the breast
+    pixels within the ring width of it, not in it."""
+    from scipy import ndimage
+
+    return ndimage.binary_dilation(inside, iterations=_ring_width(req)) & ~inside & breast
+
+
+def _centre_and_compactness(inside, req):
+    """The centroid of the mask ``inside`` and the share of its pixels within
+    the equivalent radius ``req`` of it."""
+    rr, cl = np.nonzero(inside)
+    cr, ccol = rr.mean(), cl.mean()
+    return (cr, ccol), float(np.mean((rr - cr) ** 2 + (cl - ccol) ** 2 <= req**2))
+
+
 def _describe(grey, labellings, breast, texture, cands, *, f, side, work=None, surprise=True):
     """Descriptors (:data:`DESCRIPTORS`) of ``cands`` (``(cc, i, slices,
     area, labelling)`` from :func:`_generate`) on the analysis grid.
@@ -164,7 +203,6 @@ def _describe(grey, labellings, breast, texture, cands, *, f, side, work=None, s
     measured on a 1024-pixel scale). With ``work``, a generator: yields
     Progress records now and then and returns the same.
     """
-    from scipy import ndimage
 
     h, w = grey.shape
     scale = f * 1024.0 / side
@@ -184,13 +222,8 @@ def _describe(grey, labellings, breast, texture, cands, *, f, side, work=None, s
         if work is not None and n % 64 == 63:
             yield Progress("regions", work[0] + (work[1] - work[0]) * n / len(cands),
                            f"describing candidates {n + 1}/{len(cands)}")
-        req = np.sqrt(a / np.pi)
-        width = max(2, round(0.5 * req))
-        r0, r1 = max(0, sl[0].start - width), min(h, sl[0].stop + width)
-        c0, c1 = max(0, sl[1].start - width), min(w, sl[1].stop + width)
-        inside = cc[r0:r1, c0:c1] == i
-        ring = (ndimage.binary_dilation(inside, iterations=width) & ~inside
-                & breast[r0:r1, c0:c1])
+        req, (r0, r1, c0, c1), inside = _crop(cc, i, sl, a, (h, w))
+        ring = _ring(inside, req, breast[r0:r1, c0:c1])
         if ring.sum() < 4:
             continue
         g = grey[r0:r1, c0:c1]
@@ -199,9 +232,7 @@ def _describe(grey, labellings, breast, texture, cands, *, f, side, work=None, s
         contrast = mean - float(gr.mean())
         if contrast <= 0:
             continue
-        rr, cl = np.nonzero(inside)
-        cr, ccol = rr.mean(), cl.mean()
-        compact = float(np.mean((rr - cr) ** 2 + (cl - ccol) ** 2 <= req**2))
+        (cr, ccol), compact = _centre_and_compactness(inside, req)
         log_r = np.log(max(req * scale, 1e-3)) - _RADIUS_CENTRE
         desc = [mean, mean - med, contrast, contrast / (float(gr.std()) + 0.01),
                 float(gi.std()), 0.0, 0.0, log_r, log_r**2, compact]
@@ -525,10 +556,7 @@ class RoiModel:
             for t in self.trees:
                 t["leaf"] = t["leaf"].astype(bool)
         else:
-            self.mean = np.asarray(spec["mean"], float)
-            self.scale = np.asarray(spec["scale"], float)
-            self.coef = np.asarray(spec["coef"], float)
-            self.intercept = float(spec["intercept"])
+            self.mean, self.scale, self.coef, self.intercept = linear_terms(spec)
         # candidates within this fraction of a finding's score join it (:func:`_merge`)
         self.tie = float(spec.get("merge_tie", 0.1))
         # findings less visible than this are dropped, and each is cut to its

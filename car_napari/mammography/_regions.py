@@ -10,7 +10,7 @@ import numpy as np
 
 from .._progress import Progress, drain
 from .._validation import check_flag, check_real
-from ._candidates import _generate
+from ._candidates import _centre_and_compactness, _crop, _generate, _ring
 from ._images import _as_grey, _block_mean, _grey01, _upsample_mask
 
 __all__ = [
@@ -82,8 +82,8 @@ class MammogramROIs(NamedTuple):
     --------
     >>> import numpy as np
     >>> from car_napari.mammography import filter_regions
-    >>> image = np.full((64, 64), 0.3)
     >>> segments = np.ones((64, 64), np.int32)
+    >>> image = np.full((64, 64), 0.3)
     >>> image[20:40, 20:40], segments[20:40, 20:40] = 0.66, 2
     >>> labels, table = filter_regions(image, segments, max_regions=None)
     >>> int(labels.max()), table["label"].tolist()
@@ -307,7 +307,6 @@ def _iter_filter(grey_full, segments, *, reference=None, tolerance=None, max_reg
                  split_sigmas=SPLIT_SIGMAS, split_delta=SPLIT_DELTA):
     """:func:`filter_regions` of a grey image on [0, 1] as a job: "regions"
     records between the steps (a Cancel is seen soon on a large image)."""
-    from scipy import ndimage
 
     reference, tolerance = _check_filter_options(reference, tolerance, max_regions, min_area)
     H, W = grey_full.shape
@@ -336,25 +335,19 @@ def _iter_filter(grey_full, segments, *, reference=None, tolerance=None, max_reg
         if n % 64 == 63:
             yield Progress("regions", 0.3 + 0.3 * n / len(cands),
                            f"scoring candidates {n + 1}/{len(cands)}")
-        req = np.sqrt(a / np.pi)
-        width = max(2, round(0.5 * req))
-        r0, r1 = max(0, sl[0].start - width), min(h, sl[0].stop + width)
-        c0, c1 = max(0, sl[1].start - width), min(w, sl[1].stop + width)
-        inside = cc[r0:r1, c0:c1] == i
+        req, (r0, r1, c0, c1), inside = _crop(cc, i, sl, a, (h, w))
         g = grey[r0:r1, c0:c1]
         mean = float(g[inside].mean())
         closeness = 1.0 - abs(mean - reference) / tolerance
         if closeness <= 0:
             continue
-        ring = ndimage.binary_dilation(inside, iterations=width) & ~inside & breast[r0:r1, c0:c1]
+        ring = _ring(inside, req, breast[r0:r1, c0:c1])
         if ring.sum() < 4:
             continue
         contrast = mean - float(g[ring].mean())
         if contrast <= 0:
             continue
-        rr, cl = np.nonzero(inside)
-        cr, ccol = rr.mean(), cl.mean()
-        compact = float(np.mean((rr - cr) ** 2 + (cl - ccol) ** 2 <= req**2))
+        (cr, ccol), compact = _centre_and_compactness(inside, req)
         score = contrast * closeness * compact
         if radius_range is not None:
             score *= _size_prior(req * f, *radius_range)

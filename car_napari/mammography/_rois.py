@@ -16,8 +16,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .._docstrings import shared_parameters
-from .._progress import Progress, drain, stage
+from .._docstrings import shared_sections
+from .._progress import Progress, drain, spans, stage
 from .._validation import check_mask, check_real
 from ..segmentation import iter_segment, pseudo_colour
 from ._breast import _iter_detect
@@ -30,6 +30,7 @@ from ._candidates import (
     _texture_grid,
     shipped_model,
 )
+from ._doc_sections import EXAMPLES_MAMMOGRAM, RAISES_BREAST, RAISES_ROIS
 from ._images import _STRIP, _block_mean, _iter_grey
 from ._regions import (
     _ANALYSIS_SIDE,
@@ -66,26 +67,19 @@ __all__ = [
 DEFAULT_POOL_SEGMENTS = (8, 10, 12)
 
 
-def _work(n_pixels, n_outputs):
-    """Relative work (seconds on 2 cores, measured on mdb001 at 1024x1024 and
-    upsampled to 4096x4096) of the job's parts, so that the progress fraction
+def _stage_spans(n_pixels, n_outputs, parts):
+    """The progress spans of the job's ``parts`` (:func:`~car_napari._progress.spans`)
+    in proportion to their work (seconds on 2 cores, measured on mdb001 at
+    1024x1024 and upsampled to 4096x4096), so that the progress fraction
     follows the work: the full-resolution steps grow with the image, the
     segmentation (at ``work_side``) does not."""
     m = n_pixels / 1e6
-    return {"reading": 0.04 * m, "breast": 0.03 * m, "segmentation": 8.0,
+    work = {"reading": 0.04 * m, "breast": 0.03 * m, "segmentation": 8.0,
             "pooling": 0.008 * m * n_outputs, "regions": 0.3 + 0.01 * m}
+    return spans({part: work[part] for part in parts})
 
 
-def _spans(work, parts):
-    """Consecutive [start, stop) fractions of ``parts`` in proportion to ``work``."""
-    total = sum(work[p] for p in parts)
-    out, at = {}, 0.0
-    for p in parts:
-        out[p] = (at, at + work[p] / total)
-        at = out[p][1]
-    return out
-
-
+@shared_sections(examples=EXAMPLES_MAMMOGRAM)
 class BreastSegmentation(NamedTuple):
     """A texture segmentation of the breast (:func:`segment_breast`).
 
@@ -108,12 +102,8 @@ class BreastSegmentation(NamedTuple):
         The crop ``(row0, row1, col0, col1)`` of ``features`` at the working
         resolution (full-resolution pixel = ``factor`` x working pixel).
 
-    Examples
-    --------
-    >>> import numpy as np
+    {examples}
     >>> from car_napari.mammography import segment_breast
-    >>> image = np.zeros((64, 64))
-    >>> image[4:60, 20:] = np.random.default_rng(0).uniform(0.5, 0.9, (56, 44))
     >>> seg = segment_breast(image, levels=1, n_init=4, pool=(2, 3))
     >>> seg.segments.shape, seg.factor, len(seg.pooled)
     ((64, 64), 1, 2)
@@ -142,6 +132,8 @@ def _crop_box(mask, need):
 
 
 _SEGMENT_BREAST_PARAMETERS = """
+Parameters
+----------
 image : (H, W) array_like
     Grey mammogram (bright = dense), any numeric dtype; an RGB(A) export of
     one, with ``channel_axis``, is reduced to its luminance.
@@ -174,7 +166,8 @@ keep_features : bool, optional
 """
 
 
-@shared_parameters(_SEGMENT_BREAST_PARAMETERS)
+@shared_sections(parameters=_SEGMENT_BREAST_PARAMETERS, raises=RAISES_BREAST,
+                 examples=EXAMPLES_MAMMOGRAM)
 def iter_segment_breast(image, *, breast=None, n_segments=None, levels=3, neighbourhood=2,
                         n_init=16, work_side=512, seed=0, pool=None, segment_options=None,
                         channel_axis=-1, keep_features=False):
@@ -188,8 +181,6 @@ def iter_segment_breast(image, *, breast=None, n_segments=None, levels=3, neighb
     labellings with those numbers of segments are read from the same run's
     merge history (``SegmentationResult.labels_at``), no extra segmentation.
 
-    Parameters
-    ----------
     {parameters}
 
     Returns
@@ -209,18 +200,10 @@ def iter_segment_breast(image, *, breast=None, n_segments=None, levels=3, neighb
         the job stops it soon; the fractions follow the work (the
         full-resolution steps grow with the image, the segmentation does not).
 
-    Raises
-    ------
-    ValueError
-        If the image is constant or has no breast, or ``breast`` does not
-        match the image or is empty.
+    {raises}
 
-    Examples
-    --------
-    >>> import numpy as np
+    {examples}
     >>> from car_napari.mammography import iter_segment_breast
-    >>> image = np.zeros((64, 64))
-    >>> image[4:60, 20:] = np.random.default_rng(0).uniform(0.5, 0.9, (56, 44))
     >>> job = iter_segment_breast(image, levels=1, n_init=4)
     >>> next(job).stage
     'breast'
@@ -229,14 +212,14 @@ def iter_segment_breast(image, *, breast=None, n_segments=None, levels=3, neighb
     _check_segment_options(levels, work_side, seed, pool, segment_options)
     if breast is not None:
         breast = check_mask(breast, "breast", meaning="True on the breast")
-    work = _work(np.size(image), len(pool or ()) + 1)
-    spans = _spans(work, ("reading", "breast", "segmentation", "pooling"))
-    grey = yield from stage(_iter_grey(image, channel_axis), *spans["reading"])
+    span = _stage_spans(np.size(image), len(pool or ()) + 1,
+                 ("reading", "breast", "segmentation", "pooling"))
+    grey = yield from stage(_iter_grey(image, channel_axis), *span("reading"))
     return (yield from stage(_iter_segment_grey(
         grey, breast=breast, n_segments=n_segments, levels=levels, neighbourhood=neighbourhood,
         n_init=n_init, work_side=work_side, seed=seed, pool=pool,
         segment_options=segment_options, keep_features=bool(keep_features)),
-        spans["reading"][1], 1.0))
+        span("reading").stop, 1.0))
 
 
 def _block_fraction(mask, factor):
@@ -287,8 +270,8 @@ def _iter_segment_grey(grey, *, breast, n_segments, levels, neighbourhood, n_ini
                        seed, pool, segment_options, keep_features=False):
     """:func:`iter_segment_breast` of a grey image on [0, 1] (:func:`_iter_grey`)."""
     H, W = grey.shape
-    span = _spans(_work(H * W, len(pool or ()) + 1), ("breast", "segmentation", "pooling"))
-    (b0, b1), (s0_, s1_), (p0, p1) = span["breast"], span["segmentation"], span["pooling"]
+    span = _stage_spans(H * W, len(pool or ()) + 1, ("breast", "segmentation", "pooling"))
+    (b0, b1), (s0_, s1_), (p0, p1) = span("breast"), span("segmentation"), span("pooling")
     if breast is None:
         breast = yield from stage(_iter_detect(grey), b0, b0 + 0.6 * (b1 - b0))
         found = "found"
@@ -343,7 +326,8 @@ def _iter_segment_grey(grey, *, breast, n_segments, levels, neighbourhood, n_ini
                               (int(r0), int(r1), int(c0), int(c1)))
 
 
-@shared_parameters(_SEGMENT_BREAST_PARAMETERS)
+@shared_sections(parameters=_SEGMENT_BREAST_PARAMETERS, raises=RAISES_BREAST,
+                 examples=EXAMPLES_MAMMOGRAM)
 def segment_breast(image, *, breast=None, n_segments=None, levels=3, neighbourhood=2,
                    n_init=16, work_side=512, seed=0, pool=None, segment_options=None,
                    channel_axis=-1, keep_features=False):
@@ -351,8 +335,6 @@ def segment_breast(image, *, breast=None, n_segments=None, levels=3, neighbourho
 
     :func:`iter_segment_breast` run to its end (see it for the method).
 
-    Parameters
-    ----------
     {parameters}
 
     Returns
@@ -361,18 +343,10 @@ def segment_breast(image, *, breast=None, n_segments=None, levels=3, neighbourho
         ``segments`` (full resolution, 0 outside the breast), ``breast``,
         ``factor`` and ``pooled``.
 
-    Raises
-    ------
-    ValueError
-        If the image is constant or has no breast, or ``breast`` does not
-        match the image or is empty.
+    {raises}
 
-    Examples
-    --------
-    >>> import numpy as np
+    {examples}
     >>> from car_napari.mammography import segment_breast
-    >>> image = np.zeros((64, 64))
-    >>> image[4:60, 20:] = np.random.default_rng(0).uniform(0.5, 0.9, (56, 44))
     >>> seg = segment_breast(image, levels=1, n_init=4, n_segments=2)
     >>> int(seg.segments.max()), bool(seg.segments[:, :16].any())
     (2, False)
@@ -386,6 +360,8 @@ def segment_breast(image, *, breast=None, n_segments=None, levels=3, neighbourho
 
 
 _ROI_PARAMETERS = """
+Parameters
+----------
 image : (H, W) array_like
     Grey mammogram (bright = dense), any numeric dtype; integer images are
     scaled by their dtype range, except a uint16 image whose maximum is at
@@ -453,7 +429,8 @@ def _check_roi_options(marks_per_image, reference, tolerance, max_regions, min_a
         check_real(min_area, "min_area (pixels, or None)", low=0.0)
 
 
-@shared_parameters(_ROI_PARAMETERS)
+@shared_sections(parameters=_ROI_PARAMETERS, raises=RAISES_ROIS,
+                 examples=EXAMPLES_MAMMOGRAM)
 def iter_detect_mammogram_rois(image, *, marks_per_image=DEFAULT_MARKS_PER_IMAGE, levels=3,
                                n_segments=None, neighbourhood=2, n_init=16, max_regions=None,
                                min_area=None, breast=None, work_side=512, seed=0,
@@ -463,8 +440,6 @@ def iter_detect_mammogram_rois(image, *, marks_per_image=DEFAULT_MARKS_PER_IMAGE
 
     See :func:`detect_mammogram_rois` for the method.
 
-    Parameters
-    ----------
     {parameters}
 
     Returns
@@ -480,18 +455,10 @@ def iter_detect_mammogram_rois(image, *, marks_per_image=DEFAULT_MARKS_PER_IMAGE
         then stage "regions" while the candidates are described, scored and
         the findings painted at full resolution.
 
-    Raises
-    ------
-    ValueError
-        If the image is constant or has no breast, or an option is out of
-        range.
+    {raises}
 
-    Examples
-    --------
-    >>> import numpy as np
+    {examples}
     >>> from car_napari.mammography import iter_detect_mammogram_rois
-    >>> image = np.zeros((64, 64))
-    >>> image[4:60, 20:] = np.random.default_rng(0).uniform(0.5, 0.9, (56, 44))
     >>> records = list(iter_detect_mammogram_rois(image, levels=1, n_init=4, pool=(2, 3)))
     >>> records[0].stage, records[-1].stage, records[-1].fraction
     ('breast', 'regions', 1.0)
@@ -523,16 +490,16 @@ def _iter_breast_stages(image, *, breast, n_segments, levels, neighbourhood, n_i
     """The first stages of every mammogram job: the image read as grey and
     its breast segmented (features kept). Returns (grey, segmentation, the
     (start, stop) fractions left for the job's own stages)."""
-    spans = _spans(_work(np.size(image), len(pool or ()) + 1),
-                   ("reading", "breast", "segmentation", "pooling", "regions"))
-    grey = yield from stage(_iter_grey(image, channel_axis), *spans["reading"])
+    span = _stage_spans(np.size(image), len(pool or ()) + 1,
+                 ("reading", "breast", "segmentation", "pooling", "regions"))
+    grey = yield from stage(_iter_grey(image, channel_axis), *span("reading"))
     segmentation = yield from stage(
         _iter_segment_grey(grey, breast=breast, n_segments=n_segments, levels=levels,
                            neighbourhood=neighbourhood, n_init=n_init, work_side=work_side,
                            seed=seed, pool=pool, segment_options=None, keep_features=True),
-        spans["breast"][0], spans["pooling"][1],
+        span("breast").start, span("pooling").stop,
     )
-    return grey, segmentation, spans["regions"]
+    return grey, segmentation, tuple(span("regions"))
 
 
 def _band(reference, tolerance):
@@ -733,7 +700,8 @@ def operating_point(marks_per_image=DEFAULT_MARKS_PER_IMAGE):
             "control": row.get("control_cv_sensitivity_strict")}
 
 
-@shared_parameters(_ROI_PARAMETERS)
+@shared_sections(parameters=_ROI_PARAMETERS, raises=RAISES_ROIS,
+                 examples=EXAMPLES_MAMMOGRAM)
 def detect_mammogram_rois(image, *, marks_per_image=DEFAULT_MARKS_PER_IMAGE, levels=3,
                           n_segments=None, neighbourhood=2, n_init=16, max_regions=None,
                           min_area=None, breast=None, work_side=512, seed=0,
@@ -774,8 +742,6 @@ def detect_mammogram_rois(image, *, marks_per_image=DEFAULT_MARKS_PER_IMAGE, lev
     :func:`operating_point` (``benchmarks/bench_froc.py``). A research tool,
     never a screening aid.
 
-    Parameters
-    ----------
     {parameters}
 
     Returns
@@ -786,18 +752,10 @@ def detect_mammogram_rois(image, *, marks_per_image=DEFAULT_MARKS_PER_IMAGE, lev
         :data:`TABLE_COLUMNS`; ``score`` is the model's, ``contrast`` the
         best candidate's on the analysis grid); unpacks as ``labels, table``.
 
-    Raises
-    ------
-    ValueError
-        If the image is constant or has no breast, or an option is out of
-        range.
+    {raises}
 
-    Examples
-    --------
-    >>> import numpy as np
+    {examples}
     >>> from car_napari.mammography import TABLE_COLUMNS, detect_mammogram_rois
-    >>> image = np.zeros((64, 64))
-    >>> image[4:60, 20:] = np.random.default_rng(0).uniform(0.5, 0.9, (56, 44))
     >>> labels, table = detect_mammogram_rois(image, levels=1, n_init=4, pool=(2, 3),
     ...                                       marks_per_image=None)
     >>> labels.shape, tuple(table) == TABLE_COLUMNS

@@ -26,11 +26,12 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .._docstrings import shared_parameters
+from .._docstrings import shared_sections
 from .._progress import Progress, drain, stage
 from .._validation import check_mask
-from ._candidates import _texture_indices
+from ._candidates import _texture_indices, linear_terms
 from ._candidates import shipped_model as _roi_model
+from ._doc_sections import EXAMPLES_MAMMOGRAM, RAISES_ROIS
 from ._images import _block_mean, _iter_grey
 from ._rois import (
     DEFAULT_MARKS_PER_IMAGE,
@@ -91,6 +92,7 @@ IMAGE_DESCRIPTORS = CAR_IMAGE_DESCRIPTORS + HISTOGRAM_DESCRIPTORS
 _MODEL_FILE = Path(__file__).with_name("tissue_model.json")
 
 
+@shared_sections(examples=EXAMPLES_MAMMOGRAM)
 class TissueResult(NamedTuple):
     """Breast tissue of a mammogram (:func:`segment_tissue`).
 
@@ -113,12 +115,8 @@ class TissueResult(NamedTuple):
         resolution (crop ``box`` of the block-averaged mammogram, block
         ``factor``), 0 off the breast.
 
-    Examples
-    --------
-    >>> import numpy as np
+    {examples}
     >>> from car_napari.mammography import segment_tissue
-    >>> image = np.zeros((64, 64))
-    >>> image[4:60, 20:] = np.random.default_rng(0).uniform(0.5, 0.9, (56, 44))
     >>> tissue = segment_tissue(image, n_init=4)
     >>> tissue.tissue_class in ("F", "G", "D"), 0.0 <= tissue.density <= 100.0
     (True, True)
@@ -132,6 +130,7 @@ class TissueResult(NamedTuple):
     probability: np.ndarray
 
 
+@shared_sections(examples=EXAMPLES_MAMMOGRAM)
 class MammogramAnalysis(NamedTuple):
     """Regions of interest and breast tissue of one mammogram from one
     segmentation (:func:`analyse_mammogram`); unpacks as ``rois, tissue``.
@@ -143,12 +142,8 @@ class MammogramAnalysis(NamedTuple):
     tissue : TissueResult
         What :func:`segment_tissue` returns.
 
-    Examples
-    --------
-    >>> import numpy as np
+    {examples}
     >>> from car_napari.mammography import analyse_mammogram
-    >>> image = np.zeros((64, 64))
-    >>> image[4:60, 20:] = np.random.default_rng(0).uniform(0.5, 0.9, (56, 44))
     >>> rois, tissue = analyse_mammogram(image, n_init=4, pool=(2, 3))
     >>> rois.labels.shape == tissue.fibroglandular.shape
     True
@@ -178,10 +173,7 @@ class TissueModel:
         seg = spec["segment"]
         if tuple(seg["descriptors"]) != SEGMENT_DESCRIPTORS:
             raise ValueError("tissue model: its segment descriptors are not this code's.")
-        self.seg_mean = np.asarray(seg["mean"], float)
-        self.seg_scale = np.asarray(seg["scale"], float)
-        self.seg_coef = np.asarray(seg["coef"], float)
-        self.seg_intercept = float(seg["intercept"])
+        self.seg_mean, self.seg_scale, self.seg_coef, self.seg_intercept = linear_terms(seg)
         self.threshold = float(seg.get("threshold", 0.5))
         self.smoothing = float(seg.get("smoothing", 0.0))
         tis = spec["tissue"]
@@ -190,10 +182,7 @@ class TissueModel:
             raise ValueError(f"tissue model uses unknown descriptors {sorted(unknown)}.")
         self.columns = [IMAGE_DESCRIPTORS.index(n) for n in tis["descriptors"]]
         self.classes = tuple(tis["classes"])
-        self.tis_mean = np.asarray(tis["mean"], float)
-        self.tis_scale = np.asarray(tis["scale"], float)
-        self.tis_coef = np.asarray(tis["coef"], float)
-        self.tis_intercept = np.asarray(tis["intercept"], float)
+        self.tis_mean, self.tis_scale, self.tis_coef, self.tis_intercept = linear_terms(tis)
 
     def segment_probability(self, X):
         """Fibroglandular probability of segment descriptor rows ``X``."""
@@ -448,6 +437,8 @@ seed : int, optional
 """
 
 _TISSUE_PARAMETERS = """
+Parameters
+----------
 image : (H, W) array_like
     Grey mammogram (bright = dense), any numeric dtype (integer images are
     scaled by their range; a uint16 image whose maximum is at most 4,095 is
@@ -478,7 +469,7 @@ def _check_tissue_options(levels, work_side, seed, pool):
                          f"{_LEVELS} resolutions of CAR features); got {levels}.")
 
 
-@shared_parameters(_TISSUE_PARAMETERS)
+@shared_sections(parameters=_TISSUE_PARAMETERS, examples=EXAMPLES_MAMMOGRAM)
 def iter_segment_tissue(image, *, breast=None, levels=3, neighbourhood=2, n_init=16,
                         work_side=512, seed=0, pool=DEFAULT_POOL_SEGMENTS, segmentation=None,
                         channel_axis=-1):
@@ -486,8 +477,6 @@ def iter_segment_tissue(image, *, breast=None, levels=3, neighbourhood=2, n_init
 
     See :func:`segment_tissue` for the method.
 
-    Parameters
-    ----------
     {parameters}
 
     Returns
@@ -506,12 +495,8 @@ def iter_segment_tissue(image, *, breast=None, levels=3, neighbourhood=2, n_init
     ValueError, TypeError
         As :func:`segment_tissue`, before any work.
 
-    Examples
-    --------
-    >>> import numpy as np
+    {examples}
     >>> from car_napari.mammography import iter_segment_tissue
-    >>> image = np.zeros((64, 64))
-    >>> image[4:60, 20:] = np.random.default_rng(0).uniform(0.5, 0.9, (56, 44))
     >>> records = list(iter_segment_tissue(image, n_init=4))
     >>> records[0].stage, records[-1].stage, records[-1].fraction
     ('breast', 'tissue', 1.0)
@@ -537,7 +522,7 @@ def iter_segment_tissue(image, *, breast=None, levels=3, neighbourhood=2, n_init
     return tissue
 
 
-@shared_parameters(_TISSUE_PARAMETERS)
+@shared_sections(parameters=_TISSUE_PARAMETERS, examples=EXAMPLES_MAMMOGRAM)
 def segment_tissue(image, *, breast=None, levels=3, neighbourhood=2, n_init=16, work_side=512,
                    seed=0, pool=DEFAULT_POOL_SEGMENTS, segmentation=None, channel_axis=-1):
     """Fibroglandular tissue, percent density and tissue class of a mammogram.
@@ -563,8 +548,6 @@ def segment_tissue(image, *, breast=None, levels=3, neighbourhood=2, n_init=16, 
     The cross-validated accuracy of each step is in the model file and
     ``benchmarks/bench_tissue.py``. A research tool, never a diagnostic aid.
 
-    Parameters
-    ----------
     {parameters}
 
     Returns
@@ -584,12 +567,8 @@ def segment_tissue(image, *, breast=None, levels=3, neighbourhood=2, n_init=16, 
     TypeError
         If ``segmentation`` is not a BreastSegmentation.
 
-    Examples
-    --------
-    >>> import numpy as np
+    {examples}
     >>> from car_napari.mammography import segment_tissue
-    >>> image = np.zeros((64, 64))
-    >>> image[4:60, 20:] = np.random.default_rng(0).uniform(0.5, 0.9, (56, 44))
     >>> tissue = segment_tissue(image, n_init=4)
     >>> tissue.fibroglandular.shape, bool((tissue.fibroglandular & ~tissue.breast).any())
     ((64, 64), False)
@@ -601,6 +580,8 @@ def segment_tissue(image, *, breast=None, levels=3, neighbourhood=2, n_init=16, 
 
 
 _ANALYSE_PARAMETERS = """
+Parameters
+----------
 image : (H, W) array_like
     Grey mammogram, as for :func:`detect_mammogram_rois`.
 marks_per_image : float or None, optional
@@ -623,7 +604,7 @@ channel_axis : int or None, optional
 """
 
 
-@shared_parameters(_ANALYSE_PARAMETERS)
+@shared_sections(parameters=_ANALYSE_PARAMETERS, examples=EXAMPLES_MAMMOGRAM)
 def iter_analyse_mammogram(image, *, marks_per_image=DEFAULT_MARKS_PER_IMAGE, max_regions=None,
                            reference=None, tolerance=None, breast=None, levels=3,
                            neighbourhood=2, n_init=16, work_side=512, seed=0,
@@ -632,8 +613,6 @@ def iter_analyse_mammogram(image, *, marks_per_image=DEFAULT_MARKS_PER_IMAGE, ma
 
     See :func:`analyse_mammogram`.
 
-    Parameters
-    ----------
     {parameters}
 
     Returns
@@ -652,12 +631,8 @@ def iter_analyse_mammogram(image, *, marks_per_image=DEFAULT_MARKS_PER_IMAGE, ma
     ValueError
         As :func:`analyse_mammogram`, before any work.
 
-    Examples
-    --------
-    >>> import numpy as np
+    {examples}
     >>> from car_napari.mammography import iter_analyse_mammogram
-    >>> image = np.zeros((64, 64))
-    >>> image[4:60, 20:] = np.random.default_rng(0).uniform(0.5, 0.9, (56, 44))
     >>> records = list(iter_analyse_mammogram(image, n_init=4, pool=(2, 3)))
     >>> records[-1].stage, records[-1].fraction
     ('tissue', 1.0)
@@ -683,7 +658,8 @@ def iter_analyse_mammogram(image, *, marks_per_image=DEFAULT_MARKS_PER_IMAGE, ma
     return MammogramAnalysis(rois, tissue)
 
 
-@shared_parameters(_ANALYSE_PARAMETERS)
+@shared_sections(parameters=_ANALYSE_PARAMETERS, raises=RAISES_ROIS,
+                 examples=EXAMPLES_MAMMOGRAM)
 def analyse_mammogram(image, *, marks_per_image=DEFAULT_MARKS_PER_IMAGE, max_regions=None,
                       reference=None, tolerance=None, breast=None, levels=3, neighbourhood=2,
                       n_init=16, work_side=512, seed=0, pool=DEFAULT_POOL_SEGMENTS,
@@ -695,8 +671,6 @@ def analyse_mammogram(image, *, marks_per_image=DEFAULT_MARKS_PER_IMAGE, max_reg
     :func:`segment_tissue` with the same options (the same results as the
     two calls, in about the time of one).
 
-    Parameters
-    ----------
     {parameters}
 
     Returns
@@ -705,18 +679,10 @@ def analyse_mammogram(image, *, marks_per_image=DEFAULT_MARKS_PER_IMAGE, max_reg
         ``rois`` (:class:`MammogramROIs`) and ``tissue``
         (:class:`TissueResult`); unpacks as ``rois, tissue``.
 
-    Raises
-    ------
-    ValueError
-        If the image is constant or has no breast, or an option is out of
-        range.
+    {raises}
 
-    Examples
-    --------
-    >>> import numpy as np
+    {examples}
     >>> from car_napari.mammography import analyse_mammogram
-    >>> image = np.zeros((64, 64))
-    >>> image[4:60, 20:] = np.random.default_rng(0).uniform(0.5, 0.9, (56, 44))
     >>> rois, tissue = analyse_mammogram(image, n_init=4, pool=(2, 3))
     >>> tissue.tissue_class in ("F", "G", "D")
     True
