@@ -17,6 +17,7 @@ import numpy as np
 from numba import njit
 
 from .._progress import Progress, drain
+from ._mixture import _log_joint
 from ._prior import mean_field
 
 __all__ = ["label_pixels"]
@@ -261,25 +262,14 @@ def _band_posteriors(features, a0, a1, means_t, inv_t, const, out, peak):
     """Posteriors of every component for the pixels of rows a0..a1-1, into
     ``out`` (K, a1 - a0, W): ``w_j N(x | mu_j, diag var_j)`` normalised;
     ``peak`` (K,) gets each component's largest posterior. ``means_t`` and
-    ``inv_t`` are (D, K): the loop over the components is the inner one
-    (vectorised), each component's sum runs over the features in order."""
-    d, k = means_t.shape
+    ``inv_t`` are (D, K) (see :func:`._mixture._log_joint`)."""
+    k = means_t.shape[1]
     w = features.shape[1]
     acc = np.empty(k)
     peak[:] = 0.0
     for y in range(a0, a1):
         for x in range(w):
-            acc[:] = 0.0
-            for c in range(d):
-                v = features[y, x, c]
-                for j in range(k):
-                    t = v - means_t[c, j]
-                    acc[j] += t * t * inv_t[c, j]
-            top = -np.inf
-            for j in range(k):
-                acc[j] = const[j] - 0.5 * acc[j]
-                if acc[j] > top:
-                    top = acc[j]
+            top = _log_joint(features[y, x], means_t, inv_t, const, acc)
             total = 0.0
             for j in range(k):
                 e = math.exp(acc[j] - top)

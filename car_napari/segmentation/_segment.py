@@ -547,9 +547,7 @@ def iter_segment(
     Raises
     ------
     ValueError
-        If an option is out of range, the image is constant, has NaN or
-        infinite values or is too small for ``levels``, or ``mask`` does not
-        match the image or selects nothing.
+        As :func:`segment`.
 
     Examples
     --------
@@ -636,17 +634,21 @@ def iter_segment(
     )
     history = result.history
 
+    def label(mix_i, start, stop, stage_name):
+        """Label every pixel by this mixture (in bands, yielding): (labels, probability)."""
+        return (yield from stage(
+            _iter_label(features, mix_i, smoothing=smoothing, min_area=min_area,
+                        step=result.label_step, prior=prior,
+                        prior_iterations=prior_iterations),
+            start, stop, name=stage_name, prefix=f"K = {mix_i.k}: "))
+
     def label_state(stage_name):
         """Label the newest state (in bands, yielding); keep its labels, its
         probabilities while it may be the final state; preview it."""
         i = len(history) - 1
         mix_i = history[i]
         share = mix_i.k + _ABSORB_WORK
-        labels, prob = yield from stage(
-            _iter_label(features, mix_i, smoothing=smoothing, min_area=min_area,
-                        step=result.label_step, prior=prior,
-                        prior_iterations=prior_iterations),
-            at(), at(share), name=stage_name, prefix=f"K = {mix_i.k}: ")
+        labels, prob = yield from label(mix_i, at(), at(share), stage_name)
         if i > 0 and result._final is None and _is_final(history, i - 1, n_segments,
                                                          merge_threshold, relative):
             result._final = i - 1
@@ -671,11 +673,7 @@ def iter_segment(
     labels, prob = result._cut(final), result._probs.get(final)
     result._final = final
     if prob is None:  # not kept (_is_final was wrong, or n_segments missing): label again
-        labels, prob = yield from stage(
-            _iter_label(features, history[final], smoothing=smoothing, min_area=min_area,
-                        step=result.label_step, prior=prior,
-                        prior_iterations=prior_iterations),
-            at(), at(), name="merging", prefix=f"K = {history[final].k}: ")
+        labels, prob = yield from label(history[final], at(), at(), "merging")
     for j in [j for j in result._probs if j != final]:
         del result._probs[j]
     result.labels = result._finish(labels, prob, threshold)
