@@ -297,8 +297,7 @@ def iter_local_features(
     Raises
     ------
     ValueError
-        If the image is constant, has NaN or infinite values, or is too
-        small for ``levels`` resolutions.
+        As :func:`local_features`.
 
     Examples
     --------
