@@ -254,7 +254,7 @@ def job_pool():
     Raises
     ------
     ValueError
-        ``CAR_NAPARI_JOB_THREADS`` is not a positive number.
+        As :func:`job_threads`.
 
     Examples
     --------

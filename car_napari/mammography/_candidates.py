@@ -364,7 +364,7 @@ def _surprise(g, inside, ring):
     Z = np.stack(taps + [y[r0:r1, c0:c1]], axis=-1)[use]
     var = float(Z[:, -1].var()) + 1e-12
     # an almost uninformative prior on the scale of the ring's variance
-    est = estimate_parameters(Z.T @ Z, len(Z), eta, 1, np.full(eta + 1, 1e-6 * var))
+    est = estimate_parameters(Z.T @ Z, len(Z), eta, np.full(eta + 1, 1e-6 * var))
     model = CARModel(gamma=est.gamma, sigma=est.lam / est.beta, mean=np.array([mean]),
                      offsets=np.asarray(offsets), lam=est.lam, vx=est.vx, beta=est.beta,
                      n_pixels=len(Z), order=_SURPRISE_ORDER)

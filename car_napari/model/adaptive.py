@@ -17,9 +17,9 @@ from .._validation import (
     check_size,
     summarize,
 )
-from .directions import DIRECTIONS, scan_shape
+from .directions import check_direction, scan_shape
 from .neighbourhood import Context, as_offsets
-from .recursive import RecursiveScan, default_prior
+from .recursive import _CHUNK_ROWS_PARAMETER, RecursiveScan, default_prior
 from .statistics import data_statistics
 
 __all__ = ["adaptive_scanner", "adaptive_start", "iter_local_parameters", "local_parameters"]
@@ -108,7 +108,7 @@ def local_parameters(
         channel_axis=channel_axis, prior=prior, warm_start=warm_start))
 
 
-@shared_parameters(_PARAMETERS)
+@shared_parameters(_PARAMETERS + _CHUNK_ROWS_PARAMETER)
 def iter_local_parameters(
     image,
     neighbourhood=2,
@@ -130,8 +130,6 @@ def iter_local_parameters(
     Parameters
     ----------
     {parameters}
-    chunk_rows : int, optional
-        Scan rows per chunk (default: about 0.1-0.25 s of work).
 
     Returns
     -------
@@ -165,8 +163,7 @@ def iter_local_parameters(
     """
     offsets, _ = as_offsets(neighbourhood)  # the options first: no pass over a bad call
     forgetting = check_forgetting(forgetting)
-    if direction not in DIRECTIONS:
-        raise ValueError(f"direction must be one of {DIRECTIONS}; got {direction!r}.")
+    check_direction(direction)
     prior = check_real(prior, "prior", low=0.0, low_open=True)
     if not isinstance(warm_start, (bool, np.bool_)):
         raise TypeError(f"warm_start must be True or False; got {warm_start!r}.")

@@ -3,9 +3,34 @@
 
 from __future__ import annotations
 
-__all__ = ["DIRECTIONS", "scan_shape", "scan_view", "unscan_view"]
+__all__ = ["DIRECTIONS", "check_direction", "scan_shape", "scan_view", "unscan_view"]
 
 DIRECTIONS = ("down", "up", "right", "left")
+
+
+def check_direction(direction):
+    """Refuse anything but one of the four scan directions.
+
+    Parameters
+    ----------
+    direction : object
+        What a caller passed as a scan direction.
+
+    Raises
+    ------
+    ValueError
+        If ``direction`` is not one of :data:`DIRECTIONS`.
+
+    Examples
+    --------
+    >>> check_direction("up")
+    >>> check_direction("sideways")
+    Traceback (most recent call last):
+    ...
+    ValueError: direction must be one of ('down', 'up', 'right', 'left'); got 'sideways'.
+    """
+    if direction not in DIRECTIONS:
+        raise ValueError(f"direction must be one of {DIRECTIONS}; got {direction!r}.")
 
 
 def scan_shape(shape, direction):
@@ -65,9 +90,8 @@ def scan_view(image, direction):
         return image[::-1]
     if direction == "right":
         return image.swapaxes(0, 1)
-    if direction == "left":
-        return image[:, ::-1].swapaxes(0, 1)
-    raise ValueError(f"direction must be one of {DIRECTIONS}; got {direction!r}.")
+    check_direction(direction)
+    return image[:, ::-1].swapaxes(0, 1)  # 'left'
 
 
 def unscan_view(field, direction):
@@ -97,12 +121,6 @@ def unscan_view(field, direction):
     >>> bool(np.array_equal(unscan_view(scan_view(image, "left"), "left"), image))
     True
     """
-    if direction == "down":
-        return field
-    if direction == "up":
-        return field[::-1]
-    if direction == "right":
-        return field.swapaxes(0, 1)
-    if direction == "left":
+    if direction == "left":  # the one view that is not its own inverse
         return field.swapaxes(0, 1)[:, ::-1]
-    raise ValueError(f"direction must be one of {DIRECTIONS}; got {direction!r}.")
+    return scan_view(field, direction)

@@ -20,7 +20,7 @@ from .._validation import (
     check_size,
 )
 from .blocks import iter_centre, iter_channel_last_float
-from .directions import DIRECTIONS, scan_view
+from .directions import check_direction, scan_view
 from .fitted import CARModel
 from .neighbourhood import Context, as_offsets
 from .statistics import estimate_parameters, iter_data_statistics
@@ -134,16 +134,22 @@ def _candidate_label(key, k, n):
     return f"order {key}" if isinstance(key, int) else f"candidate {k}/{n}"
 
 
+def _offset_union(neighbourhoods):
+    """The offsets of several (eta, 2) neighbourhoods, each once, in the
+    order first met: an (n, 2) int64 array."""
+    union = []
+    for offsets in neighbourhoods:
+        for s in map(tuple, offsets.tolist()):
+            if s not in union:
+                union.append(s)
+    return np.array(union, dtype=np.int64)
+
+
 def _iter_scores(centred, candidates, direction):
     """Score every candidate on the same pixels (the first condition of the
     decision rule (14.6), docs/model.md): Progress records, then the scores."""
     d = centred.shape[2]
-    union = []
-    for _, offs in candidates:
-        for s in map(tuple, offs.tolist()):
-            if s not in union:
-                union.append(s)
-    union = np.array(union, dtype=np.int64)
+    union = _offset_union(offs for _, offs in candidates)
     ctx = Context.spatial(union, d)
     view_shape = scan_view(centred, direction).shape
     check_size(np.empty(view_shape[:2]), ctx.reach, minimum_pixels=4 * ctx.n_regressors + 4)
@@ -165,7 +171,7 @@ def _iter_scores(centred, candidates, direction):
         sel = np.r_[cols, mu + np.arange(d)]
         m = cols.size
         sub = V[np.ix_(sel, sel)]
-        _, _, _, beta, L = estimate_parameters(sub, count, m, d, np.full(m + d, _PRIOR))
+        _, _, _, beta, L = estimate_parameters(sub, count, m, np.full(m + d, _PRIOR))
         scores[key] = _decision_score(L, beta, float(m - 1), m, d)
         yield Progress("support", 0.9 + 0.1 * k / len(candidates),
                        f"{_candidate_label(key, k, len(candidates))}: D = {scores[key]:.6g}")
@@ -270,8 +276,7 @@ def iter_select_support(image, orders=range(1, 6), *, channel_axis=-1, direction
     >>> [r.message.split(":")[0] for r in records[-2:]]
     ['order 1', 'order 2']
     """
-    if direction not in DIRECTIONS:
-        raise ValueError(f"direction must be one of {DIRECTIONS}; got {direction!r}.")
+    check_direction(direction)
     candidates = _candidate_offsets(orders)
     d = _channels(image, channel_axis)
     prep = _prepare_cost(d)
@@ -410,8 +415,7 @@ def iter_fit_car(
     """
     if model not in ("3d", "2d"):
         raise ValueError(f"model must be '3d' or '2d'; got {model!r}.")
-    if direction not in DIRECTIONS:
-        raise ValueError(f"direction must be one of {DIRECTIONS}; got {direction!r}.")
+    check_direction(direction)
     d = _channels(image, channel_axis)
     auto = isinstance(neighbourhood, str)
     split = _prepare_share(d, neighbourhood, orders, model)
@@ -528,7 +532,7 @@ def _iter_fit_centred(centred, mean, channel_var, neighbourhood, orders, directi
                                 split, 1.0)
     m = ctx.n_regressors
     var = float(np.mean(channel_var))
-    gamma, lam, vx, beta, _ = estimate_parameters(V, count, m, d, np.full(m + d, _PRIOR * var))
+    gamma, lam, vx, beta, _ = estimate_parameters(V, count, m, np.full(m + d, _PRIOR * var))
     return CARModel(
         gamma=gamma, sigma=lam / beta, mean=mean, offsets=offsets, lam=lam, vx=vx,
         beta=beta, n_pixels=count, order=order, scores=scores, direction=direction,
@@ -598,12 +602,7 @@ def _iter_fit_2d(centred, mean, neighbourhood, orders, direction):
         factors.append((yield from stage(fit, start, start + each)))
     del factors_data
     # Equivalent colour-space model over the union of the factors' offsets.
-    union = []
-    for fm in factors:
-        for s in map(tuple, fm.offsets.tolist()):
-            if s not in union:
-                union.append(s)
-    union = np.array(union, dtype=np.int64)
+    union = _offset_union(fm.offsets for fm in factors)
     eta = len(union)
     A = np.zeros((eta, d, d))
     for k, fm in enumerate(factors):

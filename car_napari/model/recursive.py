@@ -12,7 +12,7 @@ import numpy as np
 from .._docstrings import shared_parameters
 from .._progress import Progress
 from ._kernels import finish_factor, recursive_scan
-from .directions import DIRECTIONS, scan_shape, scan_view, unscan_view
+from .directions import DIRECTIONS, check_direction, scan_shape, scan_view, unscan_view
 
 __all__ = ["scan", "iter_scan", "RecursiveScan", "ScanChunk", "ScanResult", "default_prior",
            "scan_work", "DIRECTIONS", "scan_shape", "scan_view", "unscan_view"]
@@ -20,6 +20,7 @@ __all__ = ["scan", "iter_scan", "RecursiveScan", "ScanChunk", "ScanResult", "def
 
 def _geometry(shape, direction, context):
     """Strides that map scan position (a, b) to the original (H, W, C) array."""
+    check_direction(direction)
     h, w, c = shape
     if direction == "down":
         hs, ws, i0, j0, ia, ib, ja, jb = h, w, 0, 0, 1, 0, 0, 1
@@ -27,10 +28,8 @@ def _geometry(shape, direction, context):
         hs, ws, i0, j0, ia, ib, ja, jb = h, w, h - 1, 0, -1, 0, 0, 1
     elif direction == "right":
         hs, ws, i0, j0, ia, ib, ja, jb = w, h, 0, 0, 0, 1, 1, 0
-    elif direction == "left":
+    else:  # 'left'
         hs, ws, i0, j0, ia, ib, ja, jb = w, h, 0, w - 1, 0, 1, -1, 0
-    else:
-        raise ValueError(f"direction must be one of {DIRECTIONS}; got {direction!r}.")
     # pixel index of (i, j) is i*w + j; element index is that times c
     base_px = i0 * w + j0
     sa_px = ia * w + ja
@@ -146,6 +145,54 @@ class ScanChunk(NamedTuple):
     outputs: dict
 
 
+# the Parameters of RecursiveScan, iter_scan and scan, written once
+_SCAN_PARAMETERS = """
+data : (H, W, C) ndarray of float64
+    C-contiguous, already centred; modified in place only where
+    ``missing`` asks for fills.
+context : Context
+    What goes into ``X_r`` and ``Y_r``; ``C >= context.n_channels``.
+direction : {'down', 'up', 'right', 'left'}, optional
+    The scan direction.
+forgetting : float in (0, 1], optional
+    The forgetting factor ``phi``.
+intercept : bool, optional
+    Add a constant regressor.
+prior : (n,) array_like, optional
+    Diagonal of ``V_0`` (``n = m + intercept + d``); required unless
+    ``initial`` is given.
+initial : tuple, optional
+    ``(U0, beta0)`` to start from given statistics instead of the prior:
+    ``U0`` the upper Cholesky factor of the augmented ``V = U0^T U0`` of
+    ``[X; (1); Y]`` (prior included). ``prior``, if also given, is still
+    the floor that forgetting re-injects.
+update : bool, optional
+    False predicts with fixed statistics.
+outputs : subset of {'gamma', 'mean', 'logp', 'q', 'maha', 'logrel'}, optional
+    The per-pixel arrays to return (``logrel``: log predictive density
+    relative to its peak, <= 0).
+missing : (H, W) array of bool or uint8, optional
+    Pixels to fill in place in ``data`` (its target channels) with the
+    conditional mean as the scan reaches them (section 14.7,
+    docs/inpainting.md); they and pixels whose neighbourhood holds one do
+    not update the statistics.
+fill_range : tuple of 2 arrays of d values, optional
+    ``(lo, hi)`` bounds for the filled values (default: unbounded).
+suspect_logrel : float <= 0, optional
+    ``missing`` may also be a uint8 array holding 2 at suspect known
+    pixels (the edge of the damage): one the model finds improbable when
+    the scan reaches it (log predictive density relative to its peak, as
+    the ``logrel`` output, below this) is filled too. Such a ``missing``
+    is modified in place (1 where filled, 0 where kept).
+"""
+
+# the chunk_rows entry of the jobs that run a scan in chunks (after their Parameters)
+_CHUNK_ROWS_PARAMETER = """chunk_rows : int, optional
+    Scan rows per chunk (default: about 0.1-0.25 s of work).
+"""
+
+
+@shared_parameters(_SCAN_PARAMETERS)
 class RecursiveScan:
     """The recursive square-root estimator over an image, run in chunks of rows.
 
@@ -162,32 +209,7 @@ class RecursiveScan:
 
     Parameters
     ----------
-    data : (H, W, C) ndarray of float64
-        C-contiguous, already centred; modified in place only where
-        ``missing`` asks for fills.
-    context : Context
-        What goes into ``X_r`` and ``Y_r``; ``C >= context.n_channels``.
-    direction : {'down', 'up', 'right', 'left'}, optional
-        The scan direction.
-    forgetting : float in (0, 1], optional
-        The forgetting factor ``phi``.
-    intercept : bool, optional
-        Add a constant regressor.
-    prior : (n,) array_like, optional
-        Diagonal of ``V_0`` (``n = m + intercept + d``); required unless
-        ``initial`` is given.
-    initial : tuple, optional
-        ``(U0, beta0)``: start from these statistics (see :func:`scan`).
-    update : bool, optional
-        False predicts with fixed statistics.
-    outputs : subset of {'gamma', 'mean', 'logp', 'q', 'maha', 'logrel'}, optional
-        The per-pixel outputs (see :func:`scan`).
-    missing : (H, W) array of bool or uint8, optional
-        Pixels to fill in place (see :func:`scan`).
-    fill_range : tuple of 2 arrays of d values, optional
-        Bounds of the filled values.
-    suspect_logrel : float <= 0, optional
-        Outlier threshold of suspect pixels (see :func:`scan`).
+    {parameters}
     stream : bool, optional
         Return each chunk's outputs in a reused buffer instead of keeping
         image-sized arrays.
@@ -511,49 +533,9 @@ class RecursiveScan:
 _EMPTY = np.empty(0)
 
 
-_SCAN_PARAMETERS = """
-data : (H, W, C) ndarray of float64
-    C-contiguous, already centred; modified in place only where
-    ``missing`` asks for fills.
-context : Context
-    What goes into ``X_r`` and ``Y_r``; ``C >= context.n_channels``.
-direction : {'down', 'up', 'right', 'left'}, optional
-    The scan direction.
-forgetting : float in (0, 1], optional
-    The forgetting factor ``phi``.
-intercept : bool, optional
-    Add a constant regressor.
-prior : (n,) array_like, optional
-    Diagonal of ``V_0`` (``n = m + intercept + d``); required unless
-    ``initial`` is given.
-initial : tuple, optional
-    ``(U0, beta0)`` to start from given statistics instead of the prior:
-    ``U0`` the upper Cholesky factor of the augmented ``V = U0^T U0`` of
-    ``[X; (1); Y]`` (prior included). ``prior``, if also given, is still
-    the floor that forgetting re-injects.
-update : bool, optional
-    False predicts with fixed statistics.
-outputs : subset of {'gamma', 'mean', 'logp', 'q', 'maha', 'logrel'}, optional
-    The per-pixel arrays to return (``logrel``: log predictive density
-    relative to its peak, <= 0).
-missing : (H, W) array of bool or uint8, optional
-    Pixels to fill in place in ``data`` (its target channels) with the
-    conditional mean as the scan reaches them (section 14.7,
-    docs/inpainting.md); they and pixels whose neighbourhood holds one do
-    not update the statistics.
-fill_range : tuple of 2 arrays of d values, optional
-    ``(lo, hi)`` bounds for the filled values (default: unbounded).
-suspect_logrel : float <= 0, optional
-    ``missing`` may also be a uint8 array holding 2 at suspect known
-    pixels (the edge of the damage): one the model finds improbable when
-    the scan reaches it (log predictive density relative to its peak, as
-    the ``logrel`` output, below this) is filled too. Such a ``missing``
-    is modified in place (1 where filled, 0 where kept).
-
-"""
 
 
-@shared_parameters(_SCAN_PARAMETERS)
+@shared_parameters(_SCAN_PARAMETERS + _CHUNK_ROWS_PARAMETER)
 def iter_scan(
     data,
     context,
@@ -580,8 +562,6 @@ def iter_scan(
     Parameters
     ----------
     {parameters}
-    chunk_rows : int, optional
-        Scan rows per chunk (default: about 0.1-0.25 s of work).
 
     Returns
     -------
@@ -662,6 +642,7 @@ def scan(
     Parameters
     ----------
     {parameters}
+
     Returns
     -------
     ScanResult

@@ -102,10 +102,8 @@ def iter_data_statistics(centred, context, *, direction="down"):
 
     Returns
     -------
-    V : (m + d, m + d) ndarray of float64
-        ``sum z z^T`` of ``z = [X_r; Y_r]``.
-    n_pixels : int
-        The number of pixels summed.
+    (V, n_pixels)
+        What :func:`data_statistics` returns.
 
     Yields
     ------
@@ -200,7 +198,7 @@ class Estimates(NamedTuple):
     Examples
     --------
     >>> import numpy as np
-    >>> gamma, lam, vx, beta, chol = estimate_parameters(np.eye(2), 5, 1, 1, np.ones(2))
+    >>> gamma, lam, vx, beta, chol = estimate_parameters(np.eye(2), 5, 1, np.ones(2))
     >>> gamma.tolist(), beta
     ([[0.0]], 5.0)
     """
@@ -212,7 +210,7 @@ class Estimates(NamedTuple):
     chol: np.ndarray
 
 
-def estimate_parameters(V, n_pixels, m, d, prior):
+def estimate_parameters(V, n_pixels, m, prior):
     """Bayesian estimates from the augmented statistics plus a diagonal prior.
 
     The estimates of (14.7)-(14.14), (14.21), docs/model.md. One Cholesky factor of
@@ -228,9 +226,8 @@ def estimate_parameters(V, n_pixels, m, d, prior):
     n_pixels : int
         The number of pixels summed in ``V``.
     m : int
-        Length of ``X_r`` (regressors).
-    d : int
-        Length of ``Y_r`` (modelled channels).
+        Length of ``X_r`` (regressors); the rest of ``V``'s ``m + d`` rows
+        are ``Y_r``.
     prior : (m + d,) array_like
         The diagonal of the prior part ``V_0``; positive.
 
@@ -248,7 +245,7 @@ def estimate_parameters(V, n_pixels, m, d, prior):
     --------
     >>> import numpy as np
     >>> V = np.array([[4.0, 2.0], [2.0, 5.0]])
-    >>> est = estimate_parameters(V, 10, 1, 1, np.zeros(2))
+    >>> est = estimate_parameters(V, 10, 1, np.zeros(2))
     >>> est.gamma.tolist(), est.lam.tolist(), est.beta
     ([[0.5]], [[4.0]], 10.0)
     """
@@ -309,24 +306,25 @@ def covariant_estimates(V, n_pixels, m, d, scatter, *, factor_prior=False):
     >>> bool(np.all(np.linalg.eigvalsh(est.lam) > 0))
     True
     """
-    prior_V = V / n_pixels
-    try:
-        est = estimate_parameters(V + prior_V, n_pixels, m, d, np.zeros(m + d))
+    def estimates(prior_V):
+        """The estimates with this prior; LinAlgError where it leaves ``lam``
+        (or, with ``factor_prior``, the prior itself) without a Cholesky factor."""
+        est = estimate_parameters(V + prior_V, n_pixels, m, np.zeros(m + d))
         np.linalg.cholesky(est.lam)
         if factor_prior:
             np.linalg.cholesky(prior_V + 1e-300 * np.eye(m + d))
         return est, prior_V
+
+    prior_V = V / n_pixels
+    try:
+        return estimates(prior_V)
     except np.linalg.LinAlgError:
         prior_V = prior_V + DEGENERATE_PRIOR * np.kron(np.eye(m // d + 1), scatter)
     try:
-        est = estimate_parameters(V + prior_V, n_pixels, m, d, np.zeros(m + d))
-        np.linalg.cholesky(est.lam)
-        if factor_prior:
-            np.linalg.cholesky(prior_V + 1e-300 * np.eye(m + d))
+        return estimates(prior_V)
     except np.linalg.LinAlgError:
         raise ValueError(
             "the texture is degenerate: its neighbours predict it exactly (a ramp, "
             "stripes, a step edge...) and even a regularised estimate is singular. "
             "Use a more textured region or a lower order."
         ) from None
-    return est, prior_V

@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 
+from .._docstrings import shared_parameters
 from .._progress import Progress, drain, row_blocks
 from .._validation import check_memory, check_real, check_seed, output_shape
 from ._kernels import synthesize_field
@@ -221,6 +222,22 @@ def spectral_radius(model):
     return max(radius, float(np.max(np.abs(np.linalg.eigvals(comp)))))
 
 
+# the Parameters of synthesize and iter_synthesize, written once
+_SYNTHESIZE_PARAMETERS = """
+model : CARModel
+    A model from :func:`~car_napari.model.fit_car`.
+shape : tuple of 2 ints
+    (height, width) of the output.
+seed : int, numpy Generator or None, optional
+    Random seed; the same seed gives the same texture.
+margin : int, optional
+    Burn-in margin in pixels on the top, left and right, 0 to 1024; by
+    default long enough for the model's transient to decay to 1e-4 (16
+    to 256).
+"""
+
+
+@shared_parameters(_SYNTHESIZE_PARAMETERS)
 def synthesize(model, shape, *, seed=None, margin=None):
     """Generate a texture from a fitted CAR model (synthesis, docs/model.md).
 
@@ -231,16 +248,7 @@ def synthesize(model, shape, *, seed=None, margin=None):
 
     Parameters
     ----------
-    model : CARModel
-        A model from :func:`~car_napari.model.fit_car`.
-    shape : tuple of 2 ints
-        (height, width) of the output.
-    seed : int, numpy Generator or None, optional
-        Random seed; the same seed gives the same texture.
-    margin : int, optional
-        Burn-in margin in pixels on the top, left and right, 0 to 1024; by
-        default long enough for the model's transient to decay to 1e-4 (16
-        to 256).
+    {parameters}
 
     Returns
     -------
@@ -271,6 +279,7 @@ def synthesize(model, shape, *, seed=None, margin=None):
     return drain(iter_synthesize(model, shape, seed=seed, margin=margin))
 
 
+@shared_parameters(_SYNTHESIZE_PARAMETERS)
 def iter_synthesize(model, shape, *, seed=None, margin=None, chunk_rows=None):
     """Generate a texture from a fitted CAR model, as a job: Progress, then the texture.
 
@@ -281,14 +290,7 @@ def iter_synthesize(model, shape, *, seed=None, margin=None, chunk_rows=None):
 
     Parameters
     ----------
-    model : CARModel
-        A model from :func:`~car_napari.model.fit_car`.
-    shape : tuple of 2 ints
-        (height, width) of the output.
-    seed : int, numpy Generator or None, optional
-        Random seed; the same seed gives the same texture.
-    margin : int, optional
-        Burn-in margin in pixels (see :func:`synthesize`).
+    {parameters}
     chunk_rows : int, optional
         Lattice rows per kernel call (default: about 0.1-0.2 s of work).
 

@@ -12,14 +12,13 @@ of rows and columns; the result is float32. The peak is about 90 (grey) to
 120 (RGB) bytes per pixel, the (H, W, D) float32 result (72 to 96) included,
 on the full-resolution level (the image in float64, its whitened copy, the
 twelve directional parameters in float32, the energy); every block of work
-is ~0.1 s with a yield after it.
+is ~0.1 s with a yield after it. The blocked steps are :mod:`._blocked`, the
+directional scans :mod:`._directional`; here, the levels and their assembly.
 """
 
 from __future__ import annotations
 
 import math
-import threading
-import time
 
 import numpy as np
 
@@ -33,11 +32,24 @@ from .._validation import (
     check_seed,
     summarize,
 )
-from ..model.adaptive import adaptive_scanner, adaptive_start
 from ..model.blocks import iter_channel_last_float, row_ranges
-from ..model.directions import DIRECTIONS, scan_view
+from ..model.directions import DIRECTIONS
 from ..model.neighbourhood import Context, as_offsets
 from ..model.recursive import scan_work
+from ._blocked import (
+    _LONG_ROWS,
+    _NS_GAUSS,
+    _NS_SCAN,
+    _NS_VALUE,
+    _SMALL_BLOCK,
+    _iter_gaussian,
+    _iter_pyramid_reduce,
+    _iter_upsample,
+    _iter_whiten_channels,
+    _taps,
+    _Work,
+)
+from ._directional import _SAMPLE, _direction_groups, _iter_direction, _pca_fit
 
 __all__ = ["iter_local_features", "iter_pseudo_colour", "local_features", "pseudo_colour"]
 
@@ -64,46 +76,6 @@ def _check_feature_options(levels, forgetting, components, smoothing, mean_smoot
     check_seed(seed)
     if level_smoothing not in ("same", "scaled"):
         raise ValueError(f"level_smoothing must be 'same' or 'scaled'; got {level_smoothing!r}.")
-# pixels each PCA is fitted on, and the robust scaling (medians) before it
-_SAMPLE = 20000
-_ROBUST_SAMPLE = 20000
-# values per block of the whole-image passes that make float64 temporaries
-_SMALL_BLOCK = 1 << 20
-# estimated work (about ns of one core) between two yields, and at most this
-# much CPU time of the job's thread
-_YIELD_WORK = 7.0e7
-_YIELD_CPU = 0.1
-# estimated ns per unit of work of each kind of step (see _Work)
-_NS_GAUSS = 0.6  # per value and tap of a 1-D Gaussian pass
-_NS_SCAN = 0.4  # per work unit of a scan (see recursive._pixel_cost)
-_NS_VALUE = 4.0  # per value of an elementwise NumPy pass
-
-
-class _Work:
-    """Progress proportional to the estimated work: ``step`` adds work done
-    and returns a record once ``_YIELD_WORK`` has piled up since the last, or
-    ``_YIELD_CPU`` seconds of this thread's CPU time have passed (whichever
-    is first: an estimate that is off cannot make a long stretch)."""
-
-    def __init__(self, total):
-        self.total = max(float(total), 1.0)
-        self.done = 0.0
-        self.pending = 0.0
-        self._lock = threading.Lock()  # two scans side by side step it
-        self._clocks = {}  # each thread's CPU time at its last record
-
-    def step(self, work, message, force=False):
-        thread = threading.get_ident()
-        now = time.thread_time()  # this thread's
-        with self._lock:
-            self.done += work
-            self.pending += work
-            since = now - self._clocks.setdefault(thread, now)
-            if force or self.pending >= _YIELD_WORK or since >= _YIELD_CPU:
-                self.pending = 0.0
-                self._clocks[thread] = now
-                return Progress("features", min(self.done / self.total, 1.0), message)
-            return None
 
 
 _PSEUDO_COLOUR_PARAMETERS = """
@@ -207,242 +179,8 @@ def _check_levels(shape, levels, neighbourhood):
         )
 
 
-# ---------------------------------------------------------------------------
-# blocked building blocks (each gives what the one-call NumPy/SciPy form gives)
 
 
-def _taps(sigma):
-    return 2 * int(4.0 * float(sigma) + 0.5) + 1
-
-
-def _iter_gaussian(plane, sigma, work, message, out=None):
-    """``ndimage.gaussian_filter(plane, sigma)`` into ``out`` (default: in
-    place), by blocks: the pass along axis 0 by blocks of columns, then the
-    pass along axis 1 by blocks of rows, as gaussian_filter runs them. Yields
-    the work's records."""
-    from scipy import ndimage
-
-    out = plane if out is None else out
-    h, w = plane.shape
-    taps = _taps(sigma)
-    per_value = _NS_GAUSS * taps
-    cols = max(1, int(_YIELD_WORK // (per_value * h)))
-    for start in range(0, w, cols):
-        stop = min(start + cols, w)
-        ndimage.gaussian_filter1d(plane[:, start:stop], sigma, axis=0,
-                                  output=out[:, start:stop])
-        rec = work.step(per_value * h * (stop - start), message)
-        if rec:
-            yield rec
-    rows = max(1, int(_YIELD_WORK // (per_value * w)))
-    for start in range(0, h, rows):
-        block = out[start : start + rows]
-        ndimage.gaussian_filter1d(block, sigma, axis=1, output=block)
-        rec = work.step(per_value * block.size, message)
-        if rec:
-            yield rec
-
-
-def _iter_pyramid_reduce(level, work, message):
-    """``skimage.transform.pyramid_reduce(level, downscale=2, channel_axis=-1)``
-    channel by channel, its smoothing by blocks: Progress, then the level."""
-    from scipy import ndimage
-
-    h, w, d = level.shape
-    out_shape = (math.ceil(h / 2.0), math.ceil(w / 2.0))
-    sigma = 2 * 2 / 6.0
-    zoom = [1 / f for f in np.divide((h, w), out_shape)]
-    out = np.empty(out_shape + (d,))
-    plane = np.empty((h, w))
-    lo, hi = np.inf, -np.inf
-    for c in range(d):
-        plane[...] = level[..., c]
-        yield from _iter_gaussian(plane, sigma, work, message)
-        lo, hi = min(lo, plane.min()), max(hi, plane.max())
-        # resize(order=1, mode='reflect', anti_aliasing=False) is this zoom
-        out[..., c] = ndimage.zoom(plane, zoom, order=1, mode="mirror", grid_mode=True)
-        rec = work.step(_NS_VALUE * 4 * out_shape[0] * out_shape[1], message)
-        if rec:
-            yield rec
-    np.clip(out, lo, hi, out=out)  # resize's clip to the input's range
-    return out
-
-
-def _iter_whiten_channels(level, work, message):
-    """Spectral Karhunen-Loeve transform with unit-variance factors, by blocks.
-
-    The 3DCAR parameters ((14.1)-(14.4), docs/model.md) transform as
-    ``A -> B A B^{-1}`` under a channel mixing ``B`` (section 14.3,
-    docs/model.md), so this changes no model, only how well the
-    cross-spectral terms are conditioned (RGB channels are nearly collinear)
-    and puts every parameter on a comparable scale. The same arithmetic as
-    the one-call form (NumPy's mean, covariance and products).
-    """
-    h, w, d = level.shape
-    flat = level.reshape(-1, d)
-    n = flat.shape[0]
-    mean = flat.mean(axis=0)
-    out = np.empty_like(level)
-    out_flat = out.reshape(-1, d)
-    blocks = row_blocks(n, _LONG_ROWS, merge_tail=True)
-    step = _NS_VALUE * d
-    if d == 1:
-        std = flat.std()
-        scale = std if std > 0 else 1.0
-        for start, stop in blocks:
-            np.subtract(flat[start:stop], mean, out=out_flat[start:stop])
-            out_flat[start:stop] /= scale
-            rec = work.step(step * (stop - start), message)
-            if rec:
-                yield rec
-        return out
-    # np.cov((flat - mean).T): its mean of the centred data, its centred copy
-    for start, stop in blocks:
-        np.subtract(flat[start:stop], mean, out=out_flat[start:stop])
-        rec = work.step(step * (stop - start), message)
-        if rec:
-            yield rec
-    avg = out_flat.mean(axis=0)
-    for start, stop in blocks:
-        out_flat[start:stop] -= avg
-        rec = work.step(step * (stop - start), message)
-        if rec:
-            yield rec
-    cov = np.dot(out_flat.T, out_flat) * (1.0 / (n - 1))
-    ev, vec = np.linalg.eigh(cov)
-    ev = np.maximum(ev, 1e-6 * max(ev.max(), 1e-300))
-    transform = vec / np.sqrt(ev)
-    for start, stop in blocks:
-        out_flat[start:stop] = (flat[start:stop] - mean) @ transform
-        rec = work.step(step * (stop - start), message)
-        if rec:
-            yield rec
-    return out
-
-
-_LONG_ROWS = 1 << 16
-
-
-def _scan_coords(index, shape, direction):
-    """Scan coordinates (a, b) of raster pixel indices of an (h, w) image."""
-    h, w = shape
-    i, j = np.divmod(index, w)
-    if direction == "down":
-        return i, j
-    if direction == "up":
-        return h - 1 - i, j
-    if direction == "right":
-        return j, i
-    return w - 1 - j, i  # left
-
-
-class _Gather:
-    """Rows of a streamed scan output at given raster pixels (in their order),
-    collected chunk by chunk."""
-
-    def __init__(self, index, shape, direction, shift, width):
-        a, b = _scan_coords(np.asarray(index), shape, direction)
-        ws = shape[1] if direction in ("down", "up") else shape[0]
-        self.order = np.argsort(a, kind="stable")
-        self.a = a[self.order]
-        self.b = np.minimum(b[self.order] + shift, ws - 1)  # the re-centring
-        self.values = np.empty((len(index), width))
-
-    def take(self, start, stop, chunk):
-        lo, hi = np.searchsorted(self.a, [start, stop])
-        if hi > lo:
-            self.values[self.order[lo:hi]] = chunk[self.a[lo:hi] - start, self.b[lo:hi]]
-
-
-def _robust_fit(sample):
-    """Median and spread (MAD, else the std) of the columns of a sample: a
-    few ill-conditioned local fits must not dominate the PCA. (The medians
-    run on the contiguous transpose: the same values, faster.)"""
-    cols = np.ascontiguousarray(sample.T)
-    med = np.median(cols, axis=1)
-    mad = np.median(np.abs(cols - med[:, None]), axis=1) * 1.4826
-    spread = np.where(mad > 0, mad, np.maximum(sample.std(axis=0), 1e-12))
-    return med, spread
-
-
-def _robust_apply(x, med, spread, clip, out=None):
-    """Columns centred on the median, scaled by the spread and clipped."""
-    out = np.subtract(x, med, out=out)
-    out /= spread
-    return np.clip(out, -clip, clip, out=out)
-
-
-def _pca_fit(S, n_components):
-    """Mean and principal axes of the rows of a sample: the leading
-    eigenvectors of the scatter matrix (what the SVD of the centred sample
-    gives, ~50x faster on 20000 x 36 samples), each signed so that its
-    largest entry is positive (the SVD's signs are arbitrary)."""
-    mean = S.mean(axis=0)
-    centred = S - mean
-    _, vec = np.linalg.eigh(centred.T @ centred)
-    axes = vec[:, ::-1][:, :n_components]
-    top = np.abs(axes).argmax(axis=0)
-    return mean, axes * np.sign(axes[top, np.arange(axes.shape[1])])
-
-
-def _iter_direction(centred, ctx, var, *, forgetting, direction, lag, clip, components,
-                    pca_index, reduced, err, work, message):
-    """One directional scan's reduced parameters into ``reduced`` (hm, wm, c)
-    and, with ``err``, its share of the prediction-error energy added: two
-    streamed passes (samples, the PCA's at ``pca_index``, then projection).
-    Yields the work's records."""
-    hm, wm = centred.shape[:2]
-    n = hm * wm
-    ws = wm if direction in ("down", "up") else hm
-    shift = min(lag, ws // 4) if lag > 0 else 0
-    cols = np.minimum(np.arange(ws) + shift, ws - 1)
-    robust_index = np.arange(0, n, max(1, n // _ROBUST_SAMPLE))
-    view_err = None if err is None else scan_view(err, direction)
-    view_centred = scan_view(centred, direction)
-    view_reduced = scan_view(reduced, direction)
-
-    # pass 1: the samples, and the energy
-    outputs = ("gamma", "mean") if err is not None else ("gamma",)
-    warm = adaptive_start(centred, ctx, var, forgetting=forgetting, direction=direction)
-    scanner = adaptive_scanner(centred, ctx, var, forgetting=forgetting, direction=direction,
-                               outputs=outputs, stream=True, start=warm)
-    width = ctx.n_targets * ctx.n_regressors
-    rows = scanner.rows
-    per_row = _NS_SCAN * scanner.pixel_work * ws
-    samples = [_Gather(index, (hm, wm), direction, shift, width)
-               for index in (robust_index, pca_index)]
-    while not scanner.done:
-        start, stop, out = scanner.advance()
-        gamma = out["gamma"].reshape(stop - start, ws, width)
-        for sample in samples:
-            sample.take(start, stop, gamma)
-        if err is not None:
-            err2 = np.nan_to_num(((view_centred[start:stop] - out["mean"]) ** 2).sum(axis=2))
-            view_err[start:stop] += err2 / len(DIRECTIONS)
-        rec = work.step(per_row * (stop - start), f"{message} (1/2), rows {stop}/{rows}")
-        if rec:
-            yield rec
-    robust, pca_sample = (sample.values for sample in samples)
-    if clip:
-        med, spread = _robust_fit(robust)
-        pca_sample = _robust_apply(pca_sample, med, spread, clip)
-    mean, axes = _pca_fit(pca_sample, components)
-
-    # pass 2: the same scan again, every pixel projected on the axes
-    scanner = adaptive_scanner(centred, ctx, var, forgetting=forgetting, direction=direction,
-                               outputs=("gamma",), stream=True, start=warm)  # as pass 1
-    per_row = (_NS_SCAN * scanner.pixel_work + _NS_VALUE * width) * ws
-    while not scanner.done:
-        start, stop, out = scanner.advance()
-        x = out["gamma"].reshape(stop - start, ws, width)[:, cols]  # a copy
-        if clip:
-            _robust_apply(x, med, spread, clip, out=x)
-        x -= mean
-        view_reduced[start:stop] = x @ axes
-        rec = work.step(per_row * (stop - start), f"{message} (2/2), rows {stop}/{rows}")
-        if rec:
-            yield rec
-    yield work.step(0.0, message, force=True)  # one record after each scan
 
 
 _FEATURE_PARAMETERS = """
@@ -559,8 +297,7 @@ def iter_local_features(
     Raises
     ------
     ValueError
-        If the image is constant, has NaN or infinite values, or is too
-        small for ``levels`` resolutions.
+        As :func:`local_features`.
 
     Examples
     --------
@@ -613,14 +350,10 @@ def iter_local_features(
         else:
             centred = level.copy()
         source_summary = summarize(centred)
-        rec = work.step(_NS_VALUE * hm * wm * d / 2, f"{label}: centring")
-        if rec:
-            yield rec
+        yield from work.progress(_NS_VALUE * hm * wm * d / 2, f"{label}: centring")
         for start, stop in row_blocks(hm * wm, _LONG_ROWS, merge_tail=True):
             centred.reshape(-1, d)[start:stop] -= source_summary.mean
-            rec = work.step(_NS_VALUE * (stop - start) * d, f"{label}: centring")
-            if rec:
-                yield rec
+            yield from work.progress(_NS_VALUE * (stop - start) * d, f"{label}: centring")
         reduced = np.empty((hm, wm, len(DIRECTIONS) * components), np.float32)
         err = np.zeros((hm, wm)) if energy else None
         # the PCA samples drawn in the directions' order, whatever runs when
@@ -664,9 +397,8 @@ def iter_local_features(
         out_flat = result.reshape(hm * wm, per_level)
         for start, stop in row_blocks(hm * wm, _LONG_ROWS, merge_tail=True):
             out_flat[start:stop, : components + 1] = (flat[start:stop] - mean) @ axes
-            rec = work.step(_NS_VALUE * flat.shape[1] * (stop - start), f"{label}: reducing")
-            if rec:
-                yield rec
+            yield from work.progress(_NS_VALUE * flat.shape[1] * (stop - start),
+                                     f"{label}: reducing")
         del reduced, flat
         # the local models' prediction-error energy (their Sigma, log scale)
         # and the local mean spectrum: their smoothings two at a time
@@ -700,10 +432,6 @@ def iter_local_features(
     return theta
 
 
-def _direction_groups(pool):
-    """The directions' indices, run a group at a time: pairs on a pool, else one by one."""
-    k = range(len(DIRECTIONS))
-    return [k[:2], k[2:]] if pool is not None else [[i] for i in k]
 
 
 def _iter_assemble(buffer, level_results, shape, work):
@@ -721,9 +449,7 @@ def _iter_assemble(buffer, level_results, shape, work):
         for start, stop in row_ranges(h, w * n_feats, _SMALL_BLOCK):
             rows = first[start:stop].copy()
             theta[start:stop, :, :per_level] = rows
-            rec = work.step(_NS_VALUE * rows.size * n_feats / per_level, "assembling")
-            if rec:
-                yield rec
+            yield from work.progress(_NS_VALUE * rows.size * n_feats / per_level, "assembling")
     del first
     for m, coarse in enumerate(level_results[1:], start=1):
         yield from _iter_upsample(coarse, theta[..., m * per_level : (m + 1) * per_level],
@@ -734,49 +460,20 @@ def _iter_assemble(buffer, level_results, shape, work):
     total = np.zeros(n_feats)
     for start, stop in blocks:
         total += theta[start:stop].sum(axis=(0, 1), dtype=np.float64)
-        rec = work.step(_NS_VALUE * (stop - start) * w * n_feats / 2, "standardising")
-        if rec:
-            yield rec
+        yield from work.progress(_NS_VALUE * (stop - start) * w * n_feats / 2, "standardising")
     mean = total / (h * w)
     square = np.zeros(n_feats)
     for start, stop in blocks:
         square += ((theta[start:stop] - mean) ** 2).sum(axis=(0, 1))
-        rec = work.step(_NS_VALUE * (stop - start) * w * n_feats, "standardising")
-        if rec:
-            yield rec
+        yield from work.progress(_NS_VALUE * (stop - start) * w * n_feats, "standardising")
     std = np.sqrt(square / (h * w))
     scale = np.where(std > 0, std, 1.0)
     for start, stop in blocks:
         theta[start:stop] = (theta[start:stop] - mean) / scale
-        rec = work.step(_NS_VALUE * (stop - start) * w * n_feats, "standardising")
-        if rec:
-            yield rec
+        yield from work.progress(_NS_VALUE * (stop - start) * w * n_feats, "standardising")
     return theta
 
 
-def _iter_upsample(coarse, out, work, message):
-    """Bilinear interpolation of (hm, wm, c) features to ``out`` (h, w, c), as
-    ``skimage.transform.resize(order=1, mode='edge', anti_aliasing=False)``
-    (pixel centres aligned, edges repeated), by blocks of rows."""
-    hm, wm, c = coarse.shape
-    h, w = out.shape[:2]
-
-    def axis(n_out, n_in):
-        pos = np.clip((np.arange(n_out) + 0.5) * (n_in / n_out) - 0.5, 0, n_in - 1)
-        lo = np.minimum(pos.astype(np.int64), n_in - 1)
-        hi = np.minimum(lo + 1, n_in - 1)
-        return lo, hi, (pos - lo)
-
-    y0, y1, fy = axis(h, hm)
-    x0, x1, fx = axis(w, wm)
-    fx = fx[None, :, None]
-    for start, stop in row_ranges(h, w * c * 4, _SMALL_BLOCK):
-        wy = fy[start:stop, None, None]
-        rows = coarse[y0[start:stop]] * (1 - wy) + coarse[y1[start:stop]] * wy
-        out[start:stop] = rows[:, x0] * (1 - fx) + rows[:, x1] * fx
-        rec = work.step(_NS_VALUE * 4 * (stop - start) * w * c, message)
-        if rec:
-            yield rec
 
 
 @shared_parameters(_FEATURE_PARAMETERS)

@@ -17,6 +17,7 @@ import numpy as np
 from numba import njit
 
 from .._progress import Progress, drain
+from ._mixture import _log_joint
 from ._prior import mean_field
 
 __all__ = ["label_pixels"]
@@ -92,46 +93,71 @@ def _iter_label(features, mix, *, smoothing=2.0, min_area=0, step=1, prior=0.0,
         return (yield from _iter_label_coarse(features, mix, smoothing=smoothing,
                                               min_area=min_area, step=int(step), prior=prior,
                                               prior_iterations=prior_iterations))
-    from scipy import ndimage
-
     h, w, _ = features.shape
     k = mix.k
-    means_t = np.ascontiguousarray(np.asarray(mix.means, dtype=np.float64).T)
-    inv_t = np.ascontiguousarray(1.0 / np.asarray(mix.variances, dtype=np.float64).T)
-    const = (-0.5 * (np.log(2 * np.pi * mix.variances).sum(axis=1))
-             + np.log(mix.weights)).astype(np.float64)
-    ids = np.asarray(mix.ids, dtype=np.int32)
-    halo = int(_TRUNCATE * float(smoothing) + 0.5) if smoothing > 0 else 0
-    band_values = _BAND_VALUES
-    if prior > 0:
-        halo += int(prior_iterations)
-        band_values //= 3  # the mean field's two more arrays of the band
+    means_t, inv_t, const, ids = _mixture_arrays(mix)
+    sigma = float(smoothing)
+    halo, band_values = _band_reach(sigma, prior, prior_iterations)
     rows = max(1, 4 * halo, min(band_values // (k * w) - 2 * halo, _CHUNK_PIXELS // w))
     labels = np.empty((h, w), np.int32)
     prob = np.empty((h, w), np.float32)
     peak = np.empty(k)
-    share = 0.7 if min_area > 0 else 1.0  # the clean-up's part of the work
+    share = _band_share(min_area)
     for r0 in range(0, h, rows):
         r1 = min(h, r0 + rows)
         a0, a1 = max(0, r0 - halo), min(h, r1 + halo)
         post = np.empty((k, a1 - a0, w))
         _band_posteriors(features, a0, a1, means_t, inv_t, const, post, peak)
-        if smoothing > 0:
-            # (with a prior every component counts in the marginals: all smoothed)
-            for j in np.flatnonzero(peak >= (0.0 if prior > 0 else 0.5 / k)):
-                # the averaged posteriors of a pixel sum to 1, so its best is at
-                # least 1/K: a component below 0.5/K all over the band cannot
-                # be best anywhere, and is left unsmoothed (the same labels)
-                ndimage.gaussian_filter(post[j], sigma=smoothing, output=post[j])
-        if prior > 0:
-            mean_field(post, prior, prior_iterations)
+        _weigh_band(post, peak, sigma, prior, prior_iterations)
         _band_best(post, r0 - a0, ids, labels[r0:r1], prob[r0:r1])
         del post
         yield Progress("labelling", share * r1 / h, "labelling")
+    yield from _iter_clean_up(labels, min_area, share)
+    return labels, prob
+
+
+def _band_reach(sigma, prior, prior_iterations):
+    """Rows of halo a band of posteriors needs (the Gaussian window of width
+    ``sigma``, plus a row per mean-field sweep) and the posterior values a
+    band may hold."""
+    halo = int(_TRUNCATE * sigma + 0.5) if sigma > 0 else 0
+    band_values = _BAND_VALUES
+    if prior > 0:
+        halo += int(prior_iterations)
+        band_values //= 3  # the mean field's two more arrays of the band
+    return halo, band_values
+
+
+def _band_share(min_area):
+    """The bands' part of the labelling's work (the clean-up has the rest)."""
+    return 0.7 if min_area > 0 else 1.0
+
+
+def _weigh_band(post, peak, sigma, prior, prior_iterations):
+    """A band's posteriors (K, rows, W) averaged over the Gaussian window of
+    width ``sigma`` (0: none) and, with a prior, replaced by their
+    mean-field marginals, in place. ``peak`` holds each component's largest
+    posterior in the band."""
+    from scipy import ndimage
+
+    k = post.shape[0]
+    if sigma > 0:
+        # (with a prior every component counts in the marginals: all smoothed)
+        for j in np.flatnonzero(peak >= (0.0 if prior > 0 else 0.5 / k)):
+            # the averaged posteriors of a pixel sum to 1, so its best is at
+            # least 1/K: a component below 0.5/K all over the band cannot
+            # be best anywhere, and is left unsmoothed (the same labels)
+            ndimage.gaussian_filter(post[j], sigma=sigma, output=post[j])
+    if prior > 0:
+        mean_field(post, prior, prior_iterations)
+
+
+def _iter_clean_up(labels, min_area, share):
+    """Blobs under ``min_area`` pixels absorbed (none for 0), in place:
+    Progress records after ``share`` of the labelling."""
     if min_area > 0:
         for done in _iter_absorb(labels, min_area):
             yield Progress("labelling", share + (1 - share) * done, "small blobs")
-    return labels, prob
 
 
 def _mixture_arrays(mix):
@@ -148,26 +174,20 @@ def _iter_label_coarse(features, mix, *, smoothing, min_area, step, prior=0.0,
     ``features[::step, ::step]``, smoothed by ``smoothing / step``, then
     interpolated (bilinear, pixel (i, j) of the coarse grid at (step i,
     step j), edges repeated) to every pixel of a band, which takes the best."""
-    from scipy import ndimage
-
     h, w, _ = features.shape
     coarse = features[::step, ::step]
     hc, wc = coarse.shape[:2]
     k = mix.k
     means_t, inv_t, const, ids = _mixture_arrays(mix)
     sigma = float(smoothing) / step
-    halo = int(_TRUNCATE * sigma + 0.5) if smoothing > 0 else 0
-    band_values = _BAND_VALUES
-    if prior > 0:
-        halo += int(prior_iterations)
-        band_values //= 3
+    halo, band_values = _band_reach(sigma, prior, prior_iterations)
     # coarse rows of a band (a multiple of nothing in particular), its full rows
     crows = max(1, 4 * halo, min(band_values // (k * wc) - 2 * halo - 1,
                                  _CHUNK_PIXELS // (w * step)))
     labels = np.empty((h, w), np.int32)
     prob = np.empty((h, w), np.float32)
     peak = np.empty(k)
-    share = 0.7 if min_area > 0 else 1.0
+    share = _band_share(min_area)
     for c0 in range(0, hc, crows):
         c1 = min(hc, c0 + crows)
         r0, r1 = c0 * step, (h if c1 == hc else c1 * step)
@@ -175,17 +195,11 @@ def _iter_label_coarse(features, mix, *, smoothing, min_area, step, prior=0.0,
         a0, a1 = max(0, c0 - halo), min(hc, c1 + 1 + halo)
         post = np.empty((k, a1 - a0, wc))
         _band_posteriors(coarse, a0, a1, means_t, inv_t, const, post, peak)
-        if smoothing > 0:
-            for j in np.flatnonzero(peak >= (0.0 if prior > 0 else 0.5 / k)):
-                ndimage.gaussian_filter(post[j], sigma=sigma, output=post[j])
-        if prior > 0:
-            mean_field(post, prior, prior_iterations)
+        _weigh_band(post, peak, sigma, prior, prior_iterations)
         _band_best_interpolated(post, a0, step, r0, ids, labels[r0:r1], prob[r0:r1])
         del post
         yield Progress("labelling", share * r1 / h, "labelling")
-    if min_area > 0:
-        for done in _iter_absorb(labels, min_area):
-            yield Progress("labelling", share + (1 - share) * done, "small blobs")
+    yield from _iter_clean_up(labels, min_area, share)
     return labels, prob
 
 
@@ -248,25 +262,14 @@ def _band_posteriors(features, a0, a1, means_t, inv_t, const, out, peak):
     """Posteriors of every component for the pixels of rows a0..a1-1, into
     ``out`` (K, a1 - a0, W): ``w_j N(x | mu_j, diag var_j)`` normalised;
     ``peak`` (K,) gets each component's largest posterior. ``means_t`` and
-    ``inv_t`` are (D, K): the loop over the components is the inner one
-    (vectorised), each component's sum runs over the features in order."""
-    d, k = means_t.shape
+    ``inv_t`` are (D, K) (see :func:`._mixture._log_joint`)."""
+    k = means_t.shape[1]
     w = features.shape[1]
     acc = np.empty(k)
     peak[:] = 0.0
     for y in range(a0, a1):
         for x in range(w):
-            acc[:] = 0.0
-            for c in range(d):
-                v = features[y, x, c]
-                for j in range(k):
-                    t = v - means_t[c, j]
-                    acc[j] += t * t * inv_t[c, j]
-            top = -np.inf
-            for j in range(k):
-                acc[j] = const[j] - 0.5 * acc[j]
-                if acc[j] > top:
-                    top = acc[j]
+            top = _log_joint(features[y, x], means_t, inv_t, const, acc)
             total = 0.0
             for j in range(k):
                 e = math.exp(acc[j] - top)

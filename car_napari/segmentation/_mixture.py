@@ -123,6 +123,28 @@ _SPLIT_ROWS = 1 << 14
 _NEGLIGIBLE = -37.0
 
 
+@njit(cache=True, nogil=True, inline="always")  # in the callers' loops, as if written there
+def _log_joint(x, means_t, inv_t, const, acc):
+    """``log w_j + log N(x | mu_j, diag var_j)`` of every component j into
+    ``acc`` (K,), for one feature vector ``x`` (D,); returns the largest.
+    ``means_t`` and ``inv_t`` are (D, K) and ``const`` (K,) holds ``log w_j``
+    plus the normalisers: the loop over the components is the inner one
+    (vectorised), each component's sum runs over the features in order."""
+    d, k = means_t.shape
+    acc[:] = 0.0
+    for c in range(d):
+        v = x[c]
+        for j in range(k):
+            t = v - means_t[c, j]
+            acc[j] += t * t * inv_t[c, j]
+    top = -np.inf
+    for j in range(k):
+        acc[j] = const[j] - 0.5 * acc[j]
+        if acc[j] > top:
+            top = acc[j]
+    return top
+
+
 @njit(cache=True, nogil=True)
 def _e_step(X, means_t, inv_t, const, nk, sx, sx2):
     """Posteriors ``w_j N(x | mu_j, diag var_j)`` (normalised) of every row x
@@ -136,16 +158,7 @@ def _e_step(X, means_t, inv_t, const, nk, sx, sx2):
     acc = np.empty(k)
     loglik = 0.0
     for i in range(n):
-        acc[:] = 0.0
-        for c in range(d):
-            v = X[i, c]
-            for j in range(k):
-                t = v - means_t[c, j]
-                acc[j] += t * t * inv_t[c, j]
-        top = -np.inf
-        for j in range(k):
-            acc[j] = const[j] - 0.5 * acc[j]
-            top = max(top, acc[j])
+        top = _log_joint(X[i], means_t, inv_t, const, acc)
         total = 0.0
         for j in range(k):
             gap = acc[j] - top

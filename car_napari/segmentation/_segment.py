@@ -250,18 +250,14 @@ class SegmentationResult:
         >>> np.array_equal(result.cached_labels_at(3, threshold=0.9), labels)
         True
         """
-        threshold = self.threshold if threshold is None else check_real(
-            threshold, "threshold", low=0.0, high=1.0, high_open=True)
+        threshold = self._threshold(threshold)
         i = self._index(k)
         labels, prob = self._cut(i, writable=threshold > 0 or self.mask is not None), \
             self._probs.get(i)
         if labels is None or (threshold > 0 and prob is None):
             mix = self.history[i]
-            labels, prob = yield from stage(
-                _iter_label(self.features, mix, smoothing=self.smoothing,
-                            min_area=self.min_area, step=self.label_step, prior=self.prior,
-                            prior_iterations=self.prior_iterations),
-                0.0, 1.0, prefix=f"K = {mix.k}: ")
+            labels, prob = yield from stage(self._iter_labelling(mix), 0.0, 1.0,
+                                            prefix=f"K = {mix.k}: ")
             self._store(i, None if i in self._cuts else labels, prob)
         return self._finish(labels, prob, threshold)
 
@@ -296,14 +292,25 @@ class SegmentationResult:
         >>> result.cached_labels_at(3, threshold=0.9) is None
         True
         """
-        threshold = self.threshold if threshold is None else check_real(
-            threshold, "threshold", low=0.0, high=1.0, high_open=True)
+        threshold = self._threshold(threshold)
         i = self._index(k)
         prob = self._probs.get(i)  # one look-up: another thread may drop it later
         if i not in self._cuts or (threshold > 0 and prob is None):
             return None
         return self._finish(self._cut(i, writable=threshold > 0 or self.mask is not None),
                             prob, threshold)
+
+    def _threshold(self, threshold):
+        """A re-cut's threshold: the segmentation's, or this one checked."""
+        return self.threshold if threshold is None else check_real(
+            threshold, "threshold", low=0.0, high=1.0, high_open=True)
+
+    def _iter_labelling(self, mix):
+        """Every pixel labelled by ``mix`` with the segmentation's labelling
+        options (in bands, yielding): (labels, probability)."""
+        return _iter_label(self.features, mix, smoothing=self.smoothing,
+                           min_area=self.min_area, step=self.label_step, prior=self.prior,
+                           prior_iterations=self.prior_iterations)
 
     def _cut(self, i, *, writable=True):
         """The stored labels of state ``i`` (in their compact dtype), or None."""
@@ -547,9 +554,7 @@ def iter_segment(
     Raises
     ------
     ValueError
-        If an option is out of range, the image is constant, has NaN or
-        infinite values or is too small for ``levels``, or ``mask`` does not
-        match the image or selects nothing.
+        As :func:`segment`.
 
     Examples
     --------
@@ -636,17 +641,18 @@ def iter_segment(
     )
     history = result.history
 
+    def label(mix_i, start, stop, stage_name):
+        """Label every pixel by this mixture (in bands, yielding): (labels, probability)."""
+        return (yield from stage(result._iter_labelling(mix_i), start, stop, name=stage_name,
+                                 prefix=f"K = {mix_i.k}: "))
+
     def label_state(stage_name):
         """Label the newest state (in bands, yielding); keep its labels, its
         probabilities while it may be the final state; preview it."""
         i = len(history) - 1
         mix_i = history[i]
         share = mix_i.k + _ABSORB_WORK
-        labels, prob = yield from stage(
-            _iter_label(features, mix_i, smoothing=smoothing, min_area=min_area,
-                        step=result.label_step, prior=prior,
-                        prior_iterations=prior_iterations),
-            at(), at(share), name=stage_name, prefix=f"K = {mix_i.k}: ")
+        labels, prob = yield from label(mix_i, at(), at(share), stage_name)
         if i > 0 and result._final is None and _is_final(history, i - 1, n_segments,
                                                          merge_threshold, relative):
             result._final = i - 1
@@ -671,11 +677,7 @@ def iter_segment(
     labels, prob = result._cut(final), result._probs.get(final)
     result._final = final
     if prob is None:  # not kept (_is_final was wrong, or n_segments missing): label again
-        labels, prob = yield from stage(
-            _iter_label(features, history[final], smoothing=smoothing, min_area=min_area,
-                        step=result.label_step, prior=prior,
-                        prior_iterations=prior_iterations),
-            at(), at(), name="merging", prefix=f"K = {history[final].k}: ")
+        labels, prob = yield from label(history[final], at(), at(), "merging")
     for j in [j for j in result._probs if j != final]:
         del result._probs[j]
     result.labels = result._finish(labels, prob, threshold)

@@ -114,7 +114,7 @@ def _iter_dynamic_fit(centred, offsets, prior):
         V += Vt
         count += ct
     m = context.n_regressors
-    gamma, lam, _, beta, _ = estimate_parameters(V, count, m, d, np.full(m + d, prior))
+    gamma, lam, _, beta, _ = estimate_parameters(V, count, m, np.full(m + d, prior))
     return gamma, lam / beta
 
 

@@ -18,12 +18,13 @@ from car_napari.model import recursive
 from car_napari.model.adaptive import adaptive_scanner
 from car_napari.model.directions import DIRECTIONS, scan_view, unscan_view
 from car_napari.model.neighbourhood import Context, as_offsets
+from car_napari.segmentation import _blocked as B
+from car_napari.segmentation import _directional, iter_local_features, local_features, pseudo_colour
 from car_napari.segmentation import _features as F
-from car_napari.segmentation import iter_local_features, local_features, pseudo_colour
 
 
 def _work():
-    return F._Work(1e12)
+    return B._Work(1e12)
 
 
 def _mosaic_rgb(h=96, w=120):
@@ -167,32 +168,32 @@ def test_an_image_far_from_zero_keeps_its_local_mean_feature():
 
 
 def test_blocked_gaussian_is_gaussian_filter(monkeypatch):
-    monkeypatch.setattr(F, "_YIELD_WORK", 3e3)  # many small blocks
+    monkeypatch.setattr(B, "_YIELD_WORK", 3e3)  # many small blocks
     rng = np.random.default_rng(0)
     plane = rng.standard_normal((70, 90))
     want = ndimage.gaussian_filter(plane, 3.0)
-    records = list(F._iter_gaussian(plane.copy(), 3.0, _work(), "x"))
+    records = list(B._iter_gaussian(plane.copy(), 3.0, _work(), "x"))
     assert len(records) > 10
     got = plane.copy()
-    drain(F._iter_gaussian(got, 3.0, _work(), "x"))
+    drain(B._iter_gaussian(got, 3.0, _work(), "x"))
     np.testing.assert_array_equal(got, want)
     # from a strided channel into another array, as the local mean does
     cube = rng.standard_normal((40, 50, 3))
     out = np.empty((40, 50))
-    drain(F._iter_gaussian(cube[..., 1], 2.0, _work(), "x", out=out))
+    drain(B._iter_gaussian(cube[..., 1], 2.0, _work(), "x", out=out))
     np.testing.assert_array_equal(out, ndimage.gaussian_filter(cube, (2.0, 2.0, 0))[..., 1])
 
 
 @pytest.mark.parametrize("shape", [(64, 80, 3), (33, 47, 1)])
 def test_blocked_pyramid_level_is_pyramid_reduce(shape):
     level = np.random.default_rng(1).random(shape)
-    got = drain(F._iter_pyramid_reduce(level, _work(), "x"))
+    got = drain(B._iter_pyramid_reduce(level, _work(), "x"))
     np.testing.assert_array_equal(got, pyramid_reduce(level, downscale=2, channel_axis=-1))
 
 
 @pytest.mark.parametrize("d", [1, 3])
 def test_blocked_whitening_is_the_one_call_transform(monkeypatch, d):
-    monkeypatch.setattr(F, "_LONG_ROWS", 4096)
+    monkeypatch.setattr(B, "_LONG_ROWS", 4096)
     rng = np.random.default_rng(2)
     level = rng.random((150, 97, d)) @ rng.random((d, d)) + 0.3
     flat = level.reshape(-1, d)
@@ -203,14 +204,14 @@ def test_blocked_whitening_is_the_one_call_transform(monkeypatch, d):
         ev, vec = np.linalg.eigh(np.cov((flat - mean).T))
         ev = np.maximum(ev, 1e-6 * ev.max())
         want = ((flat - mean) @ (vec / np.sqrt(ev))).reshape(level.shape)
-    np.testing.assert_array_equal(drain(F._iter_whiten_channels(level, _work(), "x")), want)
+    np.testing.assert_array_equal(drain(B._iter_whiten_channels(level, _work(), "x")), want)
 
 
 def test_upsampling_is_resize():
     coarse = np.random.default_rng(3).random((13, 17, 4)).astype(np.float32)
     for shape in ((26, 34), (25, 33), (51, 67)):
         out = np.empty(shape + (4,), np.float32)
-        drain(F._iter_upsample(coarse, out, _work(), "x"))
+        drain(B._iter_upsample(coarse, out, _work(), "x"))
         want = resize(coarse.astype(np.float64), shape, order=1, mode="edge",
                       anti_aliasing=False)
         np.testing.assert_allclose(out, want, rtol=0, atol=1e-6)
@@ -221,7 +222,7 @@ def test_scan_coordinates(direction):
     shape = (5, 7)
     raster = np.arange(35).reshape(shape)
     view = scan_view(raster, direction)
-    a, b = F._scan_coords(np.arange(35), shape, direction)
+    a, b = _directional._scan_coords(np.arange(35), shape, direction)
     np.testing.assert_array_equal(view[a, b], np.arange(35))
 
 
@@ -239,7 +240,7 @@ def test_pseudo_colour_by_blocks(monkeypatch):
 
 def test_progress_comes_in_small_steps(monkeypatch):
     # a small image with small budgets: the steps of a large one
-    monkeypatch.setattr(F, "_YIELD_WORK", 2e5)
+    monkeypatch.setattr(B, "_YIELD_WORK", 2e5)
     monkeypatch.setattr(recursive, "_STREAM_VALUES", 4096)
     image = _mosaic_rgb(96, 128)
     records = []
