@@ -82,8 +82,8 @@ def iter_restore(image, *, neighbourhood=1, estimator="windowed", window=DEFAULT
 
     It yields :class:`~car_napari.Progress` records as strips of rows (or,
     with ``estimator='recursive'``, scan directions) finish, whose previews
-    show the restored image filling in. Closing the generator stops the work after the strips (or
-    scans) in progress.
+    show the restored image filling in. Closing the generator stops the
+    work after the strips (or scans) in progress.
 
     {plain form}
 
