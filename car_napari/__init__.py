@@ -14,14 +14,20 @@ from ._progress import Progress, drain
 from ._threads import limited_blas
 from .inpainting import (
     compensate_motion,
+    descratch_frames,
     detect_scratches,
     estimate_motion,
     fit_mask,
     inpaint,
+    inpaint_frames,
+    inpaint_large,
     iter_compensate_motion,
+    iter_descratch_frames,
     iter_detect_scratches,
     iter_estimate_motion,
     iter_inpaint,
+    iter_inpaint_frames,
+    iter_inpaint_large,
     warp_frame,
 )
 from .mammography import (
@@ -59,8 +65,12 @@ from .restoration import (
     estimate_noise,
     estimate_psf,
     iter_restore,
+    iter_restore_frames,
+    iter_restore_large,
     iter_restore_multichannel,
     restore,
+    restore_frames,
+    restore_large,
     restore_multichannel,
 )
 from .segmentation import (
@@ -141,6 +151,17 @@ __all__ = [
     "iter_estimate_motion",
     "iter_inpaint",
     "warp_frame",
+    # larger than memory: an image by tiles, a clip by blocks of frames
+    "descratch_frames",
+    "inpaint_frames",
+    "inpaint_large",
+    "iter_descratch_frames",
+    "iter_inpaint_frames",
+    "iter_inpaint_large",
+    "iter_restore_frames",
+    "iter_restore_large",
+    "restore_frames",
+    "restore_large",
     # textures
     "BTFModel",
     "DynamicTextureModel",

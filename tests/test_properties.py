@@ -367,12 +367,12 @@ def test_offsets_and_contexts(offsets, d):
 @seed(15)
 @LIGHT
 @given(images(8, 24))
-def test_restore_and_restore_tiled(image):
+def test_restore_and_restore_large(image):
     from car_napari import restore
-    from car_napari.restoration import restore_tiled
+    from car_napari.restoration import restore_large
 
     out = _call(lambda: restore(image), image)
-    tiled = _call(lambda: restore_tiled(image, tile=16), image)
+    tiled = _call(lambda: restore_large(image, tile=16), image)
     if out is not None:
         assert out.shape == image.shape and out.dtype == np.float64
         _finite(out)
@@ -593,7 +593,7 @@ _ITER = ["iter_compensate_motion", "iter_detect_mammogram_rois", "iter_detect_sc
          "iter_analyse_mammogram"]
 # the frame functions write into `restored` (and return the frames done)
 _ITER_FRAMES = ["iter_descratch_frames", "iter_inpaint_frames", "iter_inpaint_large",
-                "iter_restore_frames", "iter_restore_tiled"]
+                "iter_restore_frames", "iter_restore_large"]
 
 
 def test_every_public_function_is_called():
@@ -737,7 +737,7 @@ def test_frame_iter_forms_drain_to_the_function(name, h, w, seed_):
             "inpaint_frames": lambda f, out: f(clip, mask, out),
             "restore_frames": lambda f, out: f(clip, out),
             "inpaint_large": lambda f, out: f(clip, mask),
-            "restore_tiled": lambda f, out: f(img, tile=16)}[base]
+            "restore_large": lambda f, out: f(img, tile=16)}[base]
     out_iter, out_direct = np.zeros(clip.shape), np.zeros(clip.shape)
     got, want = _drained_and_direct(lambda: make(getattr(module, name), out_iter),
                                     lambda: make(getattr(module, base), out_direct),

@@ -10,7 +10,7 @@ from car_napari._progress import drain
 from car_napari._tiles import tile_grid
 from car_napari.inpainting import inpaint, inpaint_large, iter_inpaint, iter_inpaint_frames
 from car_napari.inpainting._tiled import iter_inpaint_tiles
-from car_napari.restoration import estimate_noise, restore, restore_tiled, tile_halo
+from car_napari.restoration import estimate_noise, restore, restore_large, tile_halo
 from car_napari.restoration._tiled import _iter_statistics
 
 
@@ -52,7 +52,7 @@ def test_the_global_noise_is_the_exact_median(camera):
                                      {"keep_edges": False}])
 def test_tiled_restore_equals_the_in_memory_one(camera, options):
     expected = restore(camera, **options)
-    got = restore_tiled(camera, tile=48, **options)  # many tiles, short last ones
+    got = restore_large(camera, tile=48, **options)  # many tiles, short last ones
     np.testing.assert_allclose(got, expected, rtol=0, atol=1e-6)
 
 
@@ -63,13 +63,13 @@ def test_tiled_restore_of_colour_integers_from_dask_and_zarr(tmp_path):
 
     colour = skdata.astronaut()[:150, 100:260]  # uint8, real
     expected = restore(colour)
-    lazy = restore_tiled(da.from_array(colour, chunks=(50, 70, 3)), tile=64)
+    lazy = restore_large(da.from_array(colour, chunks=(50, 70, 3)), tile=64)
     assert isinstance(lazy, da.Array)
     np.testing.assert_allclose(lazy.compute(), expected, rtol=0, atol=1e-6)
     store = create_array(tmp_path / "in.zarr", colour.shape, np.uint8, chunks=40)
     store[:] = colour
     out = create_array(tmp_path / "out.zarr", colour.shape, np.float64, chunks=40)
-    restore_tiled(open_array(tmp_path / "in.zarr"), out=out, tile=64)
+    restore_large(open_array(tmp_path / "in.zarr"), out=out, tile=64)
     np.testing.assert_allclose(open_array(tmp_path / "out.zarr")[:], expected, rtol=0,
                                atol=1e-6)
 
@@ -79,7 +79,7 @@ def test_a_lazy_restore_passes_forgetting_on(camera, monkeypatch):
     to the tiles (they dropped it): checked as for an image in memory, the
     windowed result the same whatever its value."""
     da = pytest.importorskip("dask.array")
-    from car_napari.restoration import _tiled, iter_restore
+    from car_napari.restoration import _restore, iter_restore
 
     lazy = da.from_array(camera, chunks=(100, 105))
     for bad in (0.2, 2.0):
@@ -90,13 +90,13 @@ def test_a_lazy_restore_passes_forgetting_on(camera, monkeypatch):
         with pytest.raises(ValueError, match="forgetting"):
             drain(iter_restore(lazy, forgetting=bad))
     seen = []
-    passed_on = _tiled.iter_restore_tiled
+    passed_on = _restore.iter_restore_large
 
     def spy(image, **options):
         seen.append(options["forgetting"])
         return passed_on(image, **options)
 
-    monkeypatch.setattr(_tiled, "iter_restore_tiled", spy)
+    monkeypatch.setattr(_restore, "iter_restore_large", spy)
     restored = restore(lazy, forgetting=0.9)
     assert seen == [0.9]
     np.testing.assert_array_equal(np.asarray(restored), np.asarray(restore(lazy)))
@@ -104,13 +104,13 @@ def test_a_lazy_restore_passes_forgetting_on(camera, monkeypatch):
 
 def test_what_is_not_tile_local_is_refused(camera):
     with pytest.raises(ValueError, match="estimator='recursive' cannot run by tiles"):
-        restore_tiled(camera, estimator="recursive")
+        restore_large(camera, estimator="recursive")
     with pytest.raises(ValueError, match="neighbourhood='auto'"):
-        restore_tiled(camera, neighbourhood="auto")
+        restore_large(camera, neighbourhood="auto")
     with pytest.raises(ValueError, match="channel_axis=-1"):
-        restore_tiled(np.zeros((3, 40, 40)), channel_axis=0)
+        restore_large(np.zeros((3, 40, 40)), channel_axis=0)
     with pytest.raises(ValueError, match="constant"):
-        restore_tiled(np.ones((60, 60)), tile=32)
+        restore_large(np.ones((60, 60)), tile=32)
 
 
 def test_the_halo_is_enough_and_one_block_less_is_not(camera):
@@ -201,3 +201,10 @@ def test_a_large_frame_is_filled_by_the_same_tiles_in_memory_and_from_dask(monke
     assert records[-1].preview[0] == 0
     np.testing.assert_array_equal(records[-1].preview[1], in_memory)
     assert all(r.preview is None for r in records[:-1])  # no tile passes for the frame
+
+
+def test_the_names_before_issue_33_still_work():
+    from car_napari import restoration
+
+    assert restoration.restore_tiled is restoration.restore_large
+    assert restoration.iter_restore_tiled is restoration.iter_restore_large

@@ -256,14 +256,9 @@ class RunRecord:
 
         Parameters
         ----------
-        name : str
-            The layer's name.
-        data : array
-            Its new data.
-        add : callable
-            ``add(data, name)`` creates the layer (with its display options)
-            when there is none of that name (the one shape of every
-            method's ``add``).
+        name, data, add
+            As :meth:`add`: ``add(data, name)`` creates the layer when there
+            is none of that name.
 
         Returns
         -------
@@ -286,12 +281,8 @@ class RunRecord:
 
         Parameters
         ----------
-        name : str
-            The layer's name.
-        data : array
-            Its data.
-        add : callable
-            ``add(data, name)`` creates the new layer.
+        name, data, add
+            As :meth:`add`.
 
         Returns
         -------
@@ -311,7 +302,9 @@ class RunRecord:
         data : array
             Its data.
         add : callable
-            ``add(data, name)`` creates the layer.
+            ``add(data, name)`` creates the layer, with its display options
+            (the one shape of every method's ``add``: :meth:`put`,
+            :meth:`replace`).
 
         Returns
         -------

@@ -64,10 +64,8 @@ def _with_range(job, data):
 class CARModelWidget(ModelWidget):
     """Fit a CAR model to an image layer (or a rectangle on it) and synthesise.
 
-    Parameters
-    ----------
-    napari_viewer : napari.Viewer
-        The viewer.
+    Its only parameter, ``napari_viewer``, is documented by
+    :class:`~car_napari._widgets._base.JobWidget`.
     """
 
     control_labels = {"orders": "max order"}

@@ -85,10 +85,8 @@ class InpaintingWidget(JobWidget):
     the source's "scratch mask" layer; one of another size is resized
     (nearest neighbour) to the frame, with a note saying so.
 
-    Parameters
-    ----------
-    napari_viewer : napari.Viewer
-        The viewer.
+    Its only parameter, ``napari_viewer``, is documented by
+    :class:`~car_napari._widgets._base.JobWidget`.
     """
 
     control_labels = {"temporal": "use the previous frame", "mask": "scratch mask"}

@@ -119,10 +119,8 @@ class MammogramWidget(JobWidget):
     control then shows those above its score threshold, without running the
     detection again.
 
-    Parameters
-    ----------
-    napari_viewer : napari.Viewer
-        The viewer.
+    Its only parameter, ``napari_viewer``, is documented by
+    :class:`~car_napari._widgets._base.JobWidget`.
     """
 
     control_labels = {"marks_per_image": "marks per image"}

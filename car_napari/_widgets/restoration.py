@@ -143,10 +143,8 @@ class RestorationWidget(JobWidget):
     axis the viewer's slider steps through (never the image's rows, columns
     or colours).
 
-    Parameters
-    ----------
-    napari_viewer : napari.Viewer
-        The viewer.
+    Its only parameter, ``napari_viewer``, is documented by
+    :class:`~car_napari._widgets._base.JobWidget`.
     """
 
     control_labels = {"neighbourhood": "order", "keep_edges": "keep edges", "axis": "versions"}

@@ -75,10 +75,8 @@ class TextureRetrievalWidget(JobWidget):
     (section 14.3, docs/texture.md): a query layer (or a rectangle on it)
     against the open image layers or a folder of images.
 
-    Parameters
-    ----------
-    napari_viewer : napari.Viewer
-        The viewer.
+    Its only parameter, ``napari_viewer``, is documented by
+    :class:`~car_napari._widgets._base.JobWidget`.
     """
 
     def __init__(self, napari_viewer):

@@ -20,10 +20,8 @@ class SegmentationWidget(JobWidget):
     whose probabilities are not kept) runs in a worker, the latest slider
     value winning.
 
-    Parameters
-    ----------
-    napari_viewer : napari.Viewer
-        The viewer.
+    Its only parameter, ``napari_viewer``, is documented by
+    :class:`~car_napari._widgets._base.JobWidget`.
     """
 
     control_labels = {"n_segments": "segments", "levels": "resolutions",

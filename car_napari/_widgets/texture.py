@@ -85,10 +85,8 @@ class TextureSynthesisWidget(ModelWidget):
     A stack is a BTF (one material under many illuminations) or a dynamic
     texture (the frames of a video).
 
-    Parameters
-    ----------
-    napari_viewer : napari.Viewer
-        The viewer.
+    Its only parameter, ``napari_viewer``, is documented by
+    :class:`~car_napari._widgets._base.JobWidget`.
     """
 
     no_model = "fit a model first (or load one)."

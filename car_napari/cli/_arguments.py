@@ -66,10 +66,12 @@ def add_order(parser, help="neighbourhood order, or 'auto' for the decision rule
     parser.add_argument("--order", default="auto", type=order_type, help=help)
 
 
-def add_inputs(parser, help):
-    """The inputs (files, folders, globs) and -o folder of a batch command."""
-    parser.add_argument("inputs", nargs="+", help=help)
-    add_output(parser, "output folder; or, for a single input, the output file")
+def add_inputs(parser, help, *, name="inputs",
+               output="output folder; or, for a single input, the output file"):
+    """The inputs (files, folders, globs) of a batch command, and its -o
+    (``output``: its help)."""
+    parser.add_argument(name, nargs="+", help=help)
+    add_output(parser, output)
 
 
 def add_output(parser, help):
@@ -81,3 +83,18 @@ def add_quiet(parser):
     """The --quiet option: nothing but errors (:func:`quiet_mode`)."""
     parser.add_argument("--quiet", action="store_true",
                         help="print nothing but errors (no progress, notes or per-image lines)")
+
+
+def add_tile(parser, what):
+    """The --tile option of a command that takes an image larger than memory
+    (``what``: which input it applies to)."""
+    parser.add_argument("--tile", type=positive_int, default=None,
+                        help=f"{what}: side of a tile in pixels (default 2048)")
+
+
+def add_batch_options(parser, run):
+    """What every batch command ends with: --quiet, the cluster's options
+    (:func:`add_cluster`), and ``run``, the function the command runs."""
+    add_quiet(parser)
+    add_cluster(parser)
+    parser.set_defaults(run=run)

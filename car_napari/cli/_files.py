@@ -9,7 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io.images import IMAGE_SUFFIXES, WRITE_SUFFIXES, is_colour, write_image
+from ..io.images import IMAGE_SUFFIXES, WRITE_SUFFIXES, is_colour, read_image, write_image
+from ._console import print_note
 
 
 def expand_inputs(items):
@@ -116,6 +117,16 @@ def output_file(output, paths, *, suffixes=WRITE_SUFFIXES, what="an image"):
     return path
 
 
+def batch_outputs(inputs, output, *, suffixes=WRITE_SUFFIXES, what="an image"):
+    """A batch command's inputs and outputs: ``(paths, target, folder)``, the
+    input files (:func:`expand_inputs`), the file ``-o`` names or None
+    (:func:`output_file`), and the folder the outputs go to (the file's, or
+    ``-o`` created: :func:`output_folder`)."""
+    paths = expand_inputs(inputs)
+    target = output_file(output, paths, suffixes=suffixes, what=what)
+    return paths, target, target.parent if target else output_folder(output)
+
+
 def names_a_folder(output):
     """Whether ``-o output`` names a folder: one that exists, a path ending
     in a slash or one without a suffix (else it names a file;
@@ -142,6 +153,12 @@ def one_image(image, path):
         f"{Path(path).name} holds a stack of shape {image.shape}, not one image; this "
         "command takes one image per file (split the stack into files, or for versions "
         "of one scene use 'car-napari restore --stack-axis 0').")
+
+
+def read_one_image(path):
+    """The one grey or colour image in the file ``path`` (:func:`one_image`),
+    the reader's notes printed."""
+    return one_image(read_image(path, on_note=print_note), path)
 
 
 def image_suffix(image, source):

@@ -5,10 +5,8 @@ from __future__ import annotations
 import json
 import sys
 
-from ..io.images import read_image
 from ._arguments import add_order
-from ._console import print_note
-from ._files import channel_axis, one_image
+from ._files import channel_axis, read_one_image
 
 
 def add_parser(sub):
@@ -21,7 +19,7 @@ def add_parser(sub):
 def run(args):
     from ..model import fit_car
 
-    image = one_image(read_image(args.image, on_note=print_note), args.image)
+    image = read_one_image(args.image)
     model = fit_car(image, args.order, channel_axis=channel_axis(image))
     json.dump(model.to_dict(), sys.stdout, indent=2)
     sys.stdout.write("\n")

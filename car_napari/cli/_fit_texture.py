@@ -6,27 +6,23 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from ..io.images import read_image
-from ._arguments import add_cluster, add_order, add_output, add_quiet, positive_int
+from ._arguments import add_batch_options, add_inputs, add_order, positive_int
 from ._batch import run_batch
-from ._console import print_note, say
-from ._files import channel_axis, expand_inputs, one_image, output_file, output_folder
+from ._console import say
+from ._files import channel_axis, expand_inputs, output_file, output_folder, read_one_image
 
 
 def add_parser(sub):
     p = sub.add_parser("fit-texture", help="fit a multiresolution texture model; write it "
                                            "(.npz, a few kB)")
-    p.add_argument("sources", nargs="+",
-                   help="example texture (grey or RGB); or several, folders or globs "
-                        "with -o FOLDER (a model <name>.npz each)")
-    add_output(p, "model file (.npz), or a folder for several textures")
+    add_inputs(p, "example texture (grey or RGB); or several, folders or globs with -o "
+                  "FOLDER (a model <name>.npz each)", name="sources",
+               output="model file (.npz), or a folder for several textures")
     p.add_argument("--levels", type=positive_int, default=None,
                    help="the most pyramid levels (default 5, as the widget); fewer for a "
                         "small texture (TextureModel.levels_for)")
     add_order(p)
-    add_quiet(p)
-    add_cluster(p)
-    p.set_defaults(run=run)
+    add_batch_options(p, run)
 
 
 def fit_levels(image, levels):
@@ -50,7 +46,7 @@ def texture_model(args):
         if not Path(args.source).is_file():
             raise ValueError(f"no such file: {args.source}")
         return TextureModel.load(args.source), None
-    image = one_image(read_image(args.source, on_note=print_note), args.source)
+    image = read_one_image(args.source)
     model = TextureModel.fit(image, levels=fit_levels(image, args.levels),
                              neighbourhood=args.order, channel_axis=channel_axis(image))
     return model, image
@@ -88,7 +84,7 @@ def run_many(args, paths):
         t0 = time.perf_counter()
         if path.suffix.lower() == ".npz":
             raise ValueError("a model file, not an example image")
-        image = one_image(read_image(path, on_note=print_note), path)
+        image = read_one_image(path)
         model = TextureModel.fit(image, levels=fit_levels(image, levels), neighbourhood=order,
                                  channel_axis=channel_axis(image))
         model.save(outputs(path)[0])

@@ -14,7 +14,7 @@ import numpy as np
 from ..inpainting import MOSTLY_MASKED, fit_mask
 from ..io.arrays import is_large_path
 from ..io.images import IMAGE_SUFFIXES, check_format, read_image, write_image
-from ._arguments import add_cluster, add_output, add_quiet, positive_int
+from ._arguments import add_batch_options, add_output, add_tile
 from ._batch import run_batch, run_large_job
 from ._console import print_note, say
 from ._files import (
@@ -24,6 +24,7 @@ from ._files import (
     one_image,
     output_file,
     output_folder,
+    read_one_image,
 )
 
 
@@ -48,11 +49,8 @@ def add_parser(sub):
                         "(refused by default: such a mask usually has the other convention, "
                         "see --invert-mask)")
     add_output(p, "output image file (one frame), folder (a batch) or .zarr (a zarr input)")
-    p.add_argument("--tile", type=positive_int, default=None,
-                   help="a zarr frame: side of a tile in pixels (default 2048)")
-    add_quiet(p)
-    add_cluster(p)
-    p.set_defaults(run=run)
+    add_tile(p, "a zarr frame")
+    add_batch_options(p, run)
 
 
 def damaged_pixels(mask):
@@ -165,7 +163,7 @@ def run_one(args, path, target):
     """One frame to the file ``target``: the form before batches."""
     from ..inpainting import inpaint
 
-    image = one_image(read_image(path, on_note=print_note), path)
+    image = read_one_image(path)
     check_format(target, image.dtype, image.ndim)  # the file holds the frame: before the work
     mask = read_mask(args.mask, image.shape[:2], invert=args.invert_mask, force=args.force)
     t0 = time.perf_counter()
@@ -210,7 +208,7 @@ def run_many(args, paths):
 
     def process(path, on_progress):
         t0 = time.perf_counter()
-        image = one_image(read_image(path, on_note=print_note), path)
+        image = read_one_image(path)
         if shared is None:
             mask = read_mask(mask_for(mask_arg, path), image.shape[:2], invert=invert,
                              force=force)

@@ -9,19 +9,11 @@ import time
 import numpy as np
 
 from .._progress import drain
-from ..io.images import read_image, write_image
-from ._arguments import add_cluster, add_inputs, add_quiet, non_negative_float, non_negative_int
+from ..io.images import write_image
+from ._arguments import add_batch_options, add_inputs, non_negative_float, non_negative_int
 from ._batch import run_batch
-from ._console import print_note, say
-from ._files import (
-    LABEL_SUFFIXES,
-    channel_axis,
-    expand_inputs,
-    one_image,
-    output_file,
-    output_folder,
-    write_labels,
-)
+from ._console import say
+from ._files import LABEL_SUFFIXES, batch_outputs, channel_axis, read_one_image, write_labels
 
 
 def add_parser(sub):
@@ -46,9 +38,7 @@ def add_parser(sub):
                    help="also the breast tissue from the same segmentation: percent density "
                         "and class (F/G/D) in tissue.csv, the fibroglandular mask as "
                         "<name>_tissue.png")
-    add_quiet(p)
-    add_cluster(p)
-    p.set_defaults(run=run)
+    add_batch_options(p, run)
 
 
 def run(args):
@@ -62,9 +52,8 @@ def run(args):
         roi_overlay,
     )
 
-    paths = expand_inputs(args.inputs)
-    target = output_file(args.output, paths, suffixes=LABEL_SUFFIXES, what="a label image")
-    out = target.parent if target else output_folder(args.output)
+    paths, target, out = batch_outputs(args.inputs, args.output, suffixes=LABEL_SUFFIXES,
+                                       what="a label image")
     # one input to a file: its table beside it, <name>.csv
     table_path = target.with_suffix(".csv") if target else out / "rois.csv"
     max_regions = args.max_regions or None
@@ -73,7 +62,7 @@ def run(args):
 
     def process(path, on_progress):
         t0 = time.perf_counter()
-        image = one_image(read_image(path, on_note=print_note), path)
+        image = read_one_image(path)
         options = dict(marks_per_image=marks, reference=args.reference,
                        tolerance=args.tolerance or None, max_regions=max_regions,
                        channel_axis=channel_axis(image))

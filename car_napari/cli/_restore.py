@@ -12,17 +12,10 @@ from .._progress import drain
 from .._validation import from_unit, unit_dtype
 from ..io.arrays import is_large_path
 from ..io.images import check_format, read_image, write_image
-from ._arguments import add_cluster, add_inputs, add_quiet, positive_int
+from ._arguments import add_batch_options, add_inputs, add_tile
 from ._batch import run_batch, run_large_job
 from ._console import print_note
-from ._files import (
-    channel_axis,
-    expand_inputs,
-    image_suffix,
-    one_image,
-    output_file,
-    output_folder,
-)
+from ._files import batch_outputs, channel_axis, image_suffix, one_image
 
 
 def add_parser(sub):
@@ -37,11 +30,8 @@ def add_parser(sub):
                         "stacks, off for single images)")
     p.add_argument("--probability", action="store_true",
                    help="also write <name>_probability.tif (prediction probability)")
-    p.add_argument("--tile", type=positive_int, default=None,
-                   help="large image: side of a tile in pixels (default 2048)")
-    add_quiet(p)
-    add_cluster(p)
-    p.set_defaults(run=run)
+    add_tile(p, "large image")
+    add_batch_options(p, run)
 
 
 def kappa_type(text):
@@ -62,9 +52,7 @@ def run(args):
     if _large(args):
         return run_large(args)
 
-    paths = expand_inputs(args.inputs)
-    target = output_file(args.output, paths)
-    out = target.parent if target else output_folder(args.output)
+    paths, target, out = batch_outputs(args.inputs, args.output)
 
     def restored_file(path, restored):
         return target or out / f"{path.stem}_restored{image_suffix(restored, path)}"
@@ -121,7 +109,7 @@ def _large(args):
 
 def run_large(args):
     """``restore big.zarr -o out.zarr``: one image larger than memory, by tiles."""
-    from ..restoration import iter_restore_tiled
+    from ..restoration import iter_restore_large
 
     if args.stack_axis is not None or args.probability:
         raise ValueError("--stack-axis and --probability are for images in memory; a large "
@@ -129,6 +117,6 @@ def run_large(args):
 
     def job(image, out):
         tile = {} if args.tile is None else {"tile": args.tile}
-        return iter_restore_tiled(image, out=out, kappa=args.kappa or 0.0, **tile)
+        return iter_restore_large(image, out=out, kappa=args.kappa or 0.0, **tile)
 
     return run_large_job(args.inputs, args.output, job, verb="restored")

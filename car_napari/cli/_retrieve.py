@@ -10,11 +10,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io.images import DICOM_SUFFIXES, IMAGE_SUFFIXES, is_colour, read_image
+from ..io.images import DICOM_SUFFIXES, IMAGE_SUFFIXES, is_colour
 from ._arguments import add_cluster, positive_int
 from ._batch import BatchFailed, run_batch
 from ._console import print_note
-from ._files import channel_axis, one_image
+from ._files import channel_axis, read_one_image
 
 
 def add_parser(sub):
@@ -84,7 +84,7 @@ def luminance(image):
 def run(args):
     from ..texture.retrieval import rank, texture_features
 
-    query, colour = as_kind(one_image(read_image(args.query, on_note=print_note), args.query))
+    query, colour = as_kind(read_one_image(args.query))
     folder = Path(args.gallery)
     if not folder.is_dir():
         raise ValueError(f"{folder} is not a folder of images.")
@@ -96,7 +96,7 @@ def run(args):
     def process(path, on_progress, grey=False):
         # one task per gallery image (on a cluster with --workers): its features,
         # None for an image of the other kind (grey: every image compared in grey)
-        image, kind = as_kind(one_image(read_image(path, on_note=print_note), path))
+        image, kind = as_kind(read_one_image(path))
         if grey:
             image = luminance(image) if kind else image
         elif kind != colour:

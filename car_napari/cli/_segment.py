@@ -6,19 +6,9 @@ from __future__ import annotations
 import time
 
 from .._progress import drain
-from ..io.images import read_image
-from ._arguments import add_cluster, add_inputs, add_quiet, positive_int
+from ._arguments import add_batch_options, add_inputs, positive_int
 from ._batch import run_batch
-from ._console import print_note
-from ._files import (
-    LABEL_SUFFIXES,
-    channel_axis,
-    expand_inputs,
-    one_image,
-    output_file,
-    output_folder,
-    write_labels,
-)
+from ._files import LABEL_SUFFIXES, batch_outputs, channel_axis, read_one_image, write_labels
 
 
 def add_parser(sub):
@@ -27,23 +17,20 @@ def add_parser(sub):
     p.add_argument("--segments", type=positive_int, default=None,
                    help="number of segments (default: found automatically)")
     p.add_argument("--levels", type=positive_int, default=3, help="resolutions (default 3)")
-    add_quiet(p)
-    add_cluster(p)
-    p.set_defaults(run=run)
+    add_batch_options(p, run)
 
 
 def run(args):
     from ..segmentation import iter_segment
 
-    paths = expand_inputs(args.inputs)
-    target = output_file(args.output, paths, suffixes=LABEL_SUFFIXES, what="a label image")
-    out = None if target else output_folder(args.output)
+    paths, target, out = batch_outputs(args.inputs, args.output, suffixes=LABEL_SUFFIXES,
+                                       what="a label image")
 
     def outputs(path):
         return [target or out / f"{path.stem}_segments.png"]
 
     def process(path, on_progress):
-        image = one_image(read_image(path, on_note=print_note), path)
+        image = read_one_image(path)
         t0 = time.perf_counter()
         result = drain(iter_segment(image, n_segments=args.segments, levels=args.levels,
                                     channel_axis=channel_axis(image)), on_progress)

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._docstrings import shared_parameters
+from .._docstrings import documents_job, shared_parameters
 from .._progress import Progress, drain, row_blocks
 from .._validation import as_channel_last_float, check_real
 from . import _motion
@@ -266,24 +266,12 @@ _DETECT_SCRATCHES_PARAMETERS = """
 """
 
 
-@shared_parameters(_DETECT_SCRATCHES_PARAMETERS)
 def iter_detect_scratches(image, *, kinds=KINDS, channel_axis=-1, line_width=3,
                           line_length=0.5, line_threshold=4.0,
                           blotch_threshold=None, motion=True):
     """Propose a damage mask, as a job: Progress records, then the mask.
 
-    The generator form of :func:`detect_scratches`, with the same
-    parameters and result.
-
-    Parameters
-    ----------
-    {parameters}
-
-    Returns
-    -------
-    ndarray of bool
-        What :func:`detect_scratches` returns: (H, W) for a frame, (T, H, W)
-        for a clip.
+    {plain form}
 
     Yields
     ------
@@ -297,20 +285,8 @@ def iter_detect_scratches(image, *, kinds=KINDS, channel_axis=-1, line_width=3,
         4000x4000 frame one every tenth of a second or so. The fraction is
         proportional to the pixels processed.
 
-    Raises
-    ------
-    TypeError
-        If the image is not numeric.
-    ValueError
-        If ``kinds`` is not a subset of ('line', 'blotch'); if the image is
-        empty, neither a frame nor a clip, holds NaN or infinite values, or
-        is too small for the line search (fewer than 3 rows, or at most
-        ``2 * line_width`` columns); if ``blotch_threshold`` is not
-        positive.
-
     Examples
     --------
-    >>> import numpy as np
     >>> from car_napari._progress import drain
     >>> clip = np.random.default_rng(0).random((3, 16, 16)) * 0.05
     >>> records = []
@@ -396,6 +372,7 @@ def iter_detect_scratches(image, *, kinds=KINDS, channel_axis=-1, line_width=3,
     return mask[0] if layout.single else mask
 
 
+@documents_job(iter_detect_scratches)
 @shared_parameters(_DETECT_SCRATCHES_PARAMETERS)
 def detect_scratches(image, *, kinds=KINDS, channel_axis=-1, line_width=3,
                      line_length=0.5, line_threshold=4.0, blotch_threshold=None,
@@ -466,7 +443,6 @@ def detect_scratches(image, *, kinds=KINDS, channel_axis=-1, line_width=3,
 
     Examples
     --------
-    >>> import numpy as np
     >>> frame = np.full((32, 32), 0.5) + np.random.default_rng(0).normal(0, 0.01, (32, 32))
     >>> frame[:, 20] += 0.3  # a bright vertical scratch
     >>> mask = detect_scratches(frame, kinds="line")

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._docstrings import documents_job
 from .._frames import DEFAULT_BLOCK, check_clip, iter_frame_blocks
 from .._progress import Progress, drain, stage
 from .._tiles import read_array
@@ -53,48 +54,16 @@ def _inpaint_frames(frames, masks, previous, temporal, channel_axis, options):
 
 def iter_inpaint_frames(clip, mask, restored, *, block=DEFAULT_BLOCK, temporal=True,
                         channel_axis=None, **options):
-    """Fill the damaged pixels of a clip, a block of frames at a time.
+    """Fill the damaged pixels of a clip, a block of frames at a time, as a job.
 
-    With ``temporal`` each block gets the restored frame before it as the
-    context of its first frame, so the result equals
-    ``inpaint(clip, mask, ...)`` on the whole clip in memory.
-
-    Parameters
-    ----------
-    clip : array_like
-        ``(T, H, W)`` grey or ``(T, H, W, C)`` colour (``channel_axis=-1``),
-        any dtype :func:`~car_napari.inpainting.inpaint` takes; only read.
-    mask : array_like
-        ``(h, w)`` for every frame, or ``(T, h, w)`` one per frame (lazy
-        too: read by block); non-zero is damaged; drawn at another size it
-        is resized (nearest neighbour, :func:`~car_napari.inpainting.fit_mask`).
-    restored : array_like or callable
-        Where the restored frames go (``restored[start:stop] = frames`` or
-        ``restored(start, frames)``), in the clip's layout and dtype.
-    block : int, optional
-        Frames read at a time.
-    temporal : bool, optional
-        Use the previous restored frame as context (across blocks too).
-    channel_axis : {None, -1}, optional
-        None: a grey clip; -1: a colour clip.
-    **options
-        :func:`~car_napari.inpainting.inpaint`'s other options.
+    {plain form}
 
     Yields
     ------
     Progress
-        As :func:`~car_napari._frames.iter_frame_blocks`.
-
-    Returns
-    -------
-    int
-        The number of frames.
-
-    Raises
-    ------
-    ValueError
-        If the clip or the mask has the wrong shape, or an option is out of
-        range.
+        The fill's records of each block (stage ``'frames'``, fractions of
+        the whole clip, messages prefixed ``'frames a-b/T: '``), and a record
+        with ``preview=(start, stop)`` when a block is written.
 
     Examples
     --------
@@ -132,45 +101,16 @@ def iter_inpaint_frames(clip, mask, restored, *, block=DEFAULT_BLOCK, temporal=T
 def iter_descratch_frames(clip, restored, masks=None, *, block=DEFAULT_BLOCK,
                           kinds=("line", "blotch"), temporal=True, channel_axis=None,
                           detect_options=None, **options):
-    """Detect and fill scratches and blotches in a clip, a block of frames at a time.
+    """Detect and fill scratches and blotches in a clip, by blocks, as a job.
 
-    Each block is detected with one source frame of context on each side
-    (the blotch test compares a frame with both neighbours), then filled
-    with the restored frame before it as context: the result equals
-    ``inpaint(clip, detect_scratches(clip, ...), ...)`` on the whole clip.
-
-    Parameters
-    ----------
-    clip : array_like
-        ``(T, H, W)`` grey or ``(T, H, W, C)`` colour (``channel_axis=-1``);
-        only read.
-    restored : array_like or callable
-        Where the restored frames go (``restored[start:stop] = frames`` or
-        ``restored(start, frames)``).
-    masks : array_like or callable, optional
-        Where the detected masks ``(T, H, W)`` bool go.
-    block : int, optional
-        Frames a block.
-    kinds : sequence of {'line', 'blotch'}, optional
-        What :func:`~car_napari.inpainting.detect_scratches` looks for.
-    temporal : bool, optional
-        Use the previous restored frame as context (across blocks too).
-    channel_axis : {None, -1}, optional
-        None: a grey clip; -1: a colour clip.
-    detect_options : dict, optional
-        Other options of :func:`~car_napari.inpainting.detect_scratches`.
-    **options
-        :func:`~car_napari.inpainting.inpaint`'s other options.
+    {plain form}
 
     Yields
     ------
     Progress
-        As :func:`~car_napari._frames.iter_frame_blocks`.
-
-    Returns
-    -------
-    int
-        The number of frames.
+        For each block, the detection's records (the first 30 % of its
+        share), then the fill's; messages prefixed ``'frames a-b/T: '``;
+        ``preview=(start, stop)`` when a block and its masks are written.
 
     Examples
     --------
@@ -212,24 +152,46 @@ def iter_descratch_frames(clip, restored, masks=None, *, block=DEFAULT_BLOCK,
                                          before=1, after=1, carry=1 if temporal else 0))
 
 
-def inpaint_frames(clip, mask, restored, **options):
-    """:func:`iter_inpaint_frames` run to its end.
+@documents_job(iter_inpaint_frames)
+def inpaint_frames(clip, mask, restored, *, block=DEFAULT_BLOCK, temporal=True,
+                   channel_axis=None, **options):
+    """Fill the damaged pixels of a clip, a block of frames at a time.
+
+    With ``temporal`` each block gets the restored frame before it as the
+    context of its first frame, so the result equals
+    ``inpaint(clip, mask, ...)`` on the whole clip in memory.
 
     Parameters
     ----------
     clip : array_like
-        The clip (see :func:`iter_inpaint_frames`).
+        ``(T, H, W)`` grey or ``(T, H, W, C)`` colour (``channel_axis=-1``),
+        any dtype :func:`~car_napari.inpainting.inpaint` takes; only read.
     mask : array_like
-        The damage.
+        ``(h, w)`` for every frame, or ``(T, h, w)`` one per frame (lazy
+        too: read by block); non-zero is damaged; drawn at another size it
+        is resized (nearest neighbour, :func:`~car_napari.inpainting.fit_mask`).
     restored : array_like or callable
-        Where the restored frames go.
+        Where the restored frames go (``restored[start:stop] = frames`` or
+        ``restored(start, frames)``), in the clip's layout and dtype.
+    block : int, optional
+        Frames read at a time.
+    temporal : bool, optional
+        Use the previous restored frame as context (across blocks too).
+    channel_axis : {None, -1}, optional
+        None: a grey clip; -1: a colour clip.
     **options
-        :func:`iter_inpaint_frames`'s options.
+        :func:`~car_napari.inpainting.inpaint`'s other options.
 
     Returns
     -------
     int
         The number of frames.
+
+    Raises
+    ------
+    ValueError
+        If the clip or the mask has the wrong shape, or an option is out of
+        range.
 
     Examples
     --------
@@ -239,22 +201,43 @@ def inpaint_frames(clip, mask, restored, **options):
     >>> inpaint_frames(clip, mask, np.zeros_like(clip))
     2
     """
-    return drain(iter_inpaint_frames(clip, mask, restored, **options))
+    return drain(iter_inpaint_frames(clip, mask, restored, block=block, temporal=temporal,
+                                     channel_axis=channel_axis, **options))
 
 
-def descratch_frames(clip, restored, masks=None, **options):
-    """:func:`iter_descratch_frames` run to its end.
+@documents_job(iter_descratch_frames)
+def descratch_frames(clip, restored, masks=None, *, block=DEFAULT_BLOCK,
+                     kinds=("line", "blotch"), temporal=True, channel_axis=None,
+                     detect_options=None, **options):
+    """Detect and fill scratches and blotches in a clip, a block of frames at a time.
+
+    Each block is detected with one source frame of context on each side
+    (the blotch test compares a frame with both neighbours), then filled
+    with the restored frame before it as context: the result equals
+    ``inpaint(clip, detect_scratches(clip, ...), ...)`` on the whole clip.
 
     Parameters
     ----------
     clip : array_like
-        The clip (see :func:`iter_descratch_frames`).
+        ``(T, H, W)`` grey or ``(T, H, W, C)`` colour (``channel_axis=-1``);
+        only read.
     restored : array_like or callable
-        Where the restored frames go.
+        Where the restored frames go (``restored[start:stop] = frames`` or
+        ``restored(start, frames)``).
     masks : array_like or callable, optional
-        Where the detected masks go.
+        Where the detected masks ``(T, H, W)`` bool go.
+    block : int, optional
+        Frames a block.
+    kinds : sequence of {'line', 'blotch'}, optional
+        What :func:`~car_napari.inpainting.detect_scratches` looks for.
+    temporal : bool, optional
+        Use the previous restored frame as context (across blocks too).
+    channel_axis : {None, -1}, optional
+        None: a grey clip; -1: a colour clip.
+    detect_options : dict, optional
+        Other options of :func:`~car_napari.inpainting.detect_scratches`.
     **options
-        :func:`iter_descratch_frames`'s options.
+        :func:`~car_napari.inpainting.inpaint`'s other options.
 
     Returns
     -------
@@ -267,4 +250,6 @@ def descratch_frames(clip, restored, masks=None, **options):
     >>> descratch_frames(clip, np.zeros_like(clip))
     3
     """
-    return drain(iter_descratch_frames(clip, restored, masks, **options))
+    return drain(iter_descratch_frames(clip, restored, masks, block=block, kinds=kinds,
+                                       temporal=temporal, channel_axis=channel_axis,
+                                       detect_options=detect_options, **options))

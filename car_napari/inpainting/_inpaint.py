@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from functools import partial
 
-from .._docstrings import shared_parameters
+from .._docstrings import documents_job, shared_parameters
 from .._progress import drain
 from .._tiles import is_lazy
 from . import _tiled
@@ -76,14 +76,12 @@ _PARAMETERS = """
 """
 
 
-@shared_parameters(_PARAMETERS)
 def iter_inpaint(image, mask, *, temporal=True, neighbourhood=None, forgetting=0.9995,
                  interleave=DEFAULT_INTERLEAVE, halo="auto", channel_axis=-1,
                  method="conditional", motion=True):
     """Fill damaged pixels, as a job: Progress records, then the result.
 
-    The generator form of :func:`inpaint`, with the same parameters and
-    result. ``method="conditional"`` works in short steps with a record
+    ``method="conditional"`` works in short steps with a record
     after each (the local fits by bands of blocks, the rows by model, the
     sparse solves by batches of coupled holes, run in threads with a record
     every :data:`~car_napari.inpainting._solver.SOLVE_RECORD_SECONDS`).
@@ -95,15 +93,7 @@ def iter_inpaint(image, mask, *, temporal=True, neighbourhood=None, forgetting=0
     that frame restored, for live display. The result does not depend on
     the chunks.
 
-    Parameters
-    ----------
-    {parameters}
-
-    Returns
-    -------
-    ndarray
-        What :func:`inpaint` returns: like ``image`` (same shape and dtype),
-        pixels outside the mask bit-identical to the input.
+    {plain form}
 
     Yields
     ------
@@ -117,23 +107,6 @@ def iter_inpaint(image, mask, *, temporal=True, neighbourhood=None, forgetting=0
         t+1/T, scan k/4"`` (``k`` scans done; ``"scans"``), and on a large
         frame between the bands of the passes before and after the scans:
         ``"frame t+1/T, preparing"`` and ``"frame t+1/T, combining"``.
-
-    Raises
-    ------
-    TypeError
-        If the image or the mask is not numeric.
-    ValueError
-        If the image is neither a frame nor a clip, holds NaN or infinite
-        values, or is too small; if the mask has the wrong shape or covers a
-        whole frame; if an option is out of range.
-
-    Warns
-    -----
-    UserWarning
-        When the mask is empty (the input is returned unchanged), or covers
-        more than half of a frame (a mask that marks the damage black, the
-        other convention, does: invert it, e.g. :func:`fit_mask` with
-        ``invert=True``).
 
     Examples
     --------
@@ -160,6 +133,7 @@ def iter_inpaint(image, mask, *, temporal=True, neighbourhood=None, forgetting=0
                            channel_axis=channel_axis, method=method, motion=motion))
 
 
+@documents_job(iter_inpaint)
 @shared_parameters(_PARAMETERS)
 def inpaint(image, mask, *, temporal=True, neighbourhood=None, forgetting=0.9995,
             interleave=DEFAULT_INTERLEAVE, halo="auto", channel_axis=-1,

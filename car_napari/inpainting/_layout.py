@@ -140,7 +140,6 @@ def fit_mask(mask, shape, *, channel_axis=None, invert=False):
 
     Examples
     --------
-    >>> import numpy as np
     >>> small = np.array([[0, 255], [0, 0]], np.uint8)
     >>> fit_mask(small, (4, 4)).astype(int)
     array([[0, 0, 1, 1],

@@ -21,7 +21,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .._docstrings import shared_parameters
+from .._docstrings import documents_job, shared_parameters
 from .._progress import Progress, drain
 from .._validation import as_channel_last_float, check_mask, check_real
 from ._layout import read_layout
@@ -286,6 +286,20 @@ def _full_flow(flow, shape):
     return (_resample(flow, (H, W)) * scale).astype(np.float32)
 
 
+def _flow_records(reference, moving, weight, radius, iterations, done, total, message):
+    """:func:`_iter_flow` of two grey frames as a job: a ``"motion"`` record
+    after every warp, its fraction ``done / total`` with the warps' work
+    added to ``done``; returns ``(flow, done)``."""
+    job = _iter_flow(reference, moving, weight, int(radius), int(iterations), REGULARISATION,
+                     FLOW_PIXELS)
+    while True:
+        try:
+            done += next(job)
+        except StopIteration as stop:
+            return stop.value, done
+        yield Progress("motion", min(done / total, 1.0), message)
+
+
 def _work_units(H, W, iterations, flow_pixels):
     """The warps :func:`_iter_flow` yields for an (H, W) frame, in its units."""
     levels = 0
@@ -350,39 +364,19 @@ _ESTIMATE_MOTION_PARAMETERS = """
 """
 
 
-@shared_parameters(_ESTIMATE_MOTION_PARAMETERS)
 def iter_estimate_motion(reference, moving, *, mask=None, channel_axis=-1, radius=RADIUS,
                          iterations=ITERATIONS):
     """Estimate the motion from one frame to another, as a job.
 
-    The generator form of :func:`estimate_motion`, with the same
-    parameters and result.
-
-    Parameters
-    ----------
-    {parameters}
-
-    Returns
-    -------
-    (2, H, W) ndarray of float32
-        The flow, as :func:`estimate_motion` returns it.
+    {plain form}
 
     Yields
     ------
     Progress
         Stage ``"motion"`` after every warp of every level.
 
-    Raises
-    ------
-    TypeError
-        If a frame is not numeric.
-    ValueError
-        If the frames differ in size or are not frames, hold NaN or infinite
-        values, the mask has another shape, or an option is out of range.
-
     Examples
     --------
-    >>> import numpy as np
     >>> from car_napari._progress import drain
     >>> frame = np.random.default_rng(0).random((64, 64))
     >>> records = []
@@ -399,19 +393,12 @@ def iter_estimate_motion(reference, moving, *, mask=None, channel_axis=-1, radiu
     H, W = ref.shape[:2]
     weight = _as_weight(mask, (H, W))
     total = _work_units(H, W, int(iterations), FLOW_PIXELS)
-    done = 0.0
-    job = _iter_flow(_grey(ref), _grey(mov), weight, int(radius), int(iterations),
-                     REGULARISATION, FLOW_PIXELS)
-    while True:
-        try:
-            done += next(job)
-        except StopIteration as stop:
-            flow = stop.value
-            break
-        yield Progress("motion", min(done / total, 1.0), "estimating motion")
+    flow, _ = yield from _flow_records(_grey(ref), _grey(mov), weight, radius, iterations,
+                                       0.0, total, "estimating motion")
     return _full_flow(flow, (H, W))
 
 
+@documents_job(iter_estimate_motion)
 @shared_parameters(_ESTIMATE_MOTION_PARAMETERS)
 def estimate_motion(reference, moving, *, mask=None, channel_axis=-1, radius=RADIUS,
                     iterations=ITERATIONS):
@@ -457,7 +444,6 @@ def estimate_motion(reference, moving, *, mask=None, channel_axis=-1, radius=RAD
 
     Examples
     --------
-    >>> import numpy as np
     >>> from scipy import ndimage
     >>> rng = np.random.default_rng(0)
     >>> frame = ndimage.gaussian_filter(rng.random((96, 96)), 2)
@@ -500,7 +486,6 @@ def warp_frame(frame, flow, *, channel_axis=-1):
 
     Examples
     --------
-    >>> import numpy as np
     >>> frame = np.arange(12.0).reshape(3, 4)
     >>> flow = np.zeros((2, 3, 4))
     >>> flow[1] = 1.0  # every pixel takes its right neighbour
@@ -538,22 +523,11 @@ _COMPENSATE_MOTION_PARAMETERS = """
 """
 
 
-@shared_parameters(_COMPENSATE_MOTION_PARAMETERS)
 def iter_compensate_motion(clip, *, mask=None, channel_axis=-1, radius=RADIUS,
                            iterations=ITERATIONS):
     """Both neighbours of every frame of a clip warped onto it, as a job.
 
-    The generator form of :func:`compensate_motion`, with the same
-    parameters and result.
-
-    Parameters
-    ----------
-    {parameters}
-
-    Returns
-    -------
-    previous, following : ndarray of float64
-        What :func:`compensate_motion` returns.
+    {plain form}
 
     Yields
     ------
@@ -561,17 +535,8 @@ def iter_compensate_motion(clip, *, mask=None, channel_axis=-1, radius=RADIUS,
         Stage ``"motion"``, message ``"frame t/T"``, after every warp of
         every flow estimate; the fraction by the flows done.
 
-    Raises
-    ------
-    TypeError
-        If the clip is not numeric.
-    ValueError
-        If the clip is not a clip of 2 frames or more, holds NaN or
-        infinite values, or the mask has another shape.
-
     Examples
     --------
-    >>> import numpy as np
     >>> from car_napari._progress import drain
     >>> clip = np.random.default_rng(0).random((3, 48, 48))
     >>> records = []
@@ -623,19 +588,13 @@ def iter_compensate_motion(clip, *, mask=None, channel_axis=-1, radius=RADIUS,
             if other is None:
                 out[t] = current
                 continue
-            job = _iter_flow(grey, _grey(other), weight, int(radius), int(iterations),
-                             REGULARISATION, FLOW_PIXELS)
-            while True:
-                try:
-                    done += next(job)
-                except StopIteration as stop:
-                    flow = stop.value
-                    break
-                yield Progress("motion", min(done / total, 1.0), f"frame {t + 1}/{T}")
+            flow, done = yield from _flow_records(grey, _grey(other), weight, radius,
+                                                  iterations, done, total, f"frame {t + 1}/{T}")
             out[t] = _warp(other, flow)
     return layout.to_input(previous), layout.to_input(following)
 
 
+@documents_job(iter_compensate_motion)
 @shared_parameters(_COMPENSATE_MOTION_PARAMETERS)
 def compensate_motion(clip, *, mask=None, channel_axis=-1, radius=RADIUS,
                       iterations=ITERATIONS):
@@ -677,7 +636,6 @@ def compensate_motion(clip, *, mask=None, channel_axis=-1, radius=RADIUS,
 
     Examples
     --------
-    >>> import numpy as np
     >>> from scipy import ndimage
     >>> rng = np.random.default_rng(0)
     >>> scene = ndimage.gaussian_filter(rng.random((80, 120)), 2)

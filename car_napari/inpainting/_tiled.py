@@ -28,9 +28,10 @@ import warnings
 
 import numpy as np
 
+from .._docstrings import documents_job, shared_parameters
 from .._progress import Progress, drain, stage
 from .._tiles import read_tile, tile_grid
-from ._filling import iter_inpaint_in_memory
+from ._filling import DEFAULT_INTERLEAVE, iter_inpaint_in_memory
 from ._frames import iter_inpaint_frames
 
 __all__ = ["DEFAULT_HALO", "DEFAULT_TILE", "inpaint_large", "iter_inpaint_large",
@@ -57,49 +58,14 @@ def _is_clip(shape, channel_axis):
 
 def iter_inpaint_tiles(image, mask, *, out=None, tile=None, tile_halo=None,
                        channel_axis=-1, **options):
-    """Fill one frame by tiles with a halo (a frame larger than memory, or a
-    large one in memory).
-
-    Each tile whose core holds damage is filled as a frame of its own (its
-    core and ``tile_halo`` pixels around it, :func:`inpaint`), and its core
-    kept; other tiles are copied. With the default tiles this is what
-    :func:`inpaint` computes for a frame larger than :data:`DEFAULT_TILE` a
-    side, in memory or not (see the module's notes).
-
-    Parameters
-    ----------
-    image : (H, W) or (H, W, C) array
-        Any sliceable array; read a tile at a time.
-    mask : (H, W) array
-        True (nonzero) where pixels are missing.
-    out : array, optional
-        Where the result goes, tile by tile. Default: a NumPy array.
-    tile : int, optional
-        Side of a tile's core (default :data:`DEFAULT_TILE`).
-    tile_halo : int, optional
-        Pixels read around the core (the models learn there; default
-        :data:`DEFAULT_HALO`).
-    channel_axis : -1 or None, optional
-        A 3-D frame is (H, W, C).
-    **options
-        As :func:`inpaint` (``neighbourhood``, ``method``, ``halo``: the edge
-        test...).
-
-    Returns
-    -------
-    out
-        The restored frame; pixels outside the mask equal the input's.
-
-    Yields
-    ------
-    Progress
-        Stage ``'tiles'``: ``'tile k/n'`` after each tile, and the fill's
-        own records within a damaged tile (``'tile k/n: frame 1/1, ...'``, no
-        previews).
+    """Fill one frame by tiles with a halo: what :func:`iter_inpaint_large`
+    runs for a frame, and ``inpaint`` for a frame in memory larger than
+    :data:`DEFAULT_TILE` a side (the same tiles: see the module's notes).
+    The parameters, records and result are :func:`iter_inpaint_large`'s;
+    ``**options`` are the fill's (:func:`~car_napari.inpainting.inpaint`'s).
 
     Examples
     --------
-    >>> import numpy as np
     >>> from car_napari._progress import drain
     >>> frame = np.random.default_rng(0).random((40, 40))
     >>> mask = np.zeros((40, 40), bool)
@@ -142,46 +108,59 @@ def iter_inpaint_tiles(image, mask, *, out=None, tile=None, tile_halo=None,
     return out
 
 
-def iter_inpaint_large(image, mask, *, out=None, tile=None, tile_halo=None,
-                       temporal=True, channel_axis=-1, **options):
-    """:func:`~car_napari.inpainting.iter_inpaint_frames` for a clip, :func:`iter_inpaint_tiles`
-    for a frame (what ``inpaint`` of a dask or zarr array runs).
-
-    Parameters
-    ----------
+# the Parameters of both forms of the job, written once; the fill's own options
+# are inpaint's (their text stays there)
+_PARAMETERS = """
     image : array
-        A frame or a clip, sliceable (dask, zarr, NumPy).
+        A frame ``(H, W)`` / ``(H, W, C)`` or a clip ``(T, H, W)`` /
+        ``(T, H, W, C)`` (read by :func:`~car_napari.inpainting.inpaint`'s
+        rule), any sliceable array (dask, zarr, a memory map, NumPy): a clip
+        is read a block of frames at a time, a frame a tile at a time.
     mask : array
-        Its mask.
+        True (nonzero) where pixels are missing: ``(H, W)``, or for a clip
+        ``(T, H, W)`` one per frame (read by blocks too).
     out : array, optional
-        Where the result goes.
-    tile, tile_halo : int, optional
-        A frame's tiles (see :func:`iter_inpaint_tiles`).
+        Where the result goes (a zarr array, a memory map...), like
+        ``image``. Default: a NumPy array.
+    tile : int, optional
+        Side of a frame's tile core (default :data:`DEFAULT_TILE`).
+    tile_halo : int, optional
+        Pixels read around a tile's core (the models learn there; default
+        :data:`DEFAULT_HALO`).
     temporal : bool, optional
-        A clip's temporal context.
-    channel_axis : int or None, optional
-        As :func:`inpaint`.
-    **options
-        As :func:`inpaint`.
+        A clip's temporal context, as :func:`~car_napari.inpainting.inpaint`
+        (a frame has none).
+    neighbourhood, forgetting, interleave, halo, method, motion : optional
+        As :func:`~car_napari.inpainting.inpaint`.
+    channel_axis : -1 or None, optional
+        A 3-D frame is (H, W, C) with -1 (the default), a grey clip with None.
+"""
 
-    Returns
-    -------
-    out
-        The restored frame or clip.
+
+def iter_inpaint_large(image, mask, *, out=None, tile=None, tile_halo=None, temporal=True,
+                       neighbourhood=None, forgetting=0.9995, interleave=DEFAULT_INTERLEAVE,
+                       halo="auto", channel_axis=-1, method="conditional", motion=True):
+    """Fill damaged pixels of a frame or clip larger than memory, as a job.
+
+    {plain form}
 
     Yields
     ------
     Progress
-        As the two forms.
+        As :func:`~car_napari.inpainting.iter_inpaint_frames` for a clip;
+        stage ``'tiles'`` for a frame: ``'tile k/n'`` after each tile, and
+        the fill's own records within a damaged tile
+        (``'tile k/n: frame 1/1, ...'``, no previews).
 
     Examples
     --------
-    >>> import numpy as np
     >>> from car_napari._progress import drain
     >>> clip = np.random.default_rng(0).random((2, 16, 16))
     >>> drain(iter_inpaint_large(clip, clip[0] > 0.9)).shape
     (2, 16, 16)
     """
+    options = dict(neighbourhood=neighbourhood, forgetting=forgetting, interleave=interleave,
+                   halo=halo, method=method, motion=motion)
     shape = tuple(np.shape(image))
     if _is_clip(shape, channel_axis):
         if out is None:
@@ -193,28 +172,48 @@ def iter_inpaint_large(image, mask, *, out=None, tile=None, tile_halo=None,
                                           channel_axis=channel_axis, **options))
 
 
-def inpaint_large(image, mask, **options):
-    """``drain(iter_inpaint_large(image, mask, **options))``.
+@documents_job(iter_inpaint_large)
+@shared_parameters(_PARAMETERS)
+def inpaint_large(image, mask, *, out=None, tile=None, tile_halo=None, temporal=True,
+                  neighbourhood=None, forgetting=0.9995, interleave=DEFAULT_INTERLEAVE,
+                  halo="auto", channel_axis=-1, method="conditional", motion=True):
+    """Fill damaged pixels of a frame or clip larger than memory.
+
+    What :func:`~car_napari.inpainting.inpaint` of a dask or zarr array
+    runs, into any array: a clip a block of frames at a time
+    (:func:`~car_napari.inpainting.inpaint_frames`, exactly the in-memory
+    result), a frame by tiles with a halo: each tile whose core holds damage
+    is filled as a frame of its own (its core and ``tile_halo`` pixels
+    around it) and its core kept, other tiles copied. With the default
+    tiles this is what ``inpaint`` computes for a frame larger than
+    :data:`DEFAULT_TILE` a side in memory (see the module's notes).
 
     Parameters
     ----------
-    image : array
-        A frame or a clip, sliceable.
-    mask : array
-        Its mask.
-    **options
-        As :func:`iter_inpaint_large`.
+    {parameters}
 
     Returns
     -------
-    out
-        The restored frame or clip.
+    out : array
+        The restored frame or clip; pixels outside the mask equal the
+        input's.
+
+    Raises
+    ------
+    ValueError
+        If the image is neither a frame nor a clip, the mask has another
+        shape, ``tile`` or ``tile_halo`` is not a number of pixels, or an
+        option of the fill is out of range.
+    TypeError
+        If the image or the mask is not numeric.
 
     Examples
     --------
-    >>> import numpy as np
     >>> clip = np.random.default_rng(0).random((2, 16, 16))
     >>> inpaint_large(clip, clip[0] > 0.9).shape
     (2, 16, 16)
     """
-    return drain(iter_inpaint_large(image, mask, **options))
+    return drain(iter_inpaint_large(
+        image, mask, out=out, tile=tile, tile_halo=tile_halo, temporal=temporal,
+        neighbourhood=neighbourhood, forgetting=forgetting, interleave=interleave, halo=halo,
+        channel_axis=channel_axis, method=method, motion=motion))

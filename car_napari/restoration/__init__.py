@@ -9,9 +9,10 @@ docs/restoration.md).
 * :func:`estimate_psf`, :func:`psf_width`: the point-spread function relating
   a restored image to the observed one.
 * :func:`estimate_noise`: the noise level the edge rule compares with.
-* :func:`restore_tiled` / :func:`iter_restore_tiled`: an image larger than
+* :func:`restore_large` / :func:`iter_restore_large`: an image larger than
   memory (dask, zarr, TIFF) by tiles with a halo (:func:`tile_halo`), the
-  same result as :func:`restore`.
+  same result as :func:`restore` (``restore_tiled`` / ``iter_restore_tiled``,
+  their names before, still work).
 * :func:`restore_frames` / :func:`iter_restore_frames`: every frame of a clip
   longer than memory, a block of frames at a time, into any array or writer.
 
@@ -34,7 +35,11 @@ from ._noise import estimate_noise
 from ._psf import estimate_psf, psf_width
 from ._restore import iter_restore, restore
 from ._single import RestorationResult
-from ._tiled import iter_restore_tiled, restore_tiled, tile_halo
+from ._tiled import iter_restore_large, restore_large, tile_halo
+
+# the names before issue 33, kept working (not listed: one name each)
+from ._tiled import iter_restore_tiled as iter_restore_tiled
+from ._tiled import restore_tiled as restore_tiled
 
 __all__ = [
     "DEFAULT_KAPPA",
@@ -44,14 +49,14 @@ __all__ = [
     "estimate_psf",
     "iter_restore",
     "iter_restore_frames",
+    "iter_restore_large",
     "iter_restore_multichannel",
-    "iter_restore_tiled",
     "multichannel_context",
     "psf_width",
     "restore",
     "restore_frames",
+    "restore_large",
     "restore_multichannel",
-    "restore_tiled",
     "sharpness",
     "tile_halo",
 ]

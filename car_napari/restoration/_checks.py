@@ -107,6 +107,19 @@ def check_restorable(shape, offsets, estimator, directions):
             "larger image or a lower order.")
 
 
+def check_noise(noise, C):
+    """A given ``noise`` as ``C`` values (one a channel), finite and >= 0,
+    or a ValueError saying so."""
+    try:
+        noise = np.broadcast_to(np.asarray(noise, float), (C,)).copy()
+    except (TypeError, ValueError):
+        raise ValueError(f"noise must be None, a number or {C} numbers (one a channel); "
+                         f"got {noise!r}.") from None
+    if np.any(noise < 0) or not np.all(np.isfinite(noise)):
+        raise ValueError(f"noise must be finite and >= 0; got {noise}.")
+    return noise
+
+
 def check_noise_magnitude(noise, exponent=0):
     """A ValueError when a given ``noise`` passes ``MAGNITUDE_LIMIT`` (times
     ``2**exponent``, the power of two by which the image is scaled for the

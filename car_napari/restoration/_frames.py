@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._docstrings import documents_job
 from .._frames import auto_block, check_clip, iter_frame_blocks
 from .._progress import drain, stage
 from ._restore import iter_restore
@@ -29,6 +30,39 @@ def _restore_block(options):
 
 def iter_restore_frames(clip, restored, probability=None, *, block=None, channel_axis=None,
                         **options):
+    """Restore every frame of a clip, a block of frames at a time, as a job.
+
+    {plain form}
+
+    Yields
+    ------
+    Progress
+        Each frame's :func:`~car_napari.restoration.iter_restore` records,
+        its previews dropped, as fractions of the clip (messages prefixed
+        ``'frames a-b/T: '``); ``preview=(start, stop)`` when a block is
+        written (:func:`~car_napari._frames.iter_frame_blocks`).
+
+    Examples
+    --------
+    >>> from car_napari.restoration import restore
+    >>> clip = np.random.default_rng(0).random((3, 24, 24))
+    >>> out = np.zeros_like(clip)
+    >>> drain(iter_restore_frames(clip, out))
+    3
+    >>> bool(np.allclose(out[1], restore(clip[1])))
+    True
+    """
+    check_clip(clip, channel_axis)
+    if "return_result" in options:
+        raise TypeError("return_result is not an option of iter_restore_frames.")
+    job = _restore_block(dict(options, channel_axis=channel_axis))
+    block = auto_block(clip) if block is None else block
+    return (yield from iter_frame_blocks(clip, job, (restored, probability), block=block))
+
+
+@documents_job(iter_restore_frames)
+def restore_frames(clip, restored, probability=None, *, block=None, channel_axis=None,
+                   **options):
     """Restore every frame of a clip, a block of frames at a time.
 
     Each frame is restored on its own by
@@ -55,48 +89,6 @@ def iter_restore_frames(clip, restored, probability=None, *, block=None, channel
         :func:`~car_napari.restoration.restore`'s options (``neighbourhood``,
         ``keep_edges``, ``kappa``, ...).
 
-    Yields
-    ------
-    Progress
-        As :func:`~car_napari._frames.iter_frame_blocks`.
-
-    Returns
-    -------
-    int
-        The number of frames restored.
-
-    Examples
-    --------
-    >>> from car_napari.restoration import restore
-    >>> clip = np.random.default_rng(0).random((3, 24, 24))
-    >>> out = np.zeros_like(clip)
-    >>> drain(iter_restore_frames(clip, out))
-    3
-    >>> bool(np.allclose(out[1], restore(clip[1])))
-    True
-    """
-    check_clip(clip, channel_axis)
-    if "return_result" in options:
-        raise TypeError("return_result is not an option of iter_restore_frames.")
-    job = _restore_block(dict(options, channel_axis=channel_axis))
-    block = auto_block(clip) if block is None else block
-    return (yield from iter_frame_blocks(clip, job, (restored, probability), block=block))
-
-
-def restore_frames(clip, restored, probability=None, **options):
-    """:func:`iter_restore_frames` run to its end.
-
-    Parameters
-    ----------
-    clip : array_like
-        The clip (see :func:`iter_restore_frames`).
-    restored : array_like or callable
-        Where the restored frames go.
-    probability : array_like or callable, optional
-        Where the prediction probabilities go.
-    **options
-        :func:`iter_restore_frames`'s options.
-
     Returns
     -------
     int
@@ -108,4 +100,5 @@ def restore_frames(clip, restored, probability=None, **options):
     >>> restore_frames(clip, np.zeros_like(clip))
     2
     """
-    return drain(iter_restore_frames(clip, restored, probability, **options))
+    return drain(iter_restore_frames(clip, restored, probability, block=block,
+                                     channel_axis=channel_axis, **options))

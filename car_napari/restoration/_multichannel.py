@@ -15,7 +15,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .._docstrings import shared_parameters
+from .._docstrings import documents_job, shared_parameters
 from .._progress import Progress, drain, row_blocks, spans, stage
 from .._threads import job_pool, submit
 from .._validation import (
@@ -70,7 +70,6 @@ class MultichannelRestoration(NamedTuple):
 
     Examples
     --------
-    >>> import numpy as np
     >>> from car_napari.restoration import restore_multichannel
     >>> rng = np.random.default_rng(0)
     >>> stack = 0.5 + 0.1 * rng.standard_normal((2, 24, 24))
@@ -180,13 +179,7 @@ def _stack_layout(stack, *, axis, channel_axis):
             raise ValueError(
                 f"the stack is 4-D {arr.shape} but channel_axis=None (grey); pass the colour "
                 "axis (e.g. channel_axis=-1 for (n, H, W, C)) or a 3-D (n, H, W) grey stack.")
-        try:
-            if isinstance(channel_axis, (bool, np.bool_)):
-                raise TypeError
-            ch = operator.index(channel_axis)
-        except TypeError:
-            raise TypeError(f"channel_axis must be an integer or None; got "
-                            f"{channel_axis!r}.") from None
+        ch = int(channel_axis)  # an integer: check_channel_axis above
         if not -4 <= ch < 4:
             raise ValueError(f"channel_axis={ch} is out of range for the 4-D stack of shape "
                              f"{arr.shape}; pass one in -4..3 (-1 for (n, H, W, C)).")
@@ -305,7 +298,6 @@ def sharpness(stack, *, axis=0, channel_axis=-1):
 
     Examples
     --------
-    >>> import numpy as np
     >>> from scipy import ndimage
     >>> from car_napari.restoration import sharpness
     >>> sharp = np.random.default_rng(0).random((32, 32))
@@ -354,28 +346,17 @@ _PARAMETERS = """
 """
 
 
-@shared_parameters(_PARAMETERS)
 def iter_restore_multichannel(stack, *, axis=0, kappa=DEFAULT_KAPPA, reference="auto",
                               neighbourhood=1, forgetting=0.9995, directions="all",
                               keep_edges=True, reference_prediction=True, channel_axis=-1,
                               return_result=False):
     """Restore one scene from several degraded versions, step by step.
 
-    The generator form of :func:`restore_multichannel` (same parameters,
-    same result): it yields :class:`~car_napari.Progress` records while the
-    reference's single-image prediction and then each scan direction of the
-    2.5D model run, and returns what :func:`restore_multichannel` returns.
-    Closing the generator stops the work after the scans in progress.
+    It yields :class:`~car_napari.Progress` records while the reference's
+    single-image prediction and then each scan direction of the 2.5D model
+    run. Closing the generator stops the work after the scans in progress.
 
-    Parameters
-    ----------
-    {parameters}
-
-    Returns
-    -------
-    restored : MultichannelRestoration or RestorationResult
-        Exactly what ``restore_multichannel(stack, ...)`` returns with these
-        arguments.
+    {plain form}
 
     Yields
     ------
@@ -389,21 +370,8 @@ def iter_restore_multichannel(stack, *, axis=0, kappa=DEFAULT_KAPPA, reference="
         not yet restored showing the observation, in the layout of one
         version), then ``'edges'``.
 
-    Raises
-    ------
-    ValueError
-        As :func:`restore_multichannel`, when the generator is first
-        advanced.
-    TypeError
-        As :func:`restore_multichannel`.
-
-    See Also
-    --------
-    restore_multichannel : The same without progress.
-
     Examples
     --------
-    >>> import numpy as np
     >>> from car_napari._progress import drain
     >>> from car_napari.restoration import iter_restore_multichannel
     >>> rng = np.random.default_rng(0)
@@ -580,6 +548,7 @@ def _iter_centred_source(versions, c, rows, record):
     return source, means, np.where(var > 0, var, 1.0)
 
 
+@documents_job(iter_restore_multichannel)
 @shared_parameters(_PARAMETERS)
 def restore_multichannel(stack, *, axis=0, kappa=DEFAULT_KAPPA, reference="auto",
                          neighbourhood=1, forgetting=0.9995, directions="all", keep_edges=True,
@@ -628,7 +597,6 @@ def restore_multichannel(stack, *, axis=0, kappa=DEFAULT_KAPPA, reference="auto"
 
     Examples
     --------
-    >>> import numpy as np
     >>> from car_napari.restoration import restore_multichannel
     >>> rng = np.random.default_rng(0)
     >>> scene = np.add.outer(np.linspace(0, 1, 32), np.linspace(0, 1, 32)) / 2

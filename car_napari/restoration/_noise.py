@@ -44,7 +44,6 @@ def estimate_noise(image, *, channel_axis=-1):
 
     Examples
     --------
-    >>> import numpy as np
     >>> from car_napari.restoration import estimate_noise
     >>> rng = np.random.default_rng(0)
     >>> ramp = np.add.outer(np.linspace(0, 1, 64), np.linspace(0, 1, 64)) / 2

@@ -75,7 +75,6 @@ def estimate_psf(observed, restored, *, size=7, window=None, channel_axis=-1):
 
     Examples
     --------
-    >>> import numpy as np
     >>> from scipy import ndimage
     >>> from car_napari.restoration import estimate_psf, psf_width
     >>> sharp = np.random.default_rng(0).random((64, 64))
@@ -172,7 +171,6 @@ def psf_width(psf):
 
     Examples
     --------
-    >>> import numpy as np
     >>> from car_napari.restoration import psf_width
     >>> i, j = np.indices((15, 15)) - 7
     >>> round(psf_width(np.exp(-(i**2 + j**2) / (2 * 1.5**2))), 2)

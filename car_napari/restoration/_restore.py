@@ -1,17 +1,22 @@
 """The public face of single-image restoration: :func:`restore` and
-:func:`iter_restore` run an image in memory through :mod:`._single` and a
-dask or zarr image through :mod:`._tiled` (by tiles, the same result).
+:func:`iter_restore` run one job, :func:`_iter_job`, which takes an image in
+memory through :mod:`._single` and a dask or zarr image through
+:mod:`._tiled` (by tiles, the same result).
 """
 
 from __future__ import annotations
 
-from functools import partial
+from dataclasses import replace
 
-from .._docstrings import shared_parameters
+import numpy as np
+
+from .._docstrings import documents_job, shared_parameters
 from .._progress import drain
 from .._tiles import is_lazy
-from ._single import DEFAULT_WINDOW, restore_job
-from ._tiled import iter_restore_lazy
+from .._validation import scale_exponent
+from ._checks import check_noise_magnitude
+from ._single import DEFAULT_WINDOW, iter_restoration, to_layout
+from ._tiled import iter_restore_large
 
 __all__ = ["iter_restore", "restore"]
 
@@ -20,7 +25,7 @@ _PARAMETERS = """
     image : (H, W) or (H, W, C) array
         The degraded image; integers are scaled to [0, 1]. A dask or zarr
         array (larger than memory) is restored by tiles
-        (:func:`~car_napari.restoration.restore_tiled`, windowed estimator):
+        (:func:`~car_napari.restoration.restore_large`, windowed estimator):
         a dask image gives a lazy dask array, a zarr one a NumPy array.
     neighbourhood : int, (eta, 2) array or 'auto', optional
         Causal neighbourhood order (default 1: the pixels above and before)
@@ -70,27 +75,17 @@ _PARAMETERS = """
 """
 
 
-@shared_parameters(_PARAMETERS)
 def iter_restore(image, *, neighbourhood=1, estimator="windowed", window=DEFAULT_WINDOW,
                  forgetting=0.995, directions="all", keep_edges=True, kappa=0.0, noise=None,
                  channel_axis=-1, return_result=False):
     """Restore a degraded image step by step, with progress and previews.
 
-    The generator form of :func:`restore` (same parameters, same result):
-    it yields :class:`~car_napari.Progress` records as strips of rows (or,
+    It yields :class:`~car_napari.Progress` records as strips of rows (or,
     with ``estimator='recursive'``, scan directions) finish, whose previews
-    show the restored image filling in, and returns what :func:`restore`
-    returns. Closing the generator stops the work after the strips (or
-    scans) in progress.
+    show the restored image filling in. Closing the generator stops the
+    work after the strips (or scans) in progress.
 
-    Parameters
-    ----------
-    {parameters}
-
-    Returns
-    -------
-    restored : ndarray or RestorationResult
-        Exactly what ``restore(image, ...)`` returns with these arguments.
+    {plain form}
 
     Yields
     ------
@@ -106,20 +101,8 @@ def iter_restore(image, *, neighbourhood=1, estimator="windowed", window=DEFAULT
         the edge rule; rows not yet restored show the observation), in the
         layout of ``image``.
 
-    Raises
-    ------
-    ValueError
-        As :func:`restore`, when the generator is first advanced.
-    TypeError
-        As :func:`restore`.
-
-    See Also
-    --------
-    restore : The same without progress.
-
     Examples
     --------
-    >>> import numpy as np
     >>> from car_napari._progress import drain
     >>> from car_napari.restoration import iter_restore
     >>> rng = np.random.default_rng(0)
@@ -131,13 +114,13 @@ def iter_restore(image, *, neighbourhood=1, estimator="windowed", window=DEFAULT
     >>> [r.preview.shape for r in records if r.preview is not None][0]
     (64, 48)
     """
-    job = iter_restore_lazy if is_lazy(image) else partial(restore_job, live=True)
-    return (yield from job(
+    return (yield from _iter_job(
         image, neighbourhood=neighbourhood, estimator=estimator, window=window,
         forgetting=forgetting, directions=directions, keep_edges=keep_edges, kappa=kappa,
-        noise=noise, channel_axis=channel_axis, return_result=return_result))
+        noise=noise, channel_axis=channel_axis, return_result=return_result, live=True))
 
 
+@documents_job(iter_restore)
 @shared_parameters(_PARAMETERS)
 def restore(image, *, neighbourhood=1, estimator="windowed", window=DEFAULT_WINDOW,
             forgetting=0.995, directions="all", keep_edges=True, kappa=0.0, noise=None,
@@ -177,7 +160,6 @@ def restore(image, *, neighbourhood=1, estimator="windowed", window=DEFAULT_WIND
 
     Examples
     --------
-    >>> import numpy as np
     >>> from car_napari.restoration import restore
     >>> rng = np.random.default_rng(0)
     >>> clean = np.add.outer(np.linspace(0, 1, 48), np.linspace(0, 1, 48)) / 2
@@ -188,8 +170,47 @@ def restore(image, *, neighbourhood=1, estimator="windowed", window=DEFAULT_WIND
     >>> bool(np.std(restored - clean) < 0.7 * np.std(noisy - clean))
     True
     """
-    job = iter_restore_lazy if is_lazy(image) else partial(restore_job, live=False)
-    return drain(job(
+    return drain(_iter_job(
         image, neighbourhood=neighbourhood, estimator=estimator, window=window,
         forgetting=forgetting, directions=directions, keep_edges=keep_edges, kappa=kappa,
-        noise=noise, channel_axis=channel_axis, return_result=return_result))
+        noise=noise, channel_axis=channel_axis, return_result=return_result, live=False))
+
+
+def _iter_job(image, *, neighbourhood, estimator, window, forgetting, directions, keep_edges,
+              kappa, noise, channel_axis, return_result, live):
+    """The job of :func:`iter_restore` and :func:`restore`; ``live`` adds the
+    previews (which ``restore``, where nobody sees them, skips).
+
+    A dask or zarr image goes by tiles (:func:`iter_restore_large`, every
+    option passed on: ``forgetting`` is checked as for an image in memory;
+    only the recursive estimator, which tiles refuse, uses it). An image in
+    memory goes through :func:`~car_napari.restoration._single.iter_restoration`;
+    a float image of a spread beyond ``2**±32`` is restored scaled by a
+    power of two (exact) and its results scaled back: the estimators'
+    floors and caps (the directions' weights ``min(n / total, 1e30) ** 4``)
+    are absolute, so that its magnitude would otherwise decide the result.
+    Ordinary images take the unscaled path, bit for bit."""
+    options = dict(neighbourhood=neighbourhood, estimator=estimator, window=window,
+                   forgetting=forgetting, directions=directions, keep_edges=keep_edges,
+                   kappa=kappa, channel_axis=channel_axis)
+    if is_lazy(image):
+        if return_result:
+            raise ValueError("return_result needs the image in memory; a dask or zarr image "
+                             "is restored by tiles into an array (restore_large).")
+        return (yield from iter_restore_large(image, noise=noise, **options))
+    exponent = scale_exponent(image)
+    check_noise_magnitude(noise, exponent)
+    if exponent:
+        image = np.ldexp(np.asarray(image, np.float64), -exponent)
+        if noise is not None:
+            noise = np.ldexp(np.asarray(noise, np.float64), -exponent)
+    result = yield from iter_restoration(image, noise=noise, live=live,
+                                         probability=return_result, blend=not return_result,
+                                         **options)
+    if exponent:  # back to the image's units; probabilities and weights have none
+        result = replace(result, observed=np.ldexp(result.observed, exponent),
+                         prediction=np.ldexp(result.prediction, exponent),
+                         noise=np.ldexp(result.noise, exponent))
+    if return_result:
+        return result
+    return to_layout(result.restored(), np.ndim(image), channel_axis)

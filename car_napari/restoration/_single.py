@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import queue
 from concurrent.futures import wait
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from functools import partial
 
 import numpy as np
@@ -30,14 +30,13 @@ from .._validation import (
     check_flag,
     check_not_constant,
     check_real,
-    scale_exponent,
 )
 from ..model.blocks import iter_channel_last_float
 from ..model.directions import DIRECTIONS
 from ..model.neighbourhood import Context
 from ._checks import (
     check_kappa,
-    check_noise_magnitude,
+    check_noise,
     check_options,
     check_restorable,
     resolve_offsets,
@@ -114,7 +113,6 @@ class RestorationResult:
 
     Examples
     --------
-    >>> import numpy as np
     >>> from car_napari.restoration import restore
     >>> rng = np.random.default_rng(0)
     >>> ramp = np.add.outer(np.linspace(0, 1, 32), np.linspace(0, 1, 32)) / 2
@@ -161,7 +159,6 @@ class RestorationResult:
 
         Examples
         --------
-        >>> import numpy as np
         >>> from car_napari.restoration import restore
         >>> rng = np.random.default_rng(0)
         >>> noisy = rng.normal(0.5, 0.1, (32, 32))
@@ -199,7 +196,6 @@ class RestorationResult:
 
         Examples
         --------
-        >>> import numpy as np
         >>> from car_napari.restoration import restore
         >>> rng = np.random.default_rng(0)
         >>> result = restore(rng.normal(0.5, 0.1, (32, 32)), return_result=True)
@@ -415,13 +411,7 @@ def iter_restoration(image, *, neighbourhood, estimator, window, forgetting, dir
         raise ValueError(f"window {window} is larger than the image {(H, W)}: use at most "
                          f"{max(H, W, DEFAULT_WINDOW)}.")
     if noise is not None:
-        try:
-            noise = np.broadcast_to(np.asarray(noise, float), (C,)).copy()
-        except (TypeError, ValueError):
-            raise ValueError(f"noise must be None, a number or {C} numbers (one a channel); "
-                             f"got {noise!r}.") from None
-        if np.any(noise < 0) or not np.all(np.isfinite(noise)):
-            raise ValueError(f"noise must be finite and >= 0; got {noise}.")
+        noise = check_noise(noise, C)
     if estimator == "windowed":
         work = dict(WINDOWED_WORK if probability else WINDOWED_WORK_PLAIN)
     else:
@@ -526,34 +516,3 @@ def _iter_edges(observed, prediction, spread, noise, pool, span, blend=False, ou
         except StopIteration as stop:
             return stop.value
         yield Progress("edges", share.at(done, H), f"edge rule: rows {done}/{H}")
-
-
-def restore_job(image, *, neighbourhood, estimator, window, forgetting, directions,
-                keep_edges, kappa, noise, channel_axis, return_result, live):
-    """:func:`~car_napari.restoration.iter_restore`'s job for an image in
-    memory; ``live`` adds the previews (which ``restore``, where nobody sees
-    them, skips).
-
-    A float image of a spread beyond ``2**±32`` is restored scaled by a
-    power of two (exact) and its results scaled back: the estimators'
-    floors and caps (the directions' weights ``min(n / total, 1e30) ** 4``)
-    are absolute, so that its magnitude would otherwise decide the result.
-    Ordinary images take the unscaled path, bit for bit."""
-    exponent = scale_exponent(image)
-    check_noise_magnitude(noise, exponent)
-    if exponent:
-        image = np.ldexp(np.asarray(image, np.float64), -exponent)
-        if noise is not None:
-            noise = np.ldexp(np.asarray(noise, np.float64), -exponent)
-    result = yield from iter_restoration(
-        image, neighbourhood=neighbourhood, estimator=estimator, window=window,
-        forgetting=forgetting, directions=directions, keep_edges=keep_edges, kappa=kappa,
-        noise=noise, channel_axis=channel_axis, live=live, probability=return_result,
-        blend=not return_result)
-    if exponent:  # back to the image's units; probabilities and weights have none
-        result = replace(result, observed=np.ldexp(result.observed, exponent),
-                         prediction=np.ldexp(result.prediction, exponent),
-                         noise=np.ldexp(result.noise, exponent))
-    if return_result:
-        return result
-    return to_layout(result.restored(), np.ndim(image), channel_axis)

@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._docstrings import shared_parameters
+from .._docstrings import documents_job, shared_parameters
 from .._progress import Progress, Span, drain, spans
 from .._threads import job_pool
 from .._tiles import is_lazy, iter_map_tiles, lazy_map_tiles, read_tile, require, tile_grid
@@ -46,7 +46,13 @@ from .._validation import (
     check_real,
 )
 from ..model.neighbourhood import as_offsets
-from ._checks import check_kappa, check_noise_magnitude, check_options, check_restorable
+from ._checks import (
+    check_kappa,
+    check_noise,
+    check_noise_magnitude,
+    check_options,
+    check_restorable,
+)
 from ._noise import noise_from_medians
 from ._single import (
     CORNERS,
@@ -56,7 +62,7 @@ from ._single import (
     _iter_windowed,
 )
 
-__all__ = ["DEFAULT_TILE", "iter_restore_tiled", "restore_tiled", "tile_halo"]
+__all__ = ["DEFAULT_TILE", "iter_restore_large", "restore_large", "tile_halo"]
 
 #: Side of a tile's core (pixels): a tile and its halo in float64 with the
 #: restoration's arrays is about 0.4 GB per channel.
@@ -167,13 +173,7 @@ def _check(image, neighbourhood, estimator, window, directions, kappa, noise, ch
         raise ValueError(f"window {window} is larger than the image {shape[:2]}: use at most "
                          f"{max(*shape[:2], DEFAULT_WINDOW)}.")
     if noise is not None:
-        try:
-            noise = np.broadcast_to(np.asarray(noise, float), (C,)).copy()
-        except (TypeError, ValueError):
-            raise ValueError(f"noise must be a number or one per channel ({C}) of them; "
-                             f"got {noise!r}.") from None
-        if np.any(noise < 0) or not np.all(np.isfinite(noise)):
-            raise ValueError(f"noise must be finite and >= 0; got {noise}.")
+        noise = check_noise(noise, C)
         check_noise_magnitude(noise)
     check_restorable((*shape[:2], C), offsets, "windowed", directions)
     return offsets, directions, kappa, C, noise, window, tile
@@ -233,6 +233,16 @@ def _add_counts(keys, counts, bins):
     return merged, total
 
 
+def _read_tiles(image, tiles, add, responses):
+    """One pass over the tiles: each tile's core pixels given to ``add``
+    (``(n, C)`` rows), then ``(k, its |Laplacian| responses or None)``."""
+    H, W = image.shape[:2]
+    for k, t in enumerate(tiles, start=1):
+        data = _channel_last(read_tile(image, t))
+        add(data[t.inner].reshape(-1, data.shape[2]))
+        yield k, _responses(data, t, H, W) if responses else None
+
+
 def _iter_statistics(image, want_noise, tile, span):
     """The global quantities: (Summary, noise or None), in two passes over
     the tiles, Progress records after each tile.
@@ -252,13 +262,9 @@ def _iter_statistics(image, want_noise, tile, span):
     summary = SummaryPasses(C)
     empty = np.zeros(0, np.int64)
     hist = [(empty, empty)] * C  # per channel: sorted bins, their counts
-    for k, t in enumerate(tiles, start=1):
-        data = _channel_last(read_tile(image, t))
-        summary.first(data[t.inner].reshape(-1, C))
-        if want_noise:
-            r = _responses(data, t, H, W)
-            for c in range(C):
-                hist[c] = _add_counts(*hist[c], _bins(r[:, c]))
+    for k, r in _read_tiles(image, tiles, summary.first, want_noise):
+        for c in range(C) if want_noise else ():
+            hist[c] = _add_counts(*hist[c], _bins(r[:, c]))
         yield Progress("statistics", passes[0].at(k, len(tiles)), f"mean: tile {k}/{len(tiles)}")
     # the min and max are known: refuse a constant channel before a second pass
     check_not_constant(None, summary=summary.result())
@@ -272,14 +278,10 @@ def _iter_statistics(image, want_noise, tile, span):
         bins.append((keys[i], keys[j]))
         first.append(int(upto[i] - counts[i]))  # rank of the first value kept
     picked = [[] for _ in range(C)]
-    for k, t in enumerate(tiles, start=1):
-        data = _channel_last(read_tile(image, t))
-        summary.second(data[t.inner].reshape(-1, C))
-        if median:
-            r = _responses(data, t, H, W)
-            for c in range(C):
-                b = _bins(r[:, c])
-                picked[c].append(r[:, c][(b == bins[c][0]) | (b == bins[c][1])])
+    for k, r in _read_tiles(image, tiles, summary.second, median):
+        for c in range(C) if median else ():
+            b = _bins(r[:, c])
+            picked[c].append(r[:, c][(b == bins[c][0]) | (b == bins[c][1])])
         yield Progress("statistics", passes[1].at(k, len(tiles)),
                        f"variance: tile {k}/{len(tiles)}")
     result = summary.result()
@@ -318,28 +320,13 @@ def _restore_part(part, *, mean, var, noise, offsets, directions, window, keep_e
     return pred[..., 0] if part.ndim == 2 else pred
 
 
-@shared_parameters(_PARAMETERS)
-def iter_restore_tiled(image, *, out=None, tile=DEFAULT_TILE, neighbourhood=1,
+def iter_restore_large(image, *, out=None, tile=DEFAULT_TILE, neighbourhood=1,
                        estimator="windowed", window=DEFAULT_WINDOW, forgetting=0.995,
                        directions="all", keep_edges=True, kappa=0.0, noise=None,
                        channel_axis=-1):
     """Restore an image larger than memory by tiles, as a job.
 
-    The same result as :func:`~car_napari.restoration.restore` with the
-    windowed estimator (to rounding, 1e-12 on the tests' images): the
-    image's mean, variance and noise level are computed first in passes over
-    its tiles, then every tile is restored with its halo
-    (:func:`tile_halo`) and its core kept.
-
-    Parameters
-    ----------
-    {parameters}
-
-    Returns
-    -------
-    restored : array
-        ``out``, a lazy dask array, or a NumPy array (see ``out``), in the
-        layout of ``image``.
+    {plain form}
 
     Yields
     ------
@@ -347,25 +334,11 @@ def iter_restore_tiled(image, *, out=None, tile=DEFAULT_TILE, neighbourhood=1,
         Stages ``'statistics'`` (the global passes, a record per tile) and
         ``'tiles'`` (``'tile k/n'``; not with a lazy result).
 
-    Raises
-    ------
-    ValueError
-        For ``estimator='recursive'``, ``neighbourhood='auto'``, a wrong
-        shape or option, a constant image, NaN or infinite values (found in
-        the tile that holds them).
-    TypeError
-        If the image is not numeric.
-
-    See Also
-    --------
-    restore_tiled : The same without progress.
-
     Examples
     --------
-    >>> import numpy as np
     >>> from car_napari._progress import drain
     >>> noisy = np.random.default_rng(0).normal(0.5, 0.1, (200, 150))
-    >>> restored = drain(iter_restore_tiled(noisy, tile=64))
+    >>> restored = drain(iter_restore_large(noisy, tile=64))
     >>> restored.shape
     (200, 150)
     """
@@ -406,14 +379,19 @@ class _TilePart:
         return _restore_part(part, **self.options)
 
 
+@documents_job(iter_restore_large)
 @shared_parameters(_PARAMETERS)
-def restore_tiled(image, *, out=None, tile=DEFAULT_TILE, neighbourhood=1,
+def restore_large(image, *, out=None, tile=DEFAULT_TILE, neighbourhood=1,
                   estimator="windowed", window=DEFAULT_WINDOW, forgetting=0.995,
                   directions="all", keep_edges=True, kappa=0.0, noise=None,
                   channel_axis=-1):
     """Restore an image larger than memory by tiles.
 
-    ``drain(iter_restore_tiled(image, ...))``.
+    The same result as :func:`~car_napari.restoration.restore` with the
+    windowed estimator (to rounding, 1e-12 on the tests' images): the
+    image's mean, variance and noise level are computed first in passes over
+    its tiles, then every tile is restored with its halo
+    (:func:`tile_halo`) and its core kept.
 
     Parameters
     ----------
@@ -422,39 +400,32 @@ def restore_tiled(image, *, out=None, tile=DEFAULT_TILE, neighbourhood=1,
     Returns
     -------
     restored : array
-        ``out``, a lazy dask array (dask input) or a NumPy array.
+        ``out``, a lazy dask array when ``image`` is dask (its tiles
+        computed when it is; the global passes already done), or a NumPy
+        array (see ``out``), in the layout of ``image``.
 
     Raises
     ------
     ValueError
-        As :func:`iter_restore_tiled`.
+        For ``estimator='recursive'``, ``neighbourhood='auto'``, a wrong
+        shape or option, a constant image, NaN or infinite values (found in
+        the tile that holds them).
     TypeError
         If the image is not numeric.
 
     Examples
     --------
-    >>> import numpy as np
     >>> from car_napari.restoration import restore
     >>> noisy = np.random.default_rng(0).normal(0.5, 0.1, (200, 150))
-    >>> bool(np.allclose(restore_tiled(noisy, tile=64), restore(noisy), atol=1e-9))
+    >>> bool(np.allclose(restore_large(noisy, tile=64), restore(noisy), atol=1e-9))
     True
     """
-    return drain(iter_restore_tiled(
+    return drain(iter_restore_large(
         image, out=out, tile=tile, neighbourhood=neighbourhood, estimator=estimator,
         window=window, forgetting=forgetting, directions=directions, keep_edges=keep_edges,
         kappa=kappa, noise=noise, channel_axis=channel_axis))
 
 
-def iter_restore_lazy(image, *, neighbourhood, estimator, window, forgetting, directions,
-                      keep_edges, kappa, noise, channel_axis, return_result):
-    """What ``iter_restore`` and ``restore`` run for a dask or zarr image:
-    :func:`iter_restore_tiled`, every option passed on (``forgetting`` is
-    checked as for an image in memory; only the recursive estimator, which
-    tiles refuse, uses it)."""
-    if return_result:
-        raise ValueError("return_result needs the image in memory; a dask or zarr image is "
-                         "restored by tiles into an array (restore_tiled).")
-    return (yield from iter_restore_tiled(
-        image, neighbourhood=neighbourhood, estimator=estimator, window=window,
-        forgetting=forgetting, directions=directions, keep_edges=keep_edges, kappa=kappa,
-        noise=noise, channel_axis=channel_axis))
+# the names before issue 33 (public in car_napari.restoration), kept working
+iter_restore_tiled = iter_restore_large
+restore_tiled = restore_large
