@@ -460,7 +460,7 @@ merge_threshold : float or None, optional
     a merge may cost. None: 0.06 per feature dimension (1.08 for the 18
     features of a grey image, 1.44 for the 24 of a colour one) and 0.22 of
     the costliest merge of the history, whichever is larger; when the
-    costliest merges stand apart (each at least 2.5 times any other merge),
+    costliest merges stand apart (each at least 3.25 times any other merge),
     only they stop it (chosen on the TUNING mosaics, docs/segmentation.md).
 grey : {'grey', 'pseudo_colour'}, optional
     How a grey image is segmented: as it is (one channel, d = 1), or as

@@ -144,7 +144,7 @@ def test_automatic_k_is_the_first_merge_costlier_than_the_rate_times_the_feature
     np.testing.assert_array_equal(result.labels, result.labels_at(result.history[first].k))
 
 
-def _expected_stop(costs, threshold, relative, apart=2.5):
+def _expected_stop(costs, threshold, relative, apart=3.25):
     """The merge the default stop rule stops at (index; len(costs): none),
     computed here by trying every set of costliest merges: the fewest ``m``
     costliest (m >= 1) that each exceed the plain limit and cost at least
@@ -195,9 +195,9 @@ def test_relative_stop_reads_the_costliest_merge():
     assert _choose_k(states, 1.0, relative=0.25) == 2  # only 10.0 > 2.5
     assert _choose_k(states, 20.0) == 1  # no merge costlier: down to one
     assert _choose_k(states[:1], 1.0, relative=0.5) == 5  # no merge at all
-    # 2.0 > 1.5, but 10.0 stands apart (>= 2.5 times any other merge): it alone stops
+    # 2.0 > 1.5, but 10.0 stands apart (>= 3.25 times any other merge): it alone stops
     assert _choose_k(states, 1.0, relative=0.15) == 2
-    # costs 0.5, 2.0, 1.0, 3.0: no gap of 2.5, so 2.0 > 1.0 stops
+    # costs 0.5, 2.0, 1.0, 3.0: no gap of 3.25, so 2.0 > 1.0 stops
     assert _choose_k(history([0.0, -0.5, -2.5, -3.5, -6.5]), 1.0, relative=0.15) == 4
 
 
@@ -207,7 +207,7 @@ def test_stop_rule_against_trying_every_set_of_costliest_merges():
     costly merges (between textures) or none, and some <= 0 (EM noise)."""
     from car_napari.segmentation._mixture import MERGE_APART, _choose_k
 
-    assert MERGE_APART == 2.5  # the value _expected_stop assumes
+    assert MERGE_APART == 3.25  # the value _expected_stop assumes
     rng = np.random.default_rng(7)
     for _ in range(400):
         n = int(rng.integers(1, 12))
@@ -225,7 +225,7 @@ def test_stop_rule_against_trying_every_set_of_costliest_merges():
 def test_automatic_k_merges_a_split_texture_of_two_strips():
     """Issue 32, point 13: grass beside gravel gave 4 segments with the
     relative stop (0.22 of the costliest merge: two merges inside a texture
-    cost more); the last merge stands apart (>= 2.5 times any other), so
+    cost more); the last merge stands apart (>= 3.25 times any other), so
     merging goes on to 2."""
     image, truth = _strips(("grass", "gravel"))
     result = segment(image)
