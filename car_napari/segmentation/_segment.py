@@ -466,8 +466,9 @@ merge_threshold : float or None, optional
     Automatic stop: the largest loss of mean log-likelihood per pixel (nats)
     a merge may cost. None: 0.06 per feature dimension (1.08 for the 18
     features of a grey image, 1.44 for the 24 of a colour one) and 0.22 of
-    the costliest merge of the history, whichever is larger (chosen on the
-    TUNING mosaics, docs/segmentation.md).
+    the costliest merge of the history, whichever is larger; when the
+    costliest merges stand apart (each at least 3.25 times any other merge),
+    only they stop it (chosen on the TUNING mosaics, docs/segmentation.md).
 grey : {'grey', 'pseudo_colour'}, optional
     How a grey image is segmented: as it is (one channel, d = 1), or as
     the chapter's pseudo-colour ``[Y, Y^0.5, Y^2]`` (d = 3). 'grey'
@@ -678,6 +679,7 @@ def iter_segment(
     result._final = final
     if prob is None:  # not kept (_is_final was wrong, or n_segments missing): label again
         labels, prob = yield from label(history[final], at(), at(), "merging")
+        result._store(final, None, prob)  # kept: thresholds on it stay look-ups
     for j in [j for j in result._probs if j != final]:
         del result._probs[j]
     result.labels = result._finish(labels, prob, threshold)

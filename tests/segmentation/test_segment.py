@@ -138,13 +138,25 @@ def test_automatic_k_is_the_first_merge_costlier_than_the_rate_times_the_feature
     features = local_features(image, levels=2)
     options = {} if rate is None else {"merge_threshold": rate * features.shape[2]}
     result = segment(image, features=features, n_init=8, **options)
-    logliks = [m.loglik for m in result.history]
-    costs = [a - b for a, b in pairwise(logliks)]
+    costs = [a.loglik - b.loglik for a, b in pairwise(result.history)]
     threshold = (0.06 if rate is None else rate) * features.shape[2]
-    if rate is None:
-        threshold = max(threshold, 0.22 * max(costs))
-    first = next((i for i, cost in enumerate(costs) if cost > threshold), len(logliks) - 1)
+    first = _expected_stop(costs, threshold, 0.22 if rate is None else 0.0)
     np.testing.assert_array_equal(result.labels, result.labels_at(result.history[first].k))
+
+
+def _expected_stop(costs, threshold, relative, apart=3.25):
+    """The merge the default stop rule stops at (index; len(costs): none),
+    computed here by trying every set of costliest merges: the fewest ``m``
+    costliest (m >= 1) that each exceed the plain limit and cost at least
+    ``apart`` times every other merge stop it at the first of them; else
+    the first merge above max(threshold, relative * the costliest) does."""
+    limit = max(threshold, relative * max(costs))
+    order = sorted(range(len(costs)), key=lambda i: -costs[i])
+    for m in range(1, len(costs) if relative > 0 else 0):
+        top, rest = order[:m], order[m:]
+        if all(costs[i] > limit and costs[i] >= apart * costs[j] for i in top for j in rest):
+            return min(top)
+    return next((i for i, cost in enumerate(costs) if cost > limit), len(costs))
 
 
 def _strips(names, size=192):
@@ -180,10 +192,50 @@ def test_relative_stop_reads_the_costliest_merge():
     # merge costs 0.5, 2.0, 1.0, 10.0 (from 5 components down to 1)
     states = history([0.0, -0.5, -2.5, -3.5, -13.5])
     assert _choose_k(states, 1.0) == 4  # 2.0 > 1.0: the state before it
-    assert _choose_k(states, 1.0, relative=0.15) == 4  # 2.0 > 1.5
     assert _choose_k(states, 1.0, relative=0.25) == 2  # only 10.0 > 2.5
     assert _choose_k(states, 20.0) == 1  # no merge costlier: down to one
     assert _choose_k(states[:1], 1.0, relative=0.5) == 5  # no merge at all
+    # 2.0 > 1.5, but 10.0 stands apart (>= 3.25 times any other merge): it alone stops
+    assert _choose_k(states, 1.0, relative=0.15) == 2
+    # costs 0.5, 2.0, 1.0, 3.0: no gap of 3.25, so 2.0 > 1.0 stops
+    assert _choose_k(history([0.0, -0.5, -2.5, -3.5, -6.5]), 1.0, relative=0.15) == 4
+
+
+def test_stop_rule_against_trying_every_set_of_costliest_merges():
+    """_choose_k (the default's relative stop and the gap) against
+    _expected_stop, on random merge costs: log-normal, with one or two
+    costly merges (between textures) or none, and some <= 0 (EM noise)."""
+    from car_napari.segmentation._mixture import MERGE_APART, _choose_k
+
+    assert MERGE_APART == 3.25  # the value _expected_stop assumes
+    rng = np.random.default_rng(7)
+    for _ in range(400):
+        n = int(rng.integers(1, 12))
+        costs = rng.lognormal(0.0, 0.6, n) * rng.choice([1.0, 4.0, 10.0], n, p=[0.8, 0.1, 0.1])
+        costs[rng.random(n) < 0.1] *= -0.1
+        logliks = np.concatenate([[0.0], -np.cumsum(costs)])
+        k = np.arange(n + 1, 0, -1)
+        states = [Mixture(np.ones(j) / j, np.zeros((j, 1)), np.ones((j, 1)),
+                          np.arange(1, j + 1), ll) for j, ll in zip(k, logliks, strict=True)]
+        threshold, relative = rng.uniform(0.0, 2.0), rng.choice([0.0, 0.1, 0.22, 0.5])
+        expected = k[_expected_stop(list(costs), threshold, relative)]
+        assert _choose_k(states, threshold, relative) == expected, (costs, threshold, relative)
+
+
+def test_automatic_k_merges_a_split_texture_of_two_strips():
+    """Issue 32, point 13: grass beside gravel gave 4 segments with the
+    relative stop (0.22 of the costliest merge: two merges inside a texture
+    cost more); the last merge stands apart (>= 3.25 times any other), so
+    merging goes on to 2."""
+    image, truth = _strips(("grass", "gravel"))
+    result = segment(image)
+    costs = [a.loglik - b.loglik for a, b in pairwise(result.history)]
+    limit = max(0.06 * result.features.shape[2], 0.22 * max(costs))
+    relative_only = next(i for i, cost in enumerate(costs) if cost > limit)
+    assert result.history[relative_only].k > 2  # the relative stop alone over-splits
+    assert result.n_segments == 2
+    agree = np.mean((result.labels == result.labels[0, 0]) == (truth == 0))
+    assert agree > 0.9
 
 
 def test_grey_modes():
