@@ -12,8 +12,7 @@ from .._threads import pool_threads
 from .._validation import check_size
 from ..model.adaptive import adaptive_scanner
 from ..model.directions import scan_shape
-from ._kernels import accumulate_direction, combine_directions
-from ._windowed import edge_weight
+from ._combine_kernels import accumulate_direction, combine_directions, edge_weight
 
 # Windows (pixels) over which the edge rule, and the weighting of the scan
 # directions, measure the local prediction error.

@@ -35,9 +35,8 @@ from ._combine import (
     iter_calls,
     iter_directions,
 )
-from ._noise import estimate_noise, noise_from_medians
+from ._noise import estimate_noise, median_abs_laplacian, noise_from_medians
 from ._single import DEFAULT_WINDOW, RestorationResult, _iter_edges, iter_restoration
-from ._windowed import median_abs_laplacian
 
 # Threshold on the prediction probability (the predictive density relative to
 # its peak, in [0, 1]) above which a pixel is replaced by its prediction;

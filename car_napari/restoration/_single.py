@@ -49,12 +49,10 @@ from ._combine import (
     iter_directions,
     iter_edge_rule,
 )
-from ._noise import noise_channel_last, noise_from_medians
+from ._combine_kernels import blend_edges, combine_predictions
+from ._noise import median_abs_laplacian, noise_channel_last, noise_from_medians
 from ._windowed import (
-    blend_edges,
     block_moments,
-    combine_predictions,
-    median_abs_laplacian,
     predict_block_models,
     predict_scratch_rows,
     valid_box,

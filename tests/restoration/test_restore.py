@@ -204,7 +204,7 @@ def test_noise_median_is_exactly_numpy_median():
     """The O(n) histogram median of the absolute Laplacian responses equals
     np.median on random, heavy-tailed, sparse and constant images, odd and
     even counts (the heavy tail exercises the overflow-bin fallback)."""
-    from car_napari.restoration._windowed import median_abs_laplacian
+    from car_napari.restoration._noise import median_abs_laplacian
 
     kernel = np.array([[1.0, -2.0, 1.0], [-2.0, 4.0, -2.0], [1.0, -2.0, 1.0]])
     rng = np.random.default_rng(4)
