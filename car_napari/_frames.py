@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._progress import Progress, row_blocks, stage
+from ._progress import Progress, mapped, row_blocks, stage
 from ._tiles import read_array
 from ._validation import check_real
 
@@ -215,15 +215,16 @@ def _thinned(job):
     without their previews (a block's frames are shown from the output once
     written), and its result."""
     last = -math.inf
-    while True:
-        try:
-            record = next(job)
-        except StopIteration as stop:
-            return stop.value
+
+    def thinned(record):
+        nonlocal last
         now = time.monotonic()
         if now - last >= RECORD_INTERVAL:
             last = now
-            yield record if record.preview is None else replace(record, preview=None)
+            return record if record.preview is None else replace(record, preview=None)
+        return None
+
+    return (yield from mapped(job, thinned))
 
 
 def auto_block(clip, *, budget=READ_BUDGET, most=16):

@@ -9,7 +9,9 @@ Cancel) stops the work at the next yield: kernels run in chunks (rows, tiles,
 EM iterations) with a yield between them.
 
 Generators that run another one as a stage use :func:`stage`, which maps
-the inner fractions into a part of the outer range; a job of several stages
+the inner fractions into a part of the outer range (other inner generators,
+such as kernel loops yielding units of work, go through :func:`mapped`, or
+:func:`result_of` where nobody watches them); a job of several stages
 gives each its :class:`Span` of [0, 1] by :func:`spans`. Work split into
 calls between records goes by :func:`row_blocks`, and runs side by side on
 the job pool (:mod:`car_napari._threads`) by :func:`iter_chains` (or, whole
@@ -24,8 +26,8 @@ from typing import Any, NamedTuple
 
 from ._threads import limited_blas
 
-__all__ = ["Progress", "Span", "drain", "iter_chains", "row_blocks", "side_by_side", "spans",
-           "stage"]
+__all__ = ["Progress", "Span", "drain", "iter_chains", "mapped", "result_of", "row_blocks",
+           "side_by_side", "spans", "stage"]
 
 
 @dataclass(frozen=True)
@@ -266,17 +268,93 @@ def stage(job, start, stop, *, name=None, prefix="", previews=True):
     (0.4, 'inner: half')
     """
     span = stop - start
+    return (yield from mapped(job, lambda record: Progress(
+        record.stage if name is None else name,
+        start + span * min(max(float(record.fraction), 0.0), 1.0),
+        prefix + record.message,
+        record.preview if previews else None,
+    )))
+
+
+def mapped(job, convert):
+    """Run a generator inside a job: what it yields converted, its result
+    returned.
+
+    The one place a job steps another generator by hand: a stage's records
+    rescaled (:func:`stage`), or the units of work a kernel loop yields
+    turned into :class:`Progress` records.
+
+    Parameters
+    ----------
+    job : generator
+        The inner generator.
+    convert : callable
+        Called with each item the inner generator yields; what it returns is
+        yielded, unless it is None (the item is then only counted, or
+        dropped).
+
+    Yields
+    ------
+    object
+        The converted items.
+
+    Returns
+    -------
+    result : object
+        The inner generator's return value.
+
+    Examples
+    --------
+    >>> def rows():
+    ...     yield 10
+    ...     yield 20
+    ...     return "done"
+    >>> def job():
+    ...     result = yield from mapped(rows(), lambda n: Progress("rows", n / 20, f"{n} rows"))
+    ...     return result
+    >>> records = []
+    >>> drain(job(), records.append), [r.message for r in records]
+    ('done', ['10 rows', '20 rows'])
+    """
     while True:
         try:
-            record = next(job)
-        except StopIteration as done:
-            return done.value
-        yield Progress(
-            record.stage if name is None else name,
-            start + span * min(max(float(record.fraction), 0.0), 1.0),
-            prefix + record.message,
-            record.preview if previews else None,
-        )
+            item = next(job)
+        except StopIteration as stop:
+            return stop.value
+        converted = convert(item)
+        if converted is not None:
+            yield converted
+
+
+def result_of(job):
+    """Run a generator to its end, dropping what it yields; its return value.
+
+    For a sub-step run inside a job or a plain function, where nobody
+    watches its progress (:func:`drain` is the entry point of a whole job).
+
+    Parameters
+    ----------
+    job : generator
+        The generator.
+
+    Returns
+    -------
+    result : object
+        Its return value.
+
+    Examples
+    --------
+    >>> def rows():
+    ...     yield 10
+    ...     return "done"
+    >>> result_of(rows())
+    'done'
+    """
+    while True:
+        try:
+            next(job)
+        except StopIteration as stop:
+            return stop.value
 
 
 def iter_chains(pool, chains):

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._docstrings import documents_job, shared_parameters
-from .._progress import Progress, drain, row_blocks
+from .._progress import Progress, drain, mapped, row_blocks
 from .._validation import as_channel_last_float, check_real
 from . import _motion
 from ._layout import read_layout
@@ -196,13 +196,7 @@ def _iter_flows(grey, mask, pairs, cache, pixels):
                                  (~mask[a]).astype(np.float32), _motion.RADIUS,
                                  _motion.ITERATIONS, _motion.REGULARISATION,
                                  _motion.FLOW_PIXELS)
-        while True:
-            try:
-                units = next(job)
-            except StopIteration as stop:
-                cache[(a, b)] = stop.value
-                break
-            yield units * pixels
+        cache[(a, b)] = yield from mapped(job, lambda units: units * pixels)
 
 
 def _iter_compensated(grey, t, mask, out, cache):

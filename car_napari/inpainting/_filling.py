@@ -29,7 +29,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from .._progress import Progress, row_blocks, stage
+from .._progress import Progress, mapped, row_blocks, stage
 from .._threads import job_pool, pool_threads, submit
 from .._validation import check_forgetting, check_mask, check_real
 from ..model.neighbourhood import Context, causal_neighbourhood
@@ -514,12 +514,7 @@ def _to_dtype(values, dtype):
 def _as_frame_records(job, fraction, message):
     """A sub-job's records as the fill's own ("frames" at ``fraction``), and
     its result."""
-    while True:
-        try:
-            next(job)
-        except StopIteration as done:
-            return done.value
-        yield Progress("frames", fraction, message)
+    return (yield from mapped(job, lambda _: Progress("frames", fraction, message)))
 
 
 class Tiling(NamedTuple):

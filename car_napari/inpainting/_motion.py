@@ -22,7 +22,7 @@ import numpy as np
 from numba import njit
 
 from .._docstrings import documents_job, shared_parameters
-from .._progress import Progress, drain
+from .._progress import Progress, drain, mapped
 from .._validation import as_channel_last_float, check_mask, check_real
 from ._layout import read_layout
 
@@ -292,12 +292,13 @@ def _flow_records(reference, moving, weight, radius, iterations, done, total, me
     added to ``done``; returns ``(flow, done)``."""
     job = _iter_flow(reference, moving, weight, int(radius), int(iterations), REGULARISATION,
                      FLOW_PIXELS)
-    while True:
-        try:
-            done += next(job)
-        except StopIteration as stop:
-            return stop.value, done
-        yield Progress("motion", min(done / total, 1.0), message)
+
+    def record(units):
+        nonlocal done
+        done += units
+        return Progress("motion", min(done / total, 1.0), message)
+
+    return (yield from mapped(job, record)), done
 
 
 def _work_units(H, W, iterations, flow_pixels):

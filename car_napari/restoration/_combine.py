@@ -7,7 +7,7 @@ from functools import partial
 
 import numpy as np
 
-from .._progress import iter_chains, row_blocks
+from .._progress import iter_chains, result_of, row_blocks
 from .._threads import pool_threads
 from .._validation import check_size
 from ..model.adaptive import adaptive_scanner
@@ -175,13 +175,8 @@ def edge_rule(observed, prediction, spread, noise, pool=None, blend=False, out=N
     rows run in two halves (side by side on ``pool`` when given); the result
     goes into ``out`` if given.
     """
-    job = iter_edge_rule(observed, prediction, spread, noise, pool, blend=blend, out=out,
-                         halves=halves)
-    while True:
-        try:
-            next(job)
-        except StopIteration as stop:
-            return stop.value
+    return result_of(iter_edge_rule(observed, prediction, spread, noise, pool, blend=blend,
+                                    out=out, halves=halves))
 
 
 def iter_edge_rule(observed, prediction, spread, noise, pool=None, blend=False, out=None,

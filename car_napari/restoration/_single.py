@@ -23,7 +23,7 @@ from functools import partial
 
 import numpy as np
 
-from .._progress import Progress, row_blocks, spans, stage
+from .._progress import Progress, mapped, row_blocks, spans, stage
 from .._threads import job_pool, pool_threads, submit
 from .._validation import (
     channel_last_shape,
@@ -508,9 +508,10 @@ def _iter_edges(observed, prediction, spread, noise, pool, span, blend=False, ou
     job = iter_edge_rule(observed, prediction, spread, noise, pool, blend=blend, out=out,
                          halves=halves)
     done = 0
-    while True:
-        try:
-            done += next(job)
-        except StopIteration as stop:
-            return stop.value
-        yield Progress("edges", share.at(done, H), f"edge rule: rows {done}/{H}")
+
+    def record(rows):
+        nonlocal done
+        done += rows
+        return Progress("edges", share.at(done, H), f"edge rule: rows {done}/{H}")
+
+    return (yield from mapped(job, record))

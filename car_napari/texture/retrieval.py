@@ -39,7 +39,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy import ndimage as ndi
 
-from .._progress import Progress, drain
+from .._progress import Progress, drain, mapped, result_of
 from .._validation import (
     MAGNITUDE_LIMIT,
     Summary,
@@ -296,15 +296,6 @@ def _iter_features(view, *, levels, offsets, name):
     return np.asarray(features, dtype=np.float64)
 
 
-def _finish(job):
-    """Run a generator to its end; its return value."""
-    while True:
-        try:
-            next(job)
-        except StopIteration as stop:
-            return stop.value
-
-
 def texture_features(image, *, levels=3, neighbourhood=2, channel_axis=-1):
     """Illumination-invariant texture feature vector (section 14.3, docs/model.md).
 
@@ -374,7 +365,7 @@ def texture_features(image, *, levels=3, neighbourhood=2, channel_axis=-1):
     offsets, _ = as_offsets(neighbourhood)
     view = _as_image(image, levels=levels, offsets=offsets, channel_axis=channel_axis,
                      name="image")
-    return _finish(_iter_features(view, levels=levels, offsets=offsets, name="image"))
+    return result_of(_iter_features(view, levels=levels, offsets=offsets, name="image"))
 
 
 def _describe(item, name, *, levels, offsets, channel_axis):
@@ -573,19 +564,20 @@ def iter_rank(query, gallery, *, levels=3, neighbourhood=2, channel_axis=-1):
         job = _iter_features(view, levels=levels, offsets=offsets, name=name)
         work = 2 * sum(h * w for h, w in _level_shapes(*view.shape[:2], levels))
         finished = pending = 0
-        while True:
-            try:
-                pixels, level = next(job)
-            except StopIteration as stop:
-                feats.append(stop.value)
-                break
+
+        def band_record(step, i=i, label=label, work=work):
+            nonlocal finished, pending
+            pixels, level = step
             finished += pixels
             pending += pixels
             if pending >= BAND_PIXELS and finished < work:
                 pending = 0
                 fraction = done[i] + (done[i + 1] - done[i]) * finished / work
-                yield Progress("features", float(fraction),
-                               f"{label}, level {level + 1}/{levels}")
+                return Progress("features", float(fraction),
+                                f"{label}, level {level + 1}/{levels}")
+            return None
+
+        feats.append((yield from mapped(job, band_record)))
     q, G, exponents = _moderate(np.array(feats))
     spread = G.std(axis=0)
     # a feature without spread counts its absolute difference (in its own units)
