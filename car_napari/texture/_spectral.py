@@ -1,6 +1,6 @@
 """The spectral pyramid of the texture model: bands that share no frequency.
 
-The Gaussian-Laplacian pyramid (``_model.py``) smooths before it decimates
+The Gaussian-Laplacian pyramid (``_pyramid.py``) smooths before it decimates
 with a soft filter, so neighbouring bands hold the same frequencies: their
 cross-spectra are large, and bands generated independently (as synthesis
 generates them) lose them. On VisTex that loss, not the band models, is most

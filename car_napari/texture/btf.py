@@ -17,15 +17,11 @@ import numpy as np
 
 from .._progress import Progress, drain, stage
 from .._validation import check_memory, check_real, check_seed, check_shape, output_shape
-from ._model import (
-    _SYNTHESIS_COPIES,
-    _check_options,
-    _check_texture_size,
-    _iter_clip,
-    _iter_restore,
-    iter_fit_texture,
-)
+from ._fit import _check_options, _check_texture_size
+from ._histogram import _iter_clip, _iter_restore
+from ._model import iter_fit_texture
 from ._stack import as_stack
+from ._synthesis import _SYNTHESIS_COPIES
 
 __all__ = ["BTFModel", "cumulative_histograms", "iter_fit_btf"]
 

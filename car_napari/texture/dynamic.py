@@ -41,7 +41,7 @@ from ..model.synthesis import (
     spectral_radius,
     synthesize_field,
 )
-from ._model import _SHRINK_RADIUS, _iter_scale, _iter_stable_fit, _max_order_below
+from ._bandfit import _SHRINK_RADIUS, _iter_scale, _iter_stable_fit, _max_order_below
 from ._stack import as_stack
 
 __all__ = ["DynamicTextureModel", "iter_fit_dynamic_texture", "temporal_context"]
