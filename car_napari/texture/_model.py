@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._docstrings import shared_parameters
 from .._progress import drain
 from .._validation import check_shape
 from ..model.synthesis import cached_radius
@@ -42,6 +43,48 @@ __all__ = [
     "TextureModel", "iter_fit_texture", "laplacian_pyramid", "collapse_pyramid", "FORMAT_NAME",
     "FORMAT_VERSION",
 ]
+
+
+_FIT_PARAMETERS = """
+image : (H, W) or (H, W, C) array
+    The texture; any dtype (integer images are scaled to [0, 1]).
+    Every side must be at least ``16 * 2**(levels - 1)`` pixels
+    (64 for 3 levels), so that the coarsest band can be modelled.
+levels : int or None, optional
+    Number of pyramid bands: ``levels - 1`` band-pass (Laplacian)
+    bands plus the low-pass residual. 1 means no pyramid. None (the
+    default): 5, or as many as the texture's size allows (see
+    above), at least 1.
+model : {'3d', '2d'}, optional
+    '3d': one 3DCAR per band with full colour matrices. '2d': per band,
+    a spectral PCA and one 2DCAR per factor.
+neighbourhood : 'auto', int or (eta, 2) array, optional
+    'auto' chooses each band's support among orders 1 to 5 by the
+    decision rule (14.6), independently per band. An int or offsets
+    use the same support in every band.
+channel_axis : int or None, optional
+    Axis of the channels of a 3-D image (default the last). A 2-D
+    image is always grey; None requires one.
+pyramid : {'spectral', 'gaussian'}, optional
+    The bands: 'spectral' (default) splits the frequencies so that no
+    two bands share one; 'gaussian' is the Gaussian-Laplacian
+    pyramid of :func:`laplacian_pyramid` (the models of format
+    versions 1 and 2; its bands overlap, and their independent
+    synthesis loses the texture's autocorrelation).
+"""
+
+
+_SYNTHESIZE_PARAMETERS = """
+shape : tuple of 2 ints
+    (height, width) of the output; any size of at least 1 x 1.
+seed : int, numpy Generator or None, optional
+    The same seed gives the same texture.
+tileable : bool, optional
+    Make the texture periodic: tiles placed side by side (or the
+    texture wrapped on a torus) show no seam. Each band is generated
+    larger and its opposite edges cross-faded over a quarter of its
+    size; the pyramid is collapsed with periodic expansion.
+"""
 
 
 @dataclass(eq=False)
@@ -142,6 +185,7 @@ class TextureModel:
 
     # ------------------------------------------------------------------ fit
     @classmethod
+    @shared_parameters(_FIT_PARAMETERS)
     def fit(cls, image, *, levels=None, model="3d", neighbourhood="auto", channel_axis=-1,
             pyramid="spectral"):
         """Fit a multiresolution CAR model to a texture.
@@ -150,31 +194,7 @@ class TextureModel:
 
         Parameters
         ----------
-        image : (H, W) or (H, W, C) array
-            The texture; any dtype (integer images are scaled to [0, 1]).
-            Every side must be at least ``16 * 2**(levels - 1)`` pixels
-            (64 for 3 levels), so that the coarsest band can be modelled.
-        levels : int or None, optional
-            Number of pyramid bands: ``levels - 1`` band-pass (Laplacian)
-            bands plus the low-pass residual. 1 means no pyramid. None (the
-            default): 5, or as many as the texture's size allows (see
-            above), at least 1.
-        model : {'3d', '2d'}, optional
-            '3d': one 3DCAR per band with full colour matrices. '2d': per band,
-            a spectral PCA and one 2DCAR per factor.
-        neighbourhood : 'auto', int or (eta, 2) array, optional
-            'auto' chooses each band's support among orders 1 to 5 by the
-            decision rule (14.6), independently per band. An int or offsets
-            use the same support in every band.
-        channel_axis : int or None, optional
-            Axis of the channels of a 3-D image (default the last). A 2-D
-            image is always grey; None requires one.
-        pyramid : {'spectral', 'gaussian'}, optional
-            The bands: 'spectral' (default) splits the frequencies so that no
-            two bands share one; 'gaussian' is the Gaussian-Laplacian
-            pyramid of :func:`laplacian_pyramid` (the models of format
-            versions 1 and 2; its bands overlap, and their independent
-            synthesis loses the texture's autocorrelation).
+        {parameters}
 
         Returns
         -------
@@ -348,6 +368,7 @@ class TextureModel:
         return 4.0 * values / self.nbytes
 
     # ------------------------------------------------------------ synthesis
+    @shared_parameters(_SYNTHESIZE_PARAMETERS)
     def synthesize(self, shape, *, seed=None, tileable=False):
         """Generate a texture of any size from the model.
 
@@ -362,15 +383,7 @@ class TextureModel:
 
         Parameters
         ----------
-        shape : tuple of 2 ints
-            (height, width) of the output; any size of at least 1 x 1.
-        seed : int, numpy Generator or None, optional
-            The same seed gives the same texture.
-        tileable : bool, optional
-            Make the texture periodic: tiles placed side by side (or the
-            texture wrapped on a torus) show no seam. Each band is generated
-            larger and its opposite edges cross-faded over a quarter of its
-            size; the pyramid is collapsed with periodic expansion.
+        {parameters}
 
         Returns
         -------
@@ -396,6 +409,7 @@ class TextureModel:
         """
         return drain(self.iter_synthesize(shape, seed=seed, tileable=tileable))
 
+    @shared_parameters(_SYNTHESIZE_PARAMETERS)
     def iter_synthesize(self, shape, *, seed=None, tileable=False):
         """Generate a texture from the model, as a job: Progress, then the texture.
 
@@ -409,12 +423,7 @@ class TextureModel:
 
         Parameters
         ----------
-        shape : tuple of 2 ints
-            (height, width) of the output; any size of at least 1 x 1.
-        seed : int, numpy Generator or None, optional
-            The same seed gives the same texture.
-        tileable : bool, optional
-            Make the texture periodic (see :meth:`synthesize`).
+        {parameters}
 
         Returns
         -------
@@ -575,6 +584,7 @@ class TextureModel:
 
 
 
+@shared_parameters(_FIT_PARAMETERS)
 def iter_fit_texture(image, *, levels=None, model="3d", neighbourhood="auto", channel_axis=-1,
                      pyramid="spectral"):
     """Fit a multiresolution CAR texture model, as a job reporting progress.
@@ -589,18 +599,7 @@ def iter_fit_texture(image, *, levels=None, model="3d", neighbourhood="auto", ch
 
     Parameters
     ----------
-    image : (H, W) or (H, W, C) array
-        The texture; see :meth:`TextureModel.fit`.
-    levels : int or None, optional
-        Number of pyramid bands (None: as many as the size allows, up to 5).
-    model : {'3d', '2d'}, optional
-        The CAR variant of every band.
-    neighbourhood : 'auto', int or (eta, 2) array, optional
-        The support of every band; 'auto' chooses it per band.
-    channel_axis : int or None, optional
-        Axis of the channels of a 3-D image; a 2-D image is always grey.
-    pyramid : {'spectral', 'gaussian'}, optional
-        The kind of pyramid (see :meth:`TextureModel.fit`).
+    {parameters}
 
     Returns
     -------

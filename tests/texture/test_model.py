@@ -691,3 +691,31 @@ def test_palette_fit_equals_its_reference(k):
         got, want = _palette.fit_palette(img, k), _reference_fit_palette(img, k)
         np.testing.assert_array_equal(got[0], want[0])
         np.testing.assert_array_equal(got[1], want[1])
+
+
+def test_jobs_and_their_plain_forms_document_the_same_parameters():
+    # shared_parameters fills methods (indented deeper) as it fills functions
+    import inspect
+
+    from car_napari.texture import (
+        BTFModel,
+        DynamicTextureModel,
+        iter_fit_btf,
+        iter_fit_dynamic_texture,
+        iter_rank,
+        rank,
+    )
+
+    def parameters(func):
+        doc = inspect.getdoc(func)
+        assert "{parameters}" not in doc
+        return doc[doc.index("Parameters\n") : doc.index("Returns\n")]
+
+    pairs = [(TextureModel.fit, iter_fit_texture), (BTFModel.fit, iter_fit_btf),
+             (DynamicTextureModel.fit, iter_fit_dynamic_texture), (rank, iter_rank),
+             (TextureModel.synthesize, TextureModel.iter_synthesize),
+             (BTFModel.synthesize, BTFModel.iter_synthesize),
+             (DynamicTextureModel.synthesize, DynamicTextureModel.iter_synthesize)]
+    for plain, job in pairs:
+        assert parameters(plain) == parameters(job)
+        assert "\n    " in parameters(plain)  # the entries' descriptions stay indented
