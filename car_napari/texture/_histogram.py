@@ -57,11 +57,50 @@ def _iter_restore(values, mean, std):
     """``mean + (values - m) * gain``, where ``m`` and ``s`` are the channel
     means and standard deviations of (h, w, d) ``values`` and ``gain`` is
     ``std / s`` (1 where ``s`` is 0), as a job (stage ``"restore"``): a
-    record after every block of rows of the elementwise passes, between
-    which the sums over the image run one NumPy call each, as
-    ``values.mean(axis=(0, 1))`` and ``.std`` sum. The same numbers as those
-    one-call forms; ``values`` is overwritten (used as scratch, and returned).
+    record after every block of rows of every pass. The same numbers as
+    ``values.mean(axis=(0, 1))`` and ``.std`` and the elementwise formula;
+    ``values`` is overwritten (and returned).
+
+    Colour values take four compiled passes (the three sums, in NumPy's
+    order, and the rescale) and no scratch array; grey ones the NumPy passes
+    of :func:`_iter_restore_numpy` (NumPy sums one channel pairwise, which a
+    running sum would not reproduce).
     """
+    h, w, d = values.shape
+    if d == 1 or not values.flags.c_contiguous:
+        return (yield from _iter_restore_numpy(values, mean, std))
+    n = h * w
+    mean = np.ascontiguousarray(np.broadcast_to(mean, (d,)), np.float64)
+    chunks = _row_chunks(h, w)
+    passes = 4
+    step = 0
+
+    def channel_sum(shift, centre, squared, message):
+        nonlocal step
+        total = np.full(d, -0.0)  # -0.0 + x is x: the first pixel starts the sum
+        for a, b in chunks:
+            _kernels.block_centred_sum(values[a:b], shift, centre, squared, total)
+            yield Progress("restore", (step + b / h) / passes, f"{message}, rows {b}/{h}")
+        step += 1
+        return total
+
+    zeros = np.zeros(d)
+    # values.mean(axis=(0, 1)), then centred.std(axis=(0, 1)) as NumPy's _var computes it
+    m = (yield from channel_sum(zeros, zeros, False, "mean")) / n
+    centre = (yield from channel_sum(m, zeros, False, "contrast")) / n
+    spread = np.sqrt((yield from channel_sum(m, centre, True, "contrast")) / n)
+    gain = np.where(spread > 0, std / np.where(spread > 0, spread, 1.0), 1.0)
+    gain = np.ascontiguousarray(np.broadcast_to(gain, (d,)), np.float64)
+    for a, b in chunks:
+        _kernels.block_rescale(values[a:b], m, mean, gain)
+        yield Progress("restore", min((step + b / h) / passes, 1.0), f"rows {b}/{h}")
+    return values
+
+
+def _iter_restore_numpy(values, mean, std):
+    """:func:`_iter_restore` by NumPy passes: three sums (by
+    :func:`_iter_channel_sum`) and three elementwise passes, by blocks of
+    rows; ``values`` is used as scratch and returned."""
     h, w, d = values.shape
     n = h * w
     parts = [(k / 6, (k + 1) / 6) for k in range(6)]  # three sums, three passes

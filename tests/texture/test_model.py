@@ -531,6 +531,29 @@ def test_palette_snap_equals_plain_numpy_and_keeps_inliers():
     assert moved.mean() < 0.2
 
 
+@pytest.mark.parametrize("k", [1, 2, 7, 32])
+def test_palette_snap_search_finds_the_nearest_colour_with_ties(k):
+    # the kernel walks the colours sorted by their first coordinate and stops
+    # early: on a coarse grid (many equal distances, repeated colours) it
+    # must still pick the nearest colour, the lowest index among equals
+    from car_napari.texture import _palette
+
+    rng = np.random.default_rng(k)
+    centres = np.round(rng.random((k, 3)), 1)
+    centres[k // 2] = centres[0]
+    radius = rng.random(k) * 0.2
+    values = np.round(rng.random((40, 30, 3)), 1)
+    flat = values.reshape(-1, 3)
+    squared = ((flat[:, None, :] - centres[None]) ** 2).sum(-1)  # (the kernel's sums)
+    nearest = np.argmin(squared, axis=1)
+    best = squared[np.arange(len(flat)), nearest]
+    r = radius[nearest]
+    want = np.where((best > r * r)[:, None],
+                    centres[nearest] + (flat - centres[nearest]) * (r / np.sqrt(best))[:, None],
+                    flat)
+    np.testing.assert_array_equal(_palette.snap(values, centres, radius).reshape(-1, 3), want)
+
+
 @pytest.mark.parametrize("tileable", [False, True])
 def test_synthesis_job_is_bit_identical_to_the_one_call_synthesis(gravel_model, colour_model,
                                                                   tileable, monkeypatch):
