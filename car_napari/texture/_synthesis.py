@@ -29,6 +29,13 @@ _SYNTHESIS_COPIES = 6
 # relative to the field's (a variance share of 1e-4; synthesize's default
 # 1e-4, a share of 1e-8, cost as many rows again for no measurable change)
 _BAND_TRANSIENT = 1e-2
+# the longest burn-in of a band's field: near-unit-root bands asked for 256
+# (the cap of burn_in) at every level, three times the finest band's pixels
+# and most of the synthesis's time. Chosen on the 17 TUNING textures of
+# benchmarks/bench_synthesis.py among 256 / 64 / 32 (autocorrelation L1
+# 0.0308 / 0.0272 / 0.0310, colour-histogram 0.0460 / 0.0443 / 0.0461, LBP
+# 0.1315 / 0.1307 / 0.1300, spurious colours 0.194 / 0.190 / 0.195 %)
+_MAX_BAND_MARGIN = 64
 
 
 def _torus(field, shape, mean):
@@ -123,7 +130,7 @@ def iter_synthesize_texture(texture, shape, *, seed=None, tileable=False):
             zip(texture.models, shapes, made, strict=True)):
         part = f"band {k + 1}/{texture.levels}, "
         e = edges[4 * k : 4 * k + 5]
-        margin = burn_in(cached_radius(model), _BAND_TRANSIENT)
+        margin = min(burn_in(cached_radius(model), _BAND_TRANSIENT), _MAX_BAND_MARGIN)
         field = yield from stage(iter_synthesize(model, (gh, gw), seed=streams[k],
                                                  margin=margin),
                                  e[0], e[1], prefix=part, name="synthesis")
@@ -133,8 +140,9 @@ def iter_synthesize_texture(texture, shape, *, seed=None, tileable=False):
                                     prefix=part, name="synthesis")
         if spectral and k < texture.levels - 1:
             # a CAR field covers every frequency: keep its band's only
-            band = yield from stage(_spectral.iter_highpass(band, wrap=bool(tileable)),
-                                    e[2], e[3], prefix=part, name="synthesis")
+            band = yield from stage(
+                _spectral.iter_highpass(band, wrap=bool(tileable), single=True), e[2], e[3],
+                prefix=part, name="synthesis")
         bounds = texture.band_ranges[k]
         if texture.band_quantiles is not None:
             band = yield from stage(_iter_match(band, texture.band_quantiles[k], clip=bounds),
@@ -145,8 +153,9 @@ def iter_synthesize_texture(texture, shape, *, seed=None, tileable=False):
                                     name="synthesis")
         bands.append(band)
     if spectral:
-        out = yield from stage(_spectral.iter_collapse(bands, wrap=bool(tileable)),
-                               edges[-3], edges[-2])
+        out = yield from stage(
+            _spectral.iter_collapse(bands, wrap=bool(tileable), single=True), edges[-3],
+            edges[-2])
     else:
         out = yield from stage(_iter_collapse(bands, bool(tileable)), edges[-3], edges[-2])
     del bands

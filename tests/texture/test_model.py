@@ -459,7 +459,7 @@ def _reference_synthesis(self, shape, seed, tileable=False):
     from car_napari import synthesize
     from car_napari.model.synthesis import burn_in, spectral_radius
     from car_napari.texture._pyramid import _expand, _level_shapes
-    from car_napari.texture._synthesis import _BAND_TRANSIENT, _blend_width
+    from car_napari.texture._synthesis import _BAND_TRANSIENT, _MAX_BAND_MARGIN, _blend_width
 
     h, w = shape
     rng = np.random.default_rng(seed)
@@ -467,7 +467,7 @@ def _reference_synthesis(self, shape, seed, tileable=False):
     bands = []
     for k, (model, (hk, wk)) in enumerate(zip(self.models, _level_shapes((h, w), self.levels),
                                               strict=True)):
-        margin = burn_in(spectral_radius(model), _BAND_TRANSIENT)
+        margin = min(burn_in(spectral_radius(model), _BAND_TRANSIENT), _MAX_BAND_MARGIN)
         if tileable:
             bh, bw = _blend_width(hk), _blend_width(wk)
             big = synthesize(model, (hk + bh, wk + bw), seed=streams[k], margin=margin)
@@ -476,12 +476,12 @@ def _reference_synthesis(self, shape, seed, tileable=False):
             band = synthesize(model, (hk, wk), seed=streams[k], margin=margin).reshape(hk, wk,
                                                                                      -1)
         if self.pyramid == "spectral" and k < self.levels - 1:
-            band = drain(_spectral.iter_highpass(band, wrap=bool(tileable)))
+            band = drain(_spectral.iter_highpass(band, wrap=bool(tileable), single=True))
         if self.band_quantiles is not None:
             band = _reference_match(band, self.band_quantiles[k])
         bands.append(np.clip(band, self.band_ranges[k, 0], self.band_ranges[k, 1]))
     if self.pyramid == "spectral":
-        out = _spectral.collapse(bands, wrap=bool(tileable))
+        out = _spectral.collapse(bands, wrap=bool(tileable), single=True)
     else:
         out = bands[-1]
         for band in bands[-2::-1]:
