@@ -268,34 +268,35 @@ def _iter_match(values, quantiles, bins=4096, *, clip=None, out=None, preview=No
     for a, b in chunks:
         _kernels.block_range(values[a:b], lo, hi)
         yield Progress(stage_name, next(fractions), f"range, rows {b}/{h}")
-    active = hi > lo  # a constant channel maps to its middle quantile
+    lo, hi = [float(v) for v in lo], [float(v) for v in hi]
     counts = np.zeros((d, bins), np.int64)
     # numpy.histogram's bin edges for range (lo, hi): its index checks use them
-    edges = np.zeros((d, bins + 1))
-    for c in np.flatnonzero(active):
-        edges[c] = np.linspace(float(lo[c]), float(hi[c]), bins + 1)
+    edges = [np.linspace(lo[c], hi[c], bins + 1) if hi[c] > lo[c] else None for c in range(d)]
     for a, b in chunks:
-        _kernels.block_histogram(values[a:b], active, lo, hi, edges, counts)
+        for c in range(d):
+            if hi[c] > lo[c]:
+                _kernels.block_histogram(values[a:b], c, lo[c], hi[c], edges[c], counts[c])
         yield Progress(stage_name, next(fractions), f"histogram, rows {b}/{h}")
-    cdfs = np.stack([np.concatenate([[0.0], np.cumsum(counts[c]) / (h * w)]) for c in range(d)])
+    cdfs = [np.concatenate([[0.0], np.cumsum(counts[c]) / (h * w)]) for c in range(d)]
     # the exponential tails' scales (see _exponential_tails; 0: none)
-    tails = np.zeros((2, d))
+    tails = np.zeros((d, 2))
     if q >= 4:
-        tails[0] = (quantiles[-2] - quantiles[-3]) / math.log(2.0)
-        tails[1] = (quantiles[2] - quantiles[1]) / math.log(2.0)
+        tails[:, 0] = (quantiles[-2] - quantiles[-3]) / math.log(2.0)
+        tails[:, 1] = (quantiles[2] - quantiles[1]) / math.log(2.0)
     bounds = np.zeros((2, d)) if clip is None else np.asarray(clip, np.float64)
-    scale = np.array([bins / (float(hi[c]) - float(lo[c])) if active[c] else 0.0
-                      for c in range(d)])
-    by_channel = np.ascontiguousarray(np.asarray(quantiles, np.float64).T)
     for a, b in chunks:
-        _kernels.block_map(values[a:b], active, lo, scale, cdfs, by_channel, tails[0], tails[1],
-                           np.ascontiguousarray(bounds[0]), np.ascontiguousarray(bounds[1]),
-                           clip is not None, out[a:b])
-        for c in np.flatnonzero(~active):
-            mapped = np.full((b - a, w), quantiles[q // 2, c])
-            if clip is not None:
-                mapped = np.clip(mapped, clip[0, c], clip[1, c])
-            out[a:b, :, c] = mapped
+        for c in range(d):
+            if not hi[c] > lo[c]:
+                mapped = np.full((b - a, w), quantiles[q // 2, c])
+                if clip is not None:
+                    mapped = np.clip(mapped, clip[0, c], clip[1, c])
+                out[a:b, :, c] = mapped
+            else:
+                _kernels.block_map(values[a:b], c, lo[c], bins / (hi[c] - lo[c]), cdfs[c],
+                                   np.ascontiguousarray(quantiles[:, c], np.float64),
+                                   float(tails[c, 0]), float(tails[c, 1]),
+                                   float(bounds[0, c]), float(bounds[1, c]), clip is not None,
+                                   out[a:b])
         yield Progress(stage_name, next(fractions), f"rows {b}/{h}", preview)
     return out
 

@@ -24,84 +24,78 @@ def block_range(block, lo, hi):
     """Into (d,) ``lo`` and ``hi``: their minimum and maximum with every
     channel of (h, w, d) ``block`` (a NaN propagates, as ``ndarray.min``)."""
     h, w, d = block.shape
-    for i in range(h):
-        for j in range(w):
-            for c in range(d):
+    for c in range(d):
+        a, b = lo[c], hi[c]
+        for i in range(h):
+            for j in range(w):
                 v = block[i, j, c]
-                if v < lo[c] or v != v:
-                    lo[c] = v
-                if v > hi[c] or v != v:
-                    hi[c] = v
+                if v < a or v != v:
+                    a = v
+                if v > b or v != v:
+                    b = v
+        lo[c], hi[c] = a, b
 
 
 @numba.njit(cache=True, nogil=True)
-def block_histogram(block, active, first, last, edges, counts):
-    """Add to (d, n) ``counts`` the histogram of every ``active`` channel
-    ``c`` of (h, w, d) ``block`` as ``numpy.histogram(values, bins=n,
-    range=(first[c], last[c]))`` counts it (bin ``edges[c]`` from it: the
-    same index arithmetic and edge checks). One pass over the block, all
-    channels: the counts do not depend on the order."""
-    h, w, d = block.shape
-    n = counts.shape[1]
+def block_histogram(block, c, first, last, edges, counts):
+    """Add to ``counts`` the histogram of channel ``c`` of ``block`` as
+    ``numpy.histogram(values, bins=len(counts), range=(first, last))`` counts
+    it (bin ``edges`` from it: the same index arithmetic and edge checks)."""
+    h, w, _ = block.shape
+    n = counts.shape[0]
+    denom = last - first
     for i in range(h):
         for j in range(w):
-            for c in range(d):
-                if not active[c]:
-                    continue
-                v = block[i, j, c]
-                if not (v >= first[c] and v <= last[c]):
-                    continue
-                k = int(((v - first[c]) / (last[c] - first[c])) * n)
-                if k == n:
-                    k -= 1
-                if v < edges[c, k]:
-                    k -= 1
-                if v >= edges[c, k + 1] and k != n - 1:
-                    k += 1
-                counts[c, k] += 1
+            v = block[i, j, c]
+            if not (v >= first and v <= last):
+                continue
+            k = int(((v - first) / denom) * n)
+            if k == n:
+                k -= 1
+            if v < edges[k]:
+                k -= 1
+            if v >= edges[k + 1] and k != n - 1:
+                k += 1
+            counts[k] += 1
 
 
 @numba.njit(cache=True, nogil=True)
-def block_map(block, active, lo, scale, cdf, quantiles, top, bottom, clip_lo, clip_hi, clip,
+def block_map(block, c, lo, scale, cdf, quantiles, top, bottom, clip_lo, clip_hi, clip,
               out):
-    """Every ``active`` channel ``c`` of (h, w, d) ``block`` mapped through
-    its ``cdf[c]`` (``cdf.shape[1] - 1`` bins from ``lo[c]``, ``scale[c]``
-    bins a unit) onto its ``quantiles[c]``, with exponential tails of scales
-    ``top[c]`` and ``bottom[c]`` (0: none) and, with ``clip``, clipped to
-    [``clip_lo[c]``, ``clip_hi[c]``]; into ``out`` (the per-value arithmetic
-    of ``_iter_match``; the other channels of ``out`` are left as they are)."""
-    h, w, d = block.shape
-    bins = cdf.shape[1] - 1
-    q = quantiles.shape[1]
+    """Channel ``c`` of ``block`` mapped through its ``cdf`` (``len(cdf) - 1``
+    bins from ``lo``, ``scale`` bins a unit) onto the ``quantiles``, with
+    exponential tails of scales ``top`` and ``bottom`` (0: none) and, with
+    ``clip``, clipped to [``clip_lo``, ``clip_hi``]; into channel ``c`` of
+    ``out`` (the per-value arithmetic of ``_iter_match``)."""
+    h, w, _ = block.shape
+    bins = cdf.shape[0] - 1
+    q = quantiles.shape[0]
     for i in range(h):
         for j in range(w):
-            for c in range(d):
-                if not active[c]:
-                    continue
-                pos = (block[i, j, c] - lo[c]) * scale[c]
-                k = min(int(pos), bins - 1)
-                p = cdf[c, k] + (pos - k) * (cdf[c, k + 1] - cdf[c, k])
-                pos = p * (q - 1)
-                k = min(int(pos), q - 2)
-                mapped = quantiles[c, k] + (pos - k) * (quantiles[c, k + 1] - quantiles[c, k])
-                if k == q - 2 and top[c] > 0:
-                    tail = quantiles[c, q - 2] - top[c] * math.log((q - 1) - pos)
-                    if tail != tail or mapped != mapped:
-                        mapped = np.nan
-                    elif tail < mapped:
-                        mapped = tail
-                elif k == 0 and bottom[c] > 0:
-                    tail = quantiles[c, 1] + bottom[c] * math.log(pos)
-                    if tail != tail or mapped != mapped:
-                        mapped = np.nan
-                    elif tail > mapped:
-                        mapped = tail
-                if clip:
-                    if mapped < clip_lo[c]:
-                        mapped = clip_lo[c]
-                    elif mapped > clip_hi[c]:
-                        mapped = clip_hi[c]
-                out[i, j, c] = mapped
+            pos = (block[i, j, c] - lo) * scale
+            k = min(int(pos), bins - 1)
+            p = cdf[k] + (pos - k) * (cdf[k + 1] - cdf[k])
+            pos = p * (q - 1)
+            k = min(int(pos), q - 2)
+            mapped = quantiles[k] + (pos - k) * (quantiles[k + 1] - quantiles[k])
+            if k == q - 2 and top > 0:
+                tail = quantiles[q - 2] - top * math.log((q - 1) - pos)
+                if tail != tail or mapped != mapped:
+                    mapped = np.nan
+                elif tail < mapped:
+                    mapped = tail
+            elif k == 0 and bottom > 0:
+                tail = quantiles[1] + bottom * math.log(pos)
+                if tail != tail or mapped != mapped:
+                    mapped = np.nan
+                elif tail > mapped:
+                    mapped = tail
+            if clip:
+                if mapped < clip_lo:
+                    mapped = clip_lo
+                elif mapped > clip_hi:
+                    mapped = clip_hi
+            out[i, j, c] = mapped
 
 
 @numba.njit(cache=True, nogil=True)
