@@ -87,37 +87,18 @@ def fit_palette(image, k=PALETTE_COLOURS, *, seed=0):
 
 
 @numba.njit(cache=True, nogil=True)
-def _snap_kernel(values, centres, radius, order, out):
-    """Every pixel of (n, d) ``values`` snapped to its nearest centre's
-    radius, into ``out``. ``order`` sorts the centres by their first
-    coordinate: the search walks out from the pixel's place in it and stops
-    on a side once that coordinate alone is farther than the best so far (the
-    squared distance, a sum of squares in coordinate order, is at least its
-    first term), so it finds what the scan of every centre found, ties going
-    to the lower index."""
+def _snap_kernel(values, centres, radius, out):
     n, d = values.shape
     k = centres.shape[0]
-    firsts = np.empty(k)
-    for r in range(k):
-        firsts[r] = centres[order[r], 0]
     for p in range(n):
-        v0 = values[p, 0]
-        start = np.searchsorted(firsts, v0)
         best, which = np.inf, 0
-        for direction in (-1, 1):
-            r = start - 1 if direction < 0 else start
-            while 0 <= r < k:
-                c = order[r]
-                t = v0 - centres[c, 0]
-                if t * t > best:
-                    break
-                s = 0.0
-                for j in range(d):
-                    t = values[p, j] - centres[c, j]
-                    s += t * t
-                if s < best or (s == best and c < which):
-                    best, which = s, c
-                r += direction
+        for c in range(k):
+            s = 0.0
+            for j in range(d):
+                t = values[p, j] - centres[c, j]
+                s += t * t
+            if s < best:
+                best, which = s, c
         r = radius[which]
         if best > r * r:
             f = r / np.sqrt(best)
@@ -136,9 +117,12 @@ def snap(values, centres, radius, *, out=None):
     h, w, d = values.shape
     out = np.empty_like(values) if out is None else out
     flat = np.ascontiguousarray(values.reshape(h * w, d), dtype=np.float64)
-    result = np.empty_like(flat)
-    centres = np.ascontiguousarray(centres, np.float64)
-    order = np.argsort(centres[:, 0], kind="stable")
-    _snap_kernel(flat, centres, np.ascontiguousarray(radius, np.float64), order, result)
-    out[...] = result.reshape(h, w, d)
+    # the kernel reads a pixel before it writes it: it may write into
+    # ``out`` directly, even when that is ``values`` (no copies)
+    direct = out.dtype == np.float64 and out.flags.c_contiguous
+    result = out.reshape(h * w, d) if direct else np.empty_like(flat)
+    _snap_kernel(flat, np.ascontiguousarray(centres, np.float64),
+                 np.ascontiguousarray(radius, np.float64), result)
+    if not direct:
+        out[...] = result.reshape(h, w, d)
     return out
