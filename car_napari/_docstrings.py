@@ -3,7 +3,7 @@
 The two forms of one job take the same options, raise the same errors and
 start their examples from the same image: those sections are written once,
 as module constants, and put into each docstring at a ``{name}`` line (the
-line holds only the placeholder, indented like a section's body); or the
+line holds only the placeholder, indented like the text it stands for); or the
 job's documentation is written from its plain form's (:func:`documents_job`).
 """
 
@@ -15,18 +15,19 @@ import textwrap
 
 
 def shared_sections(**sections):
-    """Decorator: put each text of ``sections`` at the docstring's
-    ``    {name}`` line (every placeholder given must be there)."""
-    blocks = {name: textwrap.indent(textwrap.dedent(text).strip("\n"), "    ")
-              for name, text in sections.items()}
+    """Decorator: put each text of ``sections`` at the docstring's ``{name}``
+    lines, indented as each line is (a method's docstring works as a
+    function's); every placeholder given must be there."""
+    blocks = {name: textwrap.dedent(text).strip("\n") for name, text in sections.items()}
 
     def decorate(func):
         doc = func.__doc__ or ""
         for name, block in blocks.items():
-            placeholder = "    {" + name + "}"
-            if placeholder not in doc:
-                raise AssertionError(f"{func.__name__}'s docstring has no {placeholder!r} line")
-            doc = doc.replace(placeholder, block)
+            line = re.compile(r"^([ \t]*)\{" + re.escape(name) + r"\}$", re.MULTILINE)
+            if line.search(doc) is None:
+                raise AssertionError(f"{func.__name__}'s docstring has no '{{{name}}}' line")
+            doc = line.sub(lambda found, block=block: textwrap.indent(block, found.group(1)),
+                           doc)
         func.__doc__ = doc
         return func
 

@@ -1,4 +1,5 @@
-"""Numba kernels of the texture synthesis's histogram matching (``_iter_match``).
+"""Numba kernels of the texture synthesis's histogram matching (``_iter_match``)
+and of its restore of the mean and contrast (``_iter_restore``).
 
 Each does, for a block of rows of a channel-last (h, w, d) array, in one
 compiled pass, what the plain NumPy form did in several: the same IEEE
@@ -13,7 +14,9 @@ import math
 import numba
 import numpy as np
 
-__all__ = ["block_histogram", "block_map", "block_range"]
+__all__ = [
+    "block_centred_sum", "block_histogram", "block_map", "block_range", "block_rescale",
+]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -93,3 +96,31 @@ def block_map(block, c, lo, scale, cdf, quantiles, top, bottom, clip_lo, clip_hi
                 elif mapped > clip_hi:
                     mapped = clip_hi
             out[i, j, c] = mapped
+
+
+@numba.njit(cache=True, nogil=True)
+def block_centred_sum(block, shift, centre, squared, total):
+    """Add to (d,) ``total``, pixel after pixel in raster order, every
+    channel of (h, w, d) ``block`` less ``shift`` and less ``centre``,
+    squared with ``squared``: for d >= 2, ``np.add.reduce(x, axis=(0, 1))``
+    of those values adds them in that order too. Start ``total`` at -0.0,
+    which adds to any value exactly (as NumPy's first pixel does)."""
+    h, w, d = block.shape
+    for i in range(h):
+        for j in range(w):
+            for c in range(d):
+                x = (block[i, j, c] - shift[c]) - centre[c]
+                if squared:
+                    x = x * x
+                total[c] += x
+
+
+@numba.njit(cache=True, nogil=True)
+def block_rescale(block, shift, mean, gain):
+    """In place: every channel ``c`` of (h, w, d) ``block`` becomes
+    ``mean[c] + (block - shift[c]) * gain[c]``."""
+    h, w, d = block.shape
+    for i in range(h):
+        for j in range(w):
+            for c in range(d):
+                block[i, j, c] = mean[c] + (block[i, j, c] - shift[c]) * gain[c]

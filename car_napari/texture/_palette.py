@@ -117,8 +117,12 @@ def snap(values, centres, radius, *, out=None):
     h, w, d = values.shape
     out = np.empty_like(values) if out is None else out
     flat = np.ascontiguousarray(values.reshape(h * w, d), dtype=np.float64)
-    result = np.empty_like(flat)
+    # the kernel reads a pixel before it writes it: it may write into
+    # ``out`` directly, even when that is ``values`` (no copies)
+    direct = out.dtype == np.float64 and out.flags.c_contiguous
+    result = out.reshape(h * w, d) if direct else np.empty_like(flat)
     _snap_kernel(flat, np.ascontiguousarray(centres, np.float64),
                  np.ascontiguousarray(radius, np.float64), result)
-    out[...] = result.reshape(h, w, d)
+    if not direct:
+        out[...] = result.reshape(h, w, d)
     return out

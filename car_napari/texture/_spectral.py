@@ -1,6 +1,6 @@
 """The spectral pyramid of the texture model: bands that share no frequency.
 
-The Gaussian-Laplacian pyramid (``_model.py``) smooths before it decimates
+The Gaussian-Laplacian pyramid (``_pyramid.py``) smooths before it decimates
 with a soft filter, so neighbouring bands hold the same frequencies: their
 cross-spectra are large, and bands generated independently (as synthesis
 generates them) lose them. On VisTex that loss, not the band models, is most
@@ -25,6 +25,8 @@ to ``M`` pixels keeps the values when the coefficients are scaled by
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 from scipy import fft as sfft
@@ -102,7 +104,12 @@ def reduce(image, *, wrap=False):
     return scale * sfft.idctn(coeffs[:h2, :w2], axes=(0, 1), norm="ortho")
 
 
-def expand(image, shape, *, wrap=False):
+def _working(values, single):
+    """``values`` as the transforms take them: float32 with ``single``."""
+    return values.astype(np.float32) if single else values
+
+
+def expand(image, shape, *, wrap=False, single=False):
     """A coarse level at the finer ``shape`` (h, w): the same frequencies,
     none added (the inverse of :func:`reduce` on what it keeps).
 
@@ -114,6 +121,9 @@ def expand(image, shape, *, wrap=False):
         The finer level's size.
     wrap : bool, optional
         Periodic borders, as in :func:`reduce`.
+    single : bool, optional
+        Cosine transforms in float32 (synthesis: a relative error of about
+        1e-6 of the level's amplitude, two to three times faster).
 
     Returns
     -------
@@ -122,13 +132,14 @@ def expand(image, shape, *, wrap=False):
     h, w = int(shape[0]), int(shape[1])
     if wrap:
         return _fourier_resize(_fourier_resize(image, h, 0), w, 1)
-    coeffs = np.zeros((h, w) + image.shape[2:])
-    coeffs[: image.shape[0], : image.shape[1]] = sfft.dctn(image, axes=(0, 1), norm="ortho")
-    scale = np.sqrt(h * w / (image.shape[0] * image.shape[1]))
+    coeffs = np.zeros((h, w) + image.shape[2:], np.float32 if single else np.float64)
+    coeffs[: image.shape[0], : image.shape[1]] = sfft.dctn(_working(image, single),
+                                                           axes=(0, 1), norm="ortho")
+    scale = math.sqrt(h * w / (image.shape[0] * image.shape[1]))  # (keeps float32 float32)
     return scale * sfft.idctn(coeffs, axes=(0, 1), norm="ortho")
 
 
-def highpass(band, *, wrap=False):
+def highpass(band, *, wrap=False, single=False):
     """``band`` less its lowest ``ceil(h / 2) x ceil(w / 2)`` frequencies
     (those of the coarser levels): the projection onto a band's frequencies.
 
@@ -137,6 +148,8 @@ def highpass(band, *, wrap=False):
     band : (h, w, d) ndarray
     wrap : bool, optional
         Periodic borders, as in :func:`reduce`.
+    single : bool, optional
+        Cosine transforms in float32, as in :func:`expand`.
 
     Returns
     -------
@@ -145,7 +158,7 @@ def highpass(band, *, wrap=False):
     h, w = band.shape[:2]
     if wrap:
         return band - expand(reduce(band, wrap=True), (h, w), wrap=True)
-    coeffs = sfft.dctn(band, axes=(0, 1), norm="ortho")
+    coeffs = sfft.dctn(_working(band, single), axes=(0, 1), norm="ortho")
     h2, w2 = _half((h, w))
     coeffs[:h2, :w2] = 0.0
     return sfft.idctn(coeffs, axes=(0, 1), norm="ortho")
@@ -164,7 +177,9 @@ def _by_channel(values, what, stage, start, share, message):
     d = values.shape[2]
     out = None
     for c in range(d):
-        plane = what(values[..., c : c + 1])
+        # a contiguous copy of the plane: the transforms run a third faster
+        # on it than on the strided view, with the same numbers
+        plane = what(np.ascontiguousarray(values[..., c : c + 1]))
         if out is None:
             out = np.empty(plane.shape[:2] + (d,))
         out[..., c : c + 1] = plane
@@ -196,29 +211,32 @@ def iter_pyramid(image, levels):
     return bands + [gauss[-1]]
 
 
-def collapse(bands, *, wrap=False):
+def collapse(bands, *, wrap=False, single=False):
     """The image of spectral-pyramid ``bands`` (finest first): the inverse
-    of :func:`pyramid` (and of its periodic form with ``wrap``)."""
-    return drain(iter_collapse(bands, wrap=wrap))
+    of :func:`pyramid` (and of its periodic form with ``wrap``; ``single``:
+    see :func:`expand`)."""
+    return drain(iter_collapse(bands, wrap=wrap, single=single))
 
 
-def iter_collapse(bands, *, wrap=False):
+def iter_collapse(bands, *, wrap=False, single=False):
     """:func:`collapse` as a job (stage ``"collapse"``): a record after
-    every channel of every level; then the image."""
+    every channel of every level; then the image (float64; ``single``: the
+    expansions' transforms in float32, see :func:`expand`)."""
     out = bands[-1]
     finer = bands[-2::-1]
     pixels = np.array([b.shape[0] * b.shape[1] for b in finer], float)
     total, done = max(pixels.sum(), 1.0), 0.0
     for k, band in enumerate(finer):
         up = yield from _by_channel(
-            out, lambda c, s=band.shape[:2]: expand(c, s, wrap=wrap), "collapse",
+            out, lambda c, s=band.shape[:2]: expand(c, s, wrap=wrap, single=single), "collapse",
             done / total, pixels[k] / total, f"level {len(finer) - k}")
         done += pixels[k]
         out = band + up
     return out
 
 
-def iter_highpass(band, *, wrap=False, stage="highpass"):
-    """:func:`highpass` as a job: a record after every channel."""
-    return (yield from _by_channel(band, lambda c: highpass(c, wrap=wrap), stage, 0.0, 1.0,
-                                   "band frequencies"))
+def iter_highpass(band, *, wrap=False, single=False, stage="highpass"):
+    """:func:`highpass` as a job: a record after every channel (the result
+    is float64, whatever ``single``)."""
+    return (yield from _by_channel(band, lambda c: highpass(c, wrap=wrap, single=single), stage,
+                                   0.0, 1.0, "band frequencies"))

@@ -15,17 +15,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._docstrings import shared_parameters
 from .._progress import Progress, drain, stage
 from .._validation import check_memory, check_real, check_seed, check_shape, output_shape
-from ._model import (
-    _SYNTHESIS_COPIES,
-    _check_options,
-    _check_texture_size,
-    _iter_clip,
-    _iter_restore,
-    iter_fit_texture,
-)
+from ._fit import _check_options, _check_texture_size
+from ._histogram import _iter_clip, _iter_restore
+from ._model import iter_fit_texture
 from ._stack import as_stack
+from ._synthesis import _SYNTHESIS_COPIES
 
 __all__ = ["BTFModel", "cumulative_histograms", "iter_fit_btf"]
 
@@ -100,6 +97,27 @@ def _kmeans(features, k, seed):
     return labels
 
 
+_FIT_PARAMETERS = """
+stack : (n, H, W) or (n, H, W, C) array
+    Images along axis 0 (a 3-D stack is grey); any dtype (integer
+    images are scaled to [0, 1]). Every side must be at least
+    ``16 * 2**(levels - 1)`` pixels.
+n_subspaces : int, optional
+    Number of K-means clusters (at most ``n``; empty clusters are
+    dropped).
+levels : int, optional
+    Pyramid levels of every subspace model (see :meth:`TextureModel.fit`).
+neighbourhood : 'auto', int or (eta, 2) array, optional
+    Support of every subspace model (see :meth:`TextureModel.fit`).
+channel_axis : int or None, optional
+    Axis of the channels of a 4-D stack (default the last; not 0, which
+    holds the images). None requires a 3-D grey stack.
+seed : int, optional
+    K-means initialisation.
+"""
+
+
+@shared_parameters(_FIT_PARAMETERS)
 def iter_fit_btf(stack, *, n_subspaces=4, levels=3, neighbourhood="auto", channel_axis=-1,
                  seed=0):
     """Fit a BTF subspace model, as a job reporting progress.
@@ -113,18 +131,7 @@ def iter_fit_btf(stack, *, n_subspaces=4, levels=3, neighbourhood="auto", channe
 
     Parameters
     ----------
-    stack : (n, H, W) or (n, H, W, C) array
-        Images along axis 0; see :meth:`BTFModel.fit`.
-    n_subspaces : int, optional
-        Number of K-means clusters.
-    levels : int, optional
-        Pyramid levels of every subspace model.
-    neighbourhood : 'auto', int or (eta, 2) array, optional
-        Support of every subspace model.
-    channel_axis : int or None, optional
-        Axis of the channels of a 4-D stack (default the last).
-    seed : int, optional
-        K-means initialisation.
+    {parameters}
 
     Returns
     -------
@@ -196,6 +203,14 @@ def iter_fit_btf(stack, *, n_subspaces=4, levels=3, neighbourhood="auto", channe
                     grey)
 
 
+_SYNTHESIZE_PARAMETERS = """
+shape : tuple of 2 ints
+    (height, width) of every image.
+seed : int, numpy Generator or None, optional
+    The same seed gives the same stack.
+"""
+
+
 @dataclass(eq=False)
 class BTFModel:
     """Subspace models of a stack of images of one material.
@@ -243,6 +258,7 @@ class BTFModel:
     grey: bool
 
     @classmethod
+    @shared_parameters(_FIT_PARAMETERS)
     def fit(cls, stack, *, n_subspaces=4, levels=3, neighbourhood="auto", channel_axis=-1,
             seed=0):
         """Cluster a stack into subspaces and fit one texture model per subspace.
@@ -255,22 +271,7 @@ class BTFModel:
 
         Parameters
         ----------
-        stack : (n, H, W) or (n, H, W, C) array
-            Images along axis 0 (a 3-D stack is grey); any dtype (integer
-            images are scaled to [0, 1]). Every side must be at least
-            ``16 * 2**(levels - 1)`` pixels.
-        n_subspaces : int, optional
-            Number of K-means clusters (at most ``n``; empty clusters are
-            dropped).
-        levels : int, optional
-            Pyramid levels of every subspace model (see :meth:`TextureModel.fit`).
-        neighbourhood : 'auto', int or (eta, 2) array, optional
-            Support of every subspace model (see :meth:`TextureModel.fit`).
-        channel_axis : int or None, optional
-            Axis of the channels of a 4-D stack (default the last; not 0, which
-            holds the images). None requires a 3-D grey stack.
-        seed : int, optional
-            K-means initialisation.
+        {parameters}
 
         Returns
         -------
@@ -362,6 +363,7 @@ class BTFModel:
                             lengths=(3, 4))
         return 4.0 * float(math.prod(shape)) / self.nbytes
 
+    @shared_parameters(_SYNTHESIZE_PARAMETERS)
     def synthesize(self, shape, *, seed=None):
         """Synthesise every image of the stack at any size.
 
@@ -370,10 +372,7 @@ class BTFModel:
 
         Parameters
         ----------
-        shape : tuple of 2 ints
-            (height, width) of every image.
-        seed : int, numpy Generator or None, optional
-            The same seed gives the same stack.
+        {parameters}
 
         Returns
         -------
@@ -396,6 +395,7 @@ class BTFModel:
         """
         return drain(self.iter_synthesize(shape, seed=seed))
 
+    @shared_parameters(_SYNTHESIZE_PARAMETERS)
     def iter_synthesize(self, shape, *, seed=None):
         """Synthesise every image of the stack, as a job: Progress, then the stack.
 
@@ -408,10 +408,7 @@ class BTFModel:
 
         Parameters
         ----------
-        shape : tuple of 2 ints
-            (height, width) of every image.
-        seed : int, numpy Generator or None, optional
-            The same seed gives the same stack.
+        {parameters}
 
         Returns
         -------

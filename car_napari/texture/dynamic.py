@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._docstrings import shared_parameters
 from .._progress import Progress, drain, stage
 from .._validation import (
     MAX_CHANNELS,
@@ -41,7 +42,7 @@ from ..model.synthesis import (
     spectral_radius,
     synthesize_field,
 )
-from ._model import _SHRINK_RADIUS, _iter_scale, _iter_stable_fit, _max_order_below
+from ._bandfit import _SHRINK_RADIUS, _iter_scale, _iter_stable_fit, _max_order_below
 from ._stack import as_stack
 
 __all__ = ["DynamicTextureModel", "iter_fit_dynamic_texture", "temporal_context"]
@@ -164,6 +165,19 @@ def temporal_context(offsets, d):
     return Context(np.array(taps, np.int64), np.arange(d))
 
 
+_FIT_PARAMETERS = """
+frames : (T, H, W) or (T, H, W, C) array
+    The clip, frames along axis 0 (a 3-D clip is grey); any dtype
+    (integer frames are scaled to [0, 1]).
+neighbourhood : int or (eta, 2) array, optional
+    Causal spatial neighbourhood, in the current and the previous frame.
+channel_axis : int or None, optional
+    Axis of the channels of a 4-D clip (default the last; not 0, which
+    holds the frames). None requires a 3-D grey clip.
+"""
+
+
+@shared_parameters(_FIT_PARAMETERS)
 def iter_fit_dynamic_texture(frames, *, neighbourhood=2, channel_axis=-1):
     """Fit a 3.5D CAR model to a clip, as a job reporting progress.
 
@@ -181,12 +195,7 @@ def iter_fit_dynamic_texture(frames, *, neighbourhood=2, channel_axis=-1):
 
     Parameters
     ----------
-    frames : (T, H, W) or (T, H, W, C) array
-        The clip; see :meth:`DynamicTextureModel.fit`.
-    neighbourhood : int or (eta, 2) array, optional
-        Causal spatial neighbourhood, in the current and the previous frame.
-    channel_axis : int or None, optional
-        Axis of the channels of a 4-D clip (default the last).
+    {parameters}
 
     Returns
     -------
@@ -271,6 +280,18 @@ def iter_fit_dynamic_texture(frames, *, neighbourhood=2, channel_axis=-1):
                                fallbacks=tuple(fallbacks))
 
 
+_SYNTHESIZE_PARAMETERS = """
+n_frames : int
+    Number of frames to return.
+shape : tuple of 2 ints
+    (height, width) of every frame.
+seed : int, numpy Generator or None, optional
+    The same seed gives the same clip.
+burn_in : int, optional
+    Frames generated and discarded first.
+"""
+
+
 @dataclass(eq=False)
 class DynamicTextureModel:
     """A 3.5D CAR model of a texture video.
@@ -324,6 +345,7 @@ class DynamicTextureModel:
     fallbacks: tuple = ()
 
     @classmethod
+    @shared_parameters(_FIT_PARAMETERS)
     def fit(cls, frames, *, neighbourhood=2, channel_axis=-1):
         """Fit a 3.5D CAR model to a clip of at least two frames.
 
@@ -331,14 +353,7 @@ class DynamicTextureModel:
 
         Parameters
         ----------
-        frames : (T, H, W) or (T, H, W, C) array
-            The clip, frames along axis 0 (a 3-D clip is grey); any dtype
-            (integer frames are scaled to [0, 1]).
-        neighbourhood : int or (eta, 2) array, optional
-            Causal spatial neighbourhood, in the current and the previous frame.
-        channel_axis : int or None, optional
-            Axis of the channels of a 4-D clip (default the last; not 0, which
-            holds the frames). None requires a 3-D grey clip.
+        {parameters}
 
         Returns
         -------
@@ -430,6 +445,7 @@ class DynamicTextureModel:
                             lengths=(3, 4))
         return 4.0 * float(math.prod(shape)) / self.nbytes
 
+    @shared_parameters(_SYNTHESIZE_PARAMETERS)
     def synthesize(self, n_frames, shape, *, seed=None, burn_in=10):
         """Generate a clip from the model, frame after frame.
 
@@ -439,14 +455,7 @@ class DynamicTextureModel:
 
         Parameters
         ----------
-        n_frames : int
-            Number of frames to return.
-        shape : tuple of 2 ints
-            (height, width) of every frame.
-        seed : int, numpy Generator or None, optional
-            The same seed gives the same clip.
-        burn_in : int, optional
-            Frames generated and discarded first.
+        {parameters}
 
         Returns
         -------
@@ -470,6 +479,7 @@ class DynamicTextureModel:
         """
         return drain(self.iter_synthesize(n_frames, shape, seed=seed, burn_in=burn_in))
 
+    @shared_parameters(_SYNTHESIZE_PARAMETERS)
     def iter_synthesize(self, n_frames, shape, *, seed=None, burn_in=10):
         """Generate a clip from the model, as a job: Progress, then the clip.
 
@@ -483,14 +493,7 @@ class DynamicTextureModel:
 
         Parameters
         ----------
-        n_frames : int
-            Number of frames to return.
-        shape : tuple of 2 ints
-            (height, width) of every frame.
-        seed : int, numpy Generator or None, optional
-            The same seed gives the same clip.
-        burn_in : int, optional
-            Frames generated and discarded first.
+        {parameters}
 
         Returns
         -------

@@ -39,6 +39,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy import ndimage as ndi
 
+from .._docstrings import shared_parameters
 from .._progress import Progress, drain, mapped, result_of
 from .._validation import (
     MAGNITUDE_LIMIT,
@@ -468,6 +469,26 @@ def _check_comparable(names, described, *, levels, offsets):
             )
 
 
+_RANK_PARAMETERS = """
+query : (H, W) or (H, W, C) array, or 1-D array
+    An image, or its precomputed :func:`texture_features` vector.
+gallery : sequence of images or of 1-D feature vectors
+    A list (or stacked array) of images, or of feature vectors computed
+    with the same ``levels`` and ``neighbourhood``; the two may be mixed.
+    A stacked array is split along its first axis: 2-D ``(n, features)``
+    is n feature vectors, 3-D ``(n, H, W)`` n grey images and 4-D
+    ``(n, H, W, C)`` n colour images.
+levels : int, optional
+    Levels of the pyramid, as for :func:`texture_features` (images only).
+neighbourhood : int or (eta, 2) array, optional
+    As for :func:`texture_features` (images only).
+channel_axis : int or None, optional
+    Axis of the channels of 3-D images, as for :func:`texture_features`.
+    A 2-D image is always grey (its ``channel_axis`` is ignored).
+"""
+
+
+@shared_parameters(_RANK_PARAMETERS)
 def iter_rank(query, gallery, *, levels=3, neighbourhood=2, channel_axis=-1):
     """Rank a gallery by distance to a query, as a job reporting progress.
 
@@ -489,16 +510,7 @@ def iter_rank(query, gallery, *, levels=3, neighbourhood=2, channel_axis=-1):
 
     Parameters
     ----------
-    query : (H, W) or (H, W, C) array, or 1-D array
-        An image, or its precomputed :func:`texture_features` vector.
-    gallery : sequence of images or of 1-D feature vectors
-        See :func:`rank`.
-    levels : int, optional
-        Levels of the pyramid (images only).
-    neighbourhood : int or (eta, 2) array, optional
-        Order of the causal neighbourhood or explicit offsets (images only).
-    channel_axis : int or None, optional
-        Axis of the channels of 3-D images; 2-D images are grey.
+    {parameters}
 
     Returns
     -------
@@ -613,6 +625,7 @@ def _moderate(feats):
     return feats[0], feats[1:], exponents
 
 
+@shared_parameters(_RANK_PARAMETERS)
 def rank(query, gallery, *, levels=3, neighbourhood=2, channel_axis=-1):
     """Rank a gallery of textures by their distance to a query texture.
 
@@ -633,21 +646,7 @@ def rank(query, gallery, *, levels=3, neighbourhood=2, channel_axis=-1):
 
     Parameters
     ----------
-    query : (H, W) or (H, W, C) array, or 1-D array
-        An image, or its precomputed :func:`texture_features` vector.
-    gallery : sequence of images or of 1-D feature vectors
-        A list (or stacked array) of images, or of feature vectors computed
-        with the same ``levels`` and ``neighbourhood``; the two may be mixed.
-        A stacked array is split along its first axis: 2-D ``(n, features)``
-        is n feature vectors, 3-D ``(n, H, W)`` n grey images and 4-D
-        ``(n, H, W, C)`` n colour images.
-    levels : int, optional
-        Levels of the pyramid, as for :func:`texture_features` (images only).
-    neighbourhood : int or (eta, 2) array, optional
-        As for :func:`texture_features` (images only).
-    channel_axis : int or None, optional
-        Axis of the channels of 3-D images, as for :func:`texture_features`.
-        A 2-D image is always grey (its ``channel_axis`` is ignored).
+    {parameters}
 
     Returns
     -------

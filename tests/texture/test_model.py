@@ -83,11 +83,10 @@ def test_iter_fit_texture_reports_every_level_and_returns_the_fit():
 def test_iter_fit_texture_yields_often_on_a_large_texture(monkeypatch):
     # every pass runs by blocks of rows: with small blocks, many records per
     # part, and the same model as with the default blocks
-    from car_napari.texture import _model
 
     texture = skdata.gravel()[:256, :256]
     whole = TextureModel.fit(texture, levels=3, neighbourhood=2, pyramid="gaussian")
-    monkeypatch.setattr(_model, "_CHUNK_PIXELS", 4096)
+    monkeypatch.setattr("car_napari.texture._blocks._CHUNK_PIXELS", 4096)
     records = []
     chunked = drain(iter_fit_texture(texture, levels=3, neighbourhood=2, pyramid="gaussian"),
                     records.append)
@@ -99,17 +98,17 @@ def test_iter_fit_texture_yields_often_on_a_large_texture(monkeypatch):
 
 
 def test_exact_quantiles_by_blocks_equal_numpys(monkeypatch):
-    from car_napari.texture import _model
+    from car_napari.texture import _histogram
 
     rng = np.random.default_rng(0)
     cases = [rng.random((100, 70, 3)), rng.standard_normal((257, 33, 1)) ** 3,
              np.round(rng.random((50, 60, 2)) * 4) / 4,  # heavy ties
              np.concatenate([np.zeros((40, 40, 1)), rng.random((3, 40, 1))]),
              rng.random((1, 1, 2)), np.full((10, 10, 1), 0.3)]
-    monkeypatch.setattr(_model, "_CHUNK_PIXELS", 997)
+    monkeypatch.setattr("car_napari.texture._blocks._CHUNK_PIXELS", 997)
     for values in cases:
         for n in (32, 64, 5):
-            q, lo, hi = drain(_model._iter_quantiles(values, n))
+            q, lo, hi = drain(_histogram._iter_quantiles(values, n))
             expected = np.quantile(values.reshape(-1, values.shape[2]),
                                    np.linspace(0, 1, n), axis=0)
             np.testing.assert_array_equal(q, expected.astype(np.float32).astype(float))
@@ -118,16 +117,16 @@ def test_exact_quantiles_by_blocks_equal_numpys(monkeypatch):
 
 
 def test_pyramid_by_blocks_is_the_same(monkeypatch):
-    from car_napari.texture import _model
+    from car_napari.texture import _pyramid
 
     x = np.random.default_rng(2).random((67, 93, 2))
     whole = laplacian_pyramid(x, levels=4)
-    monkeypatch.setattr(_model, "_CHUNK_PIXELS", 64)  # a row or two a block
+    monkeypatch.setattr("car_napari.texture._blocks._CHUNK_PIXELS", 64)  # a row or two a block
     for a, b in zip(whole, laplacian_pyramid(x, levels=4), strict=True):
         np.testing.assert_array_equal(a, b)
-    np.testing.assert_array_equal(_model._expand(x, (131, 180), wrap=True),
-                                  _model._cubic_axis(_model._cubic_axis(x, 131, 0, True),
-                                                     180, 1, True))
+    np.testing.assert_array_equal(_pyramid._expand(x, (131, 180), wrap=True),
+                                  _pyramid._cubic_axis(_pyramid._cubic_axis(x, 131, 0, True),
+                                                       180, 1, True))
 
 
 def test_iter_fit_texture_validates_before_the_first_record_and_can_be_closed():
@@ -375,12 +374,12 @@ def test_histogram_matching_does_not_scatter_pixels_to_the_extremes():
     # linear between the last stored quantile and the maximum would put 1.8 %
     # of the pixels beyond the band's 0.999 quantile (isolated bright and
     # dark pixels: speckle); the band itself has 0.1 % there.
-    from car_napari.texture import _model
+    from car_napari.texture import _blocks, _histogram
 
     rng = np.random.default_rng(0)
     band = rng.laplace(size=(300, 300, 1))
-    quantiles = _model._f32(np.quantile(band.reshape(-1, 1), np.linspace(0, 1, 32), axis=0))
-    out = _model._match(rng.standard_normal((300, 300, 1)), quantiles)
+    quantiles = _blocks._f32(np.quantile(band.reshape(-1, 1), np.linspace(0, 1, 32), axis=0))
+    out = _histogram._match(rng.standard_normal((300, 300, 1)), quantiles)
     for p in (0.999, 0.001):
         beyond = np.quantile(band, p)
         share = (out > beyond).mean() if p > 0.5 else (out < beyond).mean()
@@ -413,7 +412,7 @@ def test_synthesis_of_the_vistex_sample_has_no_speckle():
 # the job form: whole-array passes, no blocks.
 
 def _reference_match(values, quantiles, bins=4096):
-    from car_napari.texture._model import _exponential_tails
+    from car_napari.texture._histogram import _exponential_tails
 
     h, w, d = values.shape
     flat = values.reshape(-1, d)
@@ -459,7 +458,8 @@ def _reference_torus(field, shape, mean):
 def _reference_synthesis(self, shape, seed, tileable=False):
     from car_napari import synthesize
     from car_napari.model.synthesis import burn_in, spectral_radius
-    from car_napari.texture._model import _BAND_TRANSIENT, _blend_width, _expand, _level_shapes
+    from car_napari.texture._pyramid import _expand, _level_shapes
+    from car_napari.texture._synthesis import _BAND_TRANSIENT, _MAX_BAND_MARGIN, _blend_width
 
     h, w = shape
     rng = np.random.default_rng(seed)
@@ -467,7 +467,7 @@ def _reference_synthesis(self, shape, seed, tileable=False):
     bands = []
     for k, (model, (hk, wk)) in enumerate(zip(self.models, _level_shapes((h, w), self.levels),
                                               strict=True)):
-        margin = burn_in(spectral_radius(model), _BAND_TRANSIENT)
+        margin = min(burn_in(spectral_radius(model), _BAND_TRANSIENT), _MAX_BAND_MARGIN)
         if tileable:
             bh, bw = _blend_width(hk), _blend_width(wk)
             big = synthesize(model, (hk + bh, wk + bw), seed=streams[k], margin=margin)
@@ -476,12 +476,12 @@ def _reference_synthesis(self, shape, seed, tileable=False):
             band = synthesize(model, (hk, wk), seed=streams[k], margin=margin).reshape(hk, wk,
                                                                                      -1)
         if self.pyramid == "spectral" and k < self.levels - 1:
-            band = drain(_spectral.iter_highpass(band, wrap=bool(tileable)))
+            band = drain(_spectral.iter_highpass(band, wrap=bool(tileable), single=True))
         if self.band_quantiles is not None:
             band = _reference_match(band, self.band_quantiles[k])
         bands.append(np.clip(band, self.band_ranges[k, 0], self.band_ranges[k, 1]))
     if self.pyramid == "spectral":
-        out = _spectral.collapse(bands, wrap=bool(tileable))
+        out = _spectral.collapse(bands, wrap=bool(tileable), single=True)
     else:
         out = bands[-1]
         for band in bands[-2::-1]:
@@ -531,17 +531,39 @@ def test_palette_snap_equals_plain_numpy_and_keeps_inliers():
     assert moved.mean() < 0.2
 
 
+@pytest.mark.parametrize("k", [1, 2, 7, 32])
+def test_palette_snap_search_finds_the_nearest_colour_with_ties(k):
+    # the kernel walks the colours sorted by their first coordinate and stops
+    # early: on a coarse grid (many equal distances, repeated colours) it
+    # must still pick the nearest colour, the lowest index among equals
+    from car_napari.texture import _palette
+
+    rng = np.random.default_rng(k)
+    centres = np.round(rng.random((k, 3)), 1)
+    centres[k // 2] = centres[0]
+    radius = rng.random(k) * 0.2
+    values = np.round(rng.random((40, 30, 3)), 1)
+    flat = values.reshape(-1, 3)
+    squared = ((flat[:, None, :] - centres[None]) ** 2).sum(-1)  # (the kernel's sums)
+    nearest = np.argmin(squared, axis=1)
+    best = squared[np.arange(len(flat)), nearest]
+    r = radius[nearest]
+    want = np.where((best > r * r)[:, None],
+                    centres[nearest] + (flat - centres[nearest]) * (r / np.sqrt(best))[:, None],
+                    flat)
+    np.testing.assert_array_equal(_palette.snap(values, centres, radius).reshape(-1, 3), want)
+
+
 @pytest.mark.parametrize("tileable", [False, True])
 def test_synthesis_job_is_bit_identical_to_the_one_call_synthesis(gravel_model, colour_model,
                                                                   tileable, monkeypatch):
-    from car_napari.texture import _model
 
     two_d = TextureModel.fit(skdata.astronaut()[300:364, 0:64], levels=1, model="2d")
     cases = [(gravel_model, (37, 53)), (colour_model, (64, 41)), (two_d, (20, 30))]
     expected = [_reference_synthesis(m, shape, 3, tileable) for m, shape in cases]
     for (model, shape), want in zip(cases, expected, strict=True):
         np.testing.assert_array_equal(model.synthesize(shape, seed=3, tileable=tileable), want)
-    monkeypatch.setattr(_model, "_CHUNK_PIXELS", 97)  # blocks of a row or two
+    monkeypatch.setattr("car_napari.texture._blocks._CHUNK_PIXELS", 97)  # blocks of a row or two
     for (model, shape), want in zip(cases, expected, strict=True):
         records = []
         got = drain(model.iter_synthesize(shape, seed=3, tileable=tileable), records.append)
@@ -563,9 +585,8 @@ def test_synthesis_job_is_bit_identical_to_the_one_call_synthesis(gravel_model, 
 def test_synthesis_job_yields_between_blocks_and_stops_when_closed(colour_model, monkeypatch):
     # fractions in proportion to the work: no part of the job jumps far
     from car_napari.model import blocks, synthesis
-    from car_napari.texture import _model
 
-    monkeypatch.setattr(_model, "_CHUNK_PIXELS", 512)
+    monkeypatch.setattr("car_napari.texture._blocks._CHUNK_PIXELS", 512)
     monkeypatch.setattr(blocks, "BLOCK_VALUES", 1500)
     monkeypatch.setattr(synthesis, "_CHUNK_FLOPS", 1e5)
     records = list(colour_model.iter_synthesize((160, 200), seed=0))
@@ -583,21 +604,21 @@ def test_synthesis_job_yields_between_blocks_and_stops_when_closed(colour_model,
 def test_blocked_sums_are_numpys_mean_and_std(pixels, monkeypatch):
     # the restore's sums by blocks of rows add as NumPy's mean and std do:
     # the same numbers (if a NumPy release changed its order, this fails)
-    from car_napari.texture import _model
+    from car_napari.texture import _histogram
 
-    monkeypatch.setattr(_model, "_CHUNK_PIXELS", pixels)
+    monkeypatch.setattr("car_napari.texture._blocks._CHUNK_PIXELS", pixels)
     rng = np.random.default_rng(2)
     for shape in [(37, 41, 3), (64, 50, 1), (5, 7, 2), (300, 200, 4)]:
         values = rng.standard_normal(shape) * 1e3 + 1
         before = values.copy()
-        np.testing.assert_array_equal(drain(_model._iter_channel_sum(values)),
+        np.testing.assert_array_equal(drain(_histogram._iter_channel_sum(values)),
                                       before.sum(axis=(0, 1)))
         np.testing.assert_array_equal(values, before)  # the running sum is put back
         mean, std = rng.random(shape[2]), rng.random(shape[2]) + 0.5
         centred = values - values.mean(axis=(0, 1))
         spread = centred.std(axis=(0, 1))
         want = mean + centred * (std / spread)
-        np.testing.assert_array_equal(drain(_model._iter_restore(values, mean, std)), want)
+        np.testing.assert_array_equal(drain(_histogram._iter_restore(values, mean, std)), want)
 
 
 def test_version_2_files_load_as_the_gaussian_pyramid_they_were(tmp_path):
@@ -627,7 +648,7 @@ def test_version_2_files_load_as_the_gaussian_pyramid_they_were(tmp_path):
 def test_histogram_matching_kernels_equal_plain_numpy(q, monkeypatch):
     """The compiled matching (_kernels) against the plain NumPy one, bit for
     bit: heavy tails, a constant channel, ties, clipping, blocks of rows."""
-    from car_napari.texture import _model
+    from car_napari.texture import _blocks, _histogram
 
     rng = np.random.default_rng(q)
     values = np.stack([rng.standard_t(3, (150, 131)), rng.random((150, 131)),
@@ -636,10 +657,10 @@ def test_histogram_matching_kernels_equal_plain_numpy(q, monkeypatch):
     quantiles = np.sort(rng.normal(size=(q, 4)) * [1.0, 2.0, 1.0, 0.5], axis=0)
     clip = np.stack([quantiles[1], quantiles[-2]])
     want = _reference_match(values, quantiles)
-    np.testing.assert_array_equal(_model._match(values, quantiles), want)
-    for pixels in (_model._CHUNK_PIXELS, 97 * 4):
-        monkeypatch.setattr(_model, "_CHUNK_PIXELS", pixels)
-        got = drain(_model._iter_match(values, quantiles, clip=clip))
+    np.testing.assert_array_equal(_histogram._match(values, quantiles), want)
+    for pixels in (_blocks._CHUNK_PIXELS, 97 * 4):
+        monkeypatch.setattr("car_napari.texture._blocks._CHUNK_PIXELS", pixels)
+        got = drain(_histogram._iter_match(values, quantiles, clip=clip))
         np.testing.assert_array_equal(got, np.clip(want, clip[0], clip[1]))
     # numpy.histogram's counts, edges included
     from car_napari.texture import _kernels
@@ -693,3 +714,31 @@ def test_palette_fit_equals_its_reference(k):
         got, want = _palette.fit_palette(img, k), _reference_fit_palette(img, k)
         np.testing.assert_array_equal(got[0], want[0])
         np.testing.assert_array_equal(got[1], want[1])
+
+
+def test_jobs_and_their_plain_forms_document_the_same_parameters():
+    # shared_parameters fills methods (indented deeper) as it fills functions
+    import inspect
+
+    from car_napari.texture import (
+        BTFModel,
+        DynamicTextureModel,
+        iter_fit_btf,
+        iter_fit_dynamic_texture,
+        iter_rank,
+        rank,
+    )
+
+    def parameters(func):
+        doc = inspect.getdoc(func)
+        assert "{parameters}" not in doc
+        return doc[doc.index("Parameters\n") : doc.index("Returns\n")]
+
+    pairs = [(TextureModel.fit, iter_fit_texture), (BTFModel.fit, iter_fit_btf),
+             (DynamicTextureModel.fit, iter_fit_dynamic_texture), (rank, iter_rank),
+             (TextureModel.synthesize, TextureModel.iter_synthesize),
+             (BTFModel.synthesize, BTFModel.iter_synthesize),
+             (DynamicTextureModel.synthesize, DynamicTextureModel.iter_synthesize)]
+    for plain, job in pairs:
+        assert parameters(plain) == parameters(job)
+        assert "\n    " in parameters(plain)  # the entries' descriptions stay indented

@@ -63,6 +63,26 @@ def test_reduce_and_expand_equal_the_matrices(shape, wrap):
     np.testing.assert_allclose(_spectral.highpass(x, wrap=wrap), x - up, atol=1e-12)
 
 
+@pytest.mark.parametrize("shape", [(16, 16), (15, 22), (9, 7), (1, 5), (300, 257)])
+def test_single_precision_transforms_are_close_to_the_matrices(shape):
+    # synthesis runs the cosine transforms in float32: the same maps as the
+    # matrices, to float32's precision (relative to the values' scale)
+    rng = np.random.default_rng(1)
+    x = rng.standard_normal(shape + (3,))
+    h, w = shape
+    h2, w2 = (h + 1) // 2, (w + 1) // 2
+    small = _apply((_cosine_resize(h, h2), _cosine_resize(w, w2)), x)
+    up = _apply((_cosine_resize(h2, h), _cosine_resize(w2, w)), small)
+    expanded = _spectral.expand(small, shape, single=True)
+    assert expanded.dtype == np.float32
+    np.testing.assert_allclose(expanded, up, atol=2e-6 * np.abs(x).max())
+    np.testing.assert_allclose(_spectral.highpass(x, single=True), x - up,
+                               atol=2e-6 * np.abs(x).max())
+    collapsed = _spectral.collapse(_spectral.pyramid(x, 2), single=True)
+    assert collapsed.dtype == np.float64
+    np.testing.assert_allclose(collapsed, x, atol=2e-6 * np.abs(x).max())
+
+
 def test_bands_are_exact_disjoint_and_keep_constants():
     rng = np.random.default_rng(1)
     x = rng.random((67, 93, 3))
