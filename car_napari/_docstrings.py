@@ -34,6 +34,14 @@ def shared_sections(**sections):
     return decorate
 
 
+def raises_as(function, *errors):
+    """A Raises section that sends the reader to ``function`` for each of
+    ``errors`` (a job raises what its plain form raises), for
+    :func:`shared_sections`."""
+    return "Raises\n------\n" + "".join(f"{error}\n    As :func:`{function}`.\n"
+                                         for error in errors)
+
+
 def shared_parameters(parameters):
     """Decorator: put the numpydoc entries ``parameters`` at the docstring's
     ``{parameters}`` line."""

@@ -37,6 +37,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 
 from threadpoolctl import OpenBLASController, threadpool_limits
 
+from ._docstrings import raises_as, shared_sections
 from ._validation import check_real
 
 __all__ = ["blas_threads", "job_pool", "job_threads", "limited_blas", "lower_thread_priority",
@@ -234,6 +235,7 @@ def lower_thread_priority(nice=None):
         return None
 
 
+@shared_sections(raises=raises_as("job_threads", "ValueError"))
 def job_pool():
     """The threads every job runs its side-by-side kernels on, shared.
 
@@ -251,10 +253,7 @@ def job_pool():
         kernels one after the other). Never shut it down; a task run on it
         must not wait for another task of it.
 
-    Raises
-    ------
-    ValueError
-        As :func:`job_threads`.
+    {raises}
 
     Examples
     --------

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._docstrings import shared_parameters
+from .._docstrings import raises_as, shared_parameters, shared_sections
 from .._progress import drain
 from .._validation import (
     as_channel_last_float,
@@ -108,7 +108,8 @@ def local_parameters(
         channel_axis=channel_axis, prior=prior, warm_start=warm_start))
 
 
-@shared_parameters(_PARAMETERS + _CHUNK_ROWS_PARAMETER)
+@shared_sections(parameters=_PARAMETERS + _CHUNK_ROWS_PARAMETER,
+                 raises=raises_as("local_parameters", "ValueError", "TypeError"))
 def iter_local_parameters(
     image,
     neighbourhood=2,
@@ -142,12 +143,7 @@ def iter_local_parameters(
         Stage ``"scan"`` after each chunk of rows, its fraction the rows
         done, message like ``"down scan: rows 512/2048"``.
 
-    Raises
-    ------
-    ValueError
-        As :func:`local_parameters`.
-    TypeError
-        As :func:`local_parameters`.
+    {raises}
 
     Examples
     --------

@@ -13,7 +13,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .._docstrings import shared_parameters
+from .._docstrings import raises_as, shared_parameters, shared_sections
 from .._progress import Progress, drain, row_blocks, stage
 from .._validation import (
     check_not_constant,
@@ -233,7 +233,8 @@ _SELECT_SUPPORT_PARAMETERS = """
 """
 
 
-@shared_parameters(_SELECT_SUPPORT_PARAMETERS)
+@shared_sections(parameters=_SELECT_SUPPORT_PARAMETERS,
+                 raises=raises_as("select_support", "ValueError", "TypeError"))
 def iter_select_support(image, orders=range(1, 6), *, channel_axis=-1, direction="down"):
     """Choose the most probable causal neighbourhood, as a job.
 
@@ -259,12 +260,7 @@ def iter_select_support(image, orders=range(1, 6), *, channel_axis=-1, direction
         score (message ``"order 3: D = ..."``). No block is more than about
         0.2 s of work on a 4000x4000 RGB image.
 
-    Raises
-    ------
-    ValueError
-        As :func:`select_support`.
-    TypeError
-        As :func:`select_support`.
+    {raises}
 
     Examples
     --------
@@ -358,7 +354,8 @@ _FIT_CAR_PARAMETERS = """
 """
 
 
-@shared_parameters(_FIT_CAR_PARAMETERS)
+@shared_sections(parameters=_FIT_CAR_PARAMETERS,
+                 raises=raises_as("fit_car", "ValueError", "TypeError"))
 def iter_fit_car(
     image,
     neighbourhood=2,
@@ -396,12 +393,7 @@ def iter_fit_car(
         0.2 s of work on a 4000x4000 RGB image; the fractions follow the
         estimated work.
 
-    Raises
-    ------
-    ValueError
-        As :func:`fit_car`.
-    TypeError
-        As :func:`fit_car`.
+    {raises}
 
     Examples
     --------

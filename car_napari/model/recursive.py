@@ -9,7 +9,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .._docstrings import shared_parameters
+from .._docstrings import raises_as, shared_parameters, shared_sections
 from .._progress import Progress
 from ._kernels import finish_factor, recursive_scan
 from .directions import DIRECTIONS, check_direction, scan_shape, scan_view, unscan_view
@@ -535,7 +535,8 @@ _EMPTY = np.empty(0)
 
 
 
-@shared_parameters(_SCAN_PARAMETERS + _CHUNK_ROWS_PARAMETER)
+@shared_sections(parameters=_SCAN_PARAMETERS + _CHUNK_ROWS_PARAMETER,
+                 raises=raises_as("scan", "ValueError"))
 def iter_scan(
     data,
     context,
@@ -574,10 +575,7 @@ def iter_scan(
         Stage ``"scan"`` after each chunk, its fraction the rows done,
         message like ``"down scan: rows 512/2048"``.
 
-    Raises
-    ------
-    ValueError
-        As :func:`scan`.
+    {raises}
 
     Notes
     -----

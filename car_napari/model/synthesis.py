@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from .._docstrings import shared_parameters
+from .._docstrings import raises_as, shared_parameters, shared_sections
 from .._progress import Progress, drain, row_blocks
 from .._validation import check_memory, check_real, check_seed, output_shape
 from ._kernels import synthesize_field
@@ -279,7 +279,8 @@ def synthesize(model, shape, *, seed=None, margin=None):
     return drain(iter_synthesize(model, shape, seed=seed, margin=margin))
 
 
-@shared_parameters(_SYNTHESIZE_PARAMETERS)
+@shared_sections(parameters=_SYNTHESIZE_PARAMETERS,
+                 raises=raises_as("synthesize", "ValueError", "TypeError"))
 def iter_synthesize(model, shape, *, seed=None, margin=None, chunk_rows=None):
     """Generate a texture from a fitted CAR model, as a job: Progress, then the texture.
 
@@ -310,12 +311,7 @@ def iter_synthesize(model, shape, *, seed=None, margin=None, chunk_rows=None):
         array filling in (rows not yet done are 0; it is the array returned,
         do not modify it).
 
-    Raises
-    ------
-    ValueError
-        As :func:`synthesize`.
-    TypeError
-        As :func:`synthesize`.
+    {raises}
 
     Examples
     --------

@@ -22,7 +22,7 @@ import math
 
 import numpy as np
 
-from .._docstrings import shared_parameters
+from .._docstrings import raises_as, shared_parameters, shared_sections
 from .._progress import Progress, drain, row_blocks, side_by_side, stage
 from .._threads import job_pool
 from .._validation import (
@@ -252,7 +252,8 @@ def _plan(shape, levels, ctx, *, smoothing, mean_smoothing, level_smoothing, ene
     return total
 
 
-@shared_parameters(_FEATURE_PARAMETERS)
+@shared_sections(parameters=_FEATURE_PARAMETERS,
+                 raises=raises_as("local_features", "ValueError"))
 def iter_local_features(
     image,
     *,
@@ -294,10 +295,7 @@ def iter_local_features(
         after each level, and on a large image more in between (about every
         0.1 s of work: the rows of a scan, the blocks of the smoothing).
 
-    Raises
-    ------
-    ValueError
-        As :func:`local_features`.
+    {raises}
 
     Examples
     --------

@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._docstrings import shared_parameters
+from .._docstrings import raises_as, shared_parameters, shared_sections
 from .._progress import Progress, drain, stage
 from .._validation import (
     as_channel_last_float,
@@ -508,7 +508,8 @@ prior_iterations : int, optional
 """
 
 
-@shared_parameters(_SEGMENT_PARAMETERS)
+@shared_sections(parameters=_SEGMENT_PARAMETERS,
+                 raises=raises_as("segment", "ValueError"))
 def iter_segment(
     image,
     *,
@@ -552,10 +553,7 @@ def iter_segment(
         initial EM) and "merging" (after every merge); those have the
         message ``"K = n"`` and preview the (H, W) int labels of that mixture.
 
-    Raises
-    ------
-    ValueError
-        As :func:`segment`.
+    {raises}
 
     Examples
     --------
