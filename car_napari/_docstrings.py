@@ -17,8 +17,12 @@ import textwrap
 def shared_sections(**sections):
     """Decorator: put each text of ``sections`` at the docstring's ``{name}``
     lines, indented as each line is (a method's docstring works as a
-    function's); every placeholder given must be there."""
+    function's); every placeholder given must be there. A section's text
+    carries its header, but for ``parameters``: the numpydoc entries alone
+    get the "Parameters" header put before them."""
     blocks = {name: textwrap.dedent(text).strip("\n") for name, text in sections.items()}
+    if "parameters" in blocks and not blocks["parameters"].startswith("Parameters\n"):
+        blocks["parameters"] = "Parameters\n----------\n" + blocks["parameters"]
 
     def decorate(func):
         doc = func.__doc__ or ""
@@ -43,8 +47,8 @@ def raises_as(function, *errors):
 
 
 def shared_parameters(parameters):
-    """Decorator: put the numpydoc entries ``parameters`` at the docstring's
-    ``{parameters}`` line."""
+    """Decorator: put the Parameters section of the numpydoc entries
+    ``parameters`` at the docstring's ``{parameters}`` line."""
     return shared_sections(parameters=parameters)
 
 

@@ -403,8 +403,6 @@ def detect_scratches(image, *, kinds=KINDS, channel_axis=-1, line_width=3,
     neighbour only). Motion the estimate cannot follow (an occlusion, a
     fast non-rigid change) can still be flagged.
 
-    Parameters
-    ----------
     {parameters}
 
     Returns

@@ -153,8 +153,6 @@ def inpaint(image, mask, *, temporal=True, neighbourhood=None, forgetting=0.9995
     neighbours. In a clip the previous restored frame is part of each
     pixel's context (3.5D model) when ``temporal`` is True.
 
-    Parameters
-    ----------
     {parameters}
 
     Returns

@@ -418,8 +418,6 @@ def estimate_motion(reference, moving, *, mask=None, channel_axis=-1, radius=RAD
     blotch or a scratch takes the motion of its surroundings. The flow is
     interpolated bilinearly to the frame.
 
-    Parameters
-    ----------
     {parameters}
 
     Returns
@@ -609,8 +607,6 @@ def compensate_motion(clip, *, mask=None, channel_axis=-1, radius=RADIUS,
     first frame has no previous frame and the last no following one: there
     the frame itself is given.
 
-    Parameters
-    ----------
     {parameters}
 
     Returns

@@ -188,8 +188,6 @@ def inpaint_large(image, mask, *, out=None, tile=None, tile_halo=None, temporal=
     tiles this is what ``inpaint`` computes for a frame larger than
     :data:`DEFAULT_TILE` a side in memory (see the module's notes).
 
-    Parameters
-    ----------
     {parameters}
 
     Returns

@@ -69,8 +69,6 @@ def local_parameters(
     direction, keeping a square-root (Cholesky) factor of its statistics, so
     it stays finite and accurate on flat regions.
 
-    Parameters
-    ----------
     {parameters}
 
     Returns
@@ -128,8 +126,6 @@ def iter_local_parameters(
     0.1-0.25 s of work each, see :class:`RecursiveScan`) with a yield
     between them, so a worker can report progress and stop at a Cancel.
 
-    Parameters
-    ----------
     {parameters}
 
     Returns

@@ -241,8 +241,6 @@ def iter_select_support(image, orders=range(1, 6), *, channel_axis=-1, direction
     The generator form of :func:`select_support`, with the same parameters
     and result.
 
-    Parameters
-    ----------
     {parameters}
 
     Returns
@@ -295,8 +293,6 @@ def select_support(image, orders=range(1, 6), *, channel_axis=-1, direction="dow
     the scores do not change under any invertible colour transform, the
     value range included.
 
-    Parameters
-    ----------
     {parameters}
 
     Returns
@@ -370,8 +366,6 @@ def iter_fit_car(
     The generator form of :func:`fit_car`, with the same parameters and
     result.
 
-    Parameters
-    ----------
     {parameters}
 
     Returns
@@ -461,8 +455,6 @@ def fit_car(
     whole neighbourhood lies inside the image (flat neighbourhoods left out)
     with an almost uninformative prior.
 
-    Parameters
-    ----------
     {parameters}
 
     Returns

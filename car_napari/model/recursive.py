@@ -207,8 +207,6 @@ class RecursiveScan:
     back in a small reused buffer, for callers that reduce them on the fly
     (bounded memory on large images).
 
-    Parameters
-    ----------
     {parameters}
     stream : bool, optional
         Return each chunk's outputs in a reused buffer instead of keeping
@@ -560,8 +558,6 @@ def iter_scan(
     0.1-0.25 s of work) with a yield between them, and its result is, bit for
     bit, the one-call scan's (the whole estimator state carries over).
 
-    Parameters
-    ----------
     {parameters}
 
     Returns
@@ -637,8 +633,6 @@ def scan(
     of the four scan directions, with exponential forgetting; it keeps a
     Cholesky factor of the statistics, never an explicit inverse.
 
-    Parameters
-    ----------
     {parameters}
 
     Returns

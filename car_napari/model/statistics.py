@@ -96,8 +96,6 @@ def iter_data_statistics(centred, context, *, direction="down"):
     The generator form of :func:`data_statistics`, with the same parameters
     and result.
 
-    Parameters
-    ----------
     {parameters}
 
     Returns
@@ -146,8 +144,6 @@ def data_statistics(centred, context, *, direction="down"):
     included ((14.10)-(14.14), docs/model.md). Vectorised over pixels: one
     slice per tap, one BLAS product per block of rows.
 
-    Parameters
-    ----------
     {parameters}
 
     Returns

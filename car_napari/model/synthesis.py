@@ -246,8 +246,6 @@ def synthesize(model, shape, *, seed=None, margin=None):
     lattice enlarged by a burn-in margin that is cropped away; then the mean
     is added. No Monte Carlo iterations are needed.
 
-    Parameters
-    ----------
     {parameters}
 
     Returns
@@ -289,8 +287,6 @@ def iter_synthesize(model, shape, *, seed=None, margin=None, chunk_rows=None):
     (one ``nogil`` kernel call each, about 0.1-0.2 s of work) with a yield
     between them.
 
-    Parameters
-    ----------
     {parameters}
     chunk_rows : int, optional
         Lattice rows per kernel call (default: about 0.1-0.2 s of work).

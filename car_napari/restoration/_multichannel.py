@@ -563,8 +563,6 @@ def restore_multichannel(stack, *, axis=0, kappa=DEFAULT_KAPPA, reference="auto"
     observed value. ``restore_multichannel(stack, ...)`` is
     ``drain(iter_restore_multichannel(stack, ...))``.
 
-    Parameters
-    ----------
     {parameters}
 
     Returns

@@ -133,8 +133,6 @@ def restore(image, *, neighbourhood=1, estimator="windowed", window=DEFAULT_WIND
     with the edge rule (14.40). ``restore(image, ...)`` returns exactly
     ``drain(iter_restore(image, ...))`` (without computing the previews).
 
-    Parameters
-    ----------
     {parameters}
 
     Returns

@@ -393,8 +393,6 @@ def restore_large(image, *, out=None, tile=DEFAULT_TILE, neighbourhood=1,
     its tiles, then every tile is restored with its halo
     (:func:`tile_halo`) and its core kept.
 
-    Parameters
-    ----------
     {parameters}
 
     Returns

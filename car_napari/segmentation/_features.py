@@ -91,8 +91,6 @@ gammas : sequence of float, optional
 def iter_pseudo_colour(grey, gammas=(0.5, 2.0)):
     """:func:`pseudo_colour` as a job: Progress per block of rows, then the image.
 
-    Parameters
-    ----------
     {parameters}
 
     Returns
@@ -147,8 +145,6 @@ def pseudo_colour(grey, gammas=(0.5, 2.0)):
     A grey image gives the three-channel CAR models of the segmentation
     something to correlate (section 14.4, docs/mammography.md).
 
-    Parameters
-    ----------
     {parameters}
 
     Returns
@@ -278,8 +274,6 @@ def iter_local_features(
     smoothing by blocks), and so is the memory: about 90 (grey) to 120 (RGB)
     bytes per pixel at the peak, the float32 result included.
 
-    Parameters
-    ----------
     {parameters}
 
     Returns
@@ -504,8 +498,6 @@ def local_features(
     interpolated to full resolution. Every feature is standardised. This is
     the feature vector of (14.33), section 14.4, docs/segmentation.md.
 
-    Parameters
-    ----------
     {parameters}
 
     Returns

@@ -537,8 +537,6 @@ def iter_segment(
 
     See :func:`segment` for what is computed.
 
-    Parameters
-    ----------
     {parameters}
 
     Returns
@@ -733,8 +731,6 @@ def segment(
     ``n_segments`` segments (found automatically unless given); section
     14.4, docs/segmentation.md.
 
-    Parameters
-    ----------
     {parameters}
 
     Returns

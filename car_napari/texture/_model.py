@@ -192,8 +192,6 @@ class TextureModel:
 
         The same as running :func:`iter_fit_texture` to its end.
 
-        Parameters
-        ----------
         {parameters}
 
         Returns
@@ -381,8 +379,6 @@ class TextureModel:
         histogram restore). The matching is monotone per pixel value, so
         it keeps a tileable texture periodic.
 
-        Parameters
-        ----------
         {parameters}
 
         Returns
@@ -421,8 +417,6 @@ class TextureModel:
         contrast and histogram), so closing the generator (a Cancel) stops
         the synthesis within a fraction of a second even at 4000 x 4000.
 
-        Parameters
-        ----------
         {parameters}
 
         Returns
@@ -597,8 +591,6 @@ def iter_fit_texture(image, *, levels=None, model="3d", neighbourhood="auto", ch
     comes when all is done, and it returns the :class:`TextureModel`.
     Closing the generator (a Cancel) stops the fit at the next record.
 
-    Parameters
-    ----------
     {parameters}
 
     Returns

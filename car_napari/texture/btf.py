@@ -129,8 +129,6 @@ def iter_fit_btf(stack, *, n_subspaces=4, levels=3, neighbourhood="auto", channe
     and returns the :class:`BTFModel`. Closing the generator stops the fit
     at the next record.
 
-    Parameters
-    ----------
     {parameters}
 
     Returns
@@ -269,8 +267,6 @@ class BTFModel:
         stack is scaled by a positive gain and an offset (float radiances
         cluster as the stack scaled to [0, 1] does).
 
-        Parameters
-        ----------
         {parameters}
 
         Returns
@@ -370,8 +366,6 @@ class BTFModel:
         Image ``i`` comes from its subspace's model, with image ``i``'s own
         mean, contrast and value range.
 
-        Parameters
-        ----------
         {parameters}
 
         Returns
@@ -406,8 +400,6 @@ class BTFModel:
         :class:`~car_napari.Progress` record between blocks (closing the
         generator stops it within a fraction of a second).
 
-        Parameters
-        ----------
         {parameters}
 
         Returns

@@ -193,8 +193,6 @@ def iter_fit_dynamic_texture(frames, *, neighbourhood=2, channel_axis=-1):
     is refitted with lower orders, and as a last resort its ``gamma`` is
     scaled down; the model's ``fallbacks`` say what was done.
 
-    Parameters
-    ----------
     {parameters}
 
     Returns
@@ -351,8 +349,6 @@ class DynamicTextureModel:
 
         The same as running :func:`iter_fit_dynamic_texture` to its end.
 
-        Parameters
-        ----------
         {parameters}
 
         Returns
@@ -453,8 +449,6 @@ class DynamicTextureModel:
         the spatial model onward) are generated and discarded so that the clip
         starts in the model's temporal steady state.
 
-        Parameters
-        ----------
         {parameters}
 
         Returns
@@ -491,8 +485,6 @@ class DynamicTextureModel:
         record between blocks (closing the generator stops it within a
         fraction of a second).
 
-        Parameters
-        ----------
         {parameters}
 
         Returns

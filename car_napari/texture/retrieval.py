@@ -508,8 +508,6 @@ def iter_rank(query, gallery, *, levels=3, neighbourhood=2, channel_axis=-1):
     being described (``d`` channels: its current pyramid level and the next
     level's image, float64), and nothing of the images already described.
 
-    Parameters
-    ----------
     {parameters}
 
     Returns
@@ -644,8 +642,6 @@ def rank(query, gallery, *, levels=3, neighbourhood=2, channel_axis=-1):
     gallery; the order between two gallery entries does not depend on the
     query's type (image or vector).
 
-    Parameters
-    ----------
     {parameters}
 
     Returns
