@@ -10,7 +10,7 @@ import numpy as np
 from magicgui.widgets import CheckBox, ComboBox, FloatSlider
 
 from .._frames import lazy_output
-from .._progress import Progress
+from .._progress import Progress, map_previews
 from .._validation import from_unit, unit_dtype
 from ..restoration import (
     DEFAULT_KAPPA,
@@ -75,18 +75,8 @@ def _for_display(job, rgb, show_changed, dtype=np.float32):
     """``job`` run for the viewer, in the worker: its records with previews
     as :func:`_shown`, and its result with what the viewer shows of it:
     (result, restored, probability, changed pixels as uint8 or None)."""
-    try:
-        while True:
-            try:
-                record = next(job)
-            except StopIteration as stop:
-                result = stop.value
-                break
-            if record.preview is not None:  # decimated here, in the worker
-                record = replace(record, preview=_preview(record.preview, rgb, dtype))
-            yield record
-    finally:
-        job.close()
+    # the previews decimated here, in the worker
+    result = yield from map_previews(job, lambda preview: _preview(preview, rgb, dtype))
     restored, changed, probability = yield from _iter_recut(result, None, rgb, show_changed,
                                                             dtype)
     return result, restored, probability, changed
