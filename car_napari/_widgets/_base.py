@@ -539,7 +539,7 @@ class ModelWidget(JobWidget):
     Adds the synthesis controls (height, width, seed) and its Synthesize
     button, enabled once there is a model. A subclass defines ``_start()``
     (the fit, which sets :attr:`model`) and ``_synthesis(shape, seed)``
-    (which starts the synthesis job with :meth:`run`).
+    (which starts the synthesis job with :meth:`run`; there is no default).
 
     Parameters
     ----------
@@ -590,6 +590,3 @@ class ModelWidget(JobWidget):
             raise ValueError(self.no_model)
         shape = (int(self._height.value), int(self._width.value))
         return self._synthesis(shape, int(self._seed.value))
-
-    def _synthesis(self, shape, seed):
-        raise NotImplementedError("a model widget defines _synthesis(shape, seed)")
