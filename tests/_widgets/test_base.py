@@ -308,6 +308,25 @@ def test_run_record_puts_everything_back(make_napari_viewer):
     assert a.data.all()
 
 
+def test_run_record_puts_a_layer_s_own_content_back(make_napari_viewer_proxy):
+    """``put`` with ``read`` and ``write``: what a layer's data is, when not
+    its ``data`` (the mammogram outlines' paths and their features)."""
+    from car_napari._widgets.mammography import OUTLINE_STYLE, _outlines_of, _set_outlines
+
+    viewer = make_napari_viewer_proxy()
+    square = np.array([[0.0, 0], [0, 3], [3, 3], [0, 0]])
+    layer = viewer.add_shapes([square, square + 4], shape_type="path",
+                              features={"score": [0.9, 0.5]}, **OUTLINE_STYLE)
+    record = RunRecord(viewer)
+    record.put(layer.name, ([square + 1], {"score": [0.7]}), None,
+               read=_outlines_of, write=_set_outlines)
+    assert len(layer.data) == 1 and list(layer.features["score"]) == [0.7]
+    record.undo()
+    assert len(layer.data) == 2 and list(layer.features["score"]) == [0.9, 0.5]
+    np.testing.assert_array_equal(layer.data[1], square + 4)
+    assert set(layer.shape_type) == {"path"} and set(layer.edge_width) == {2}
+
+
 def test_layer_array_crops_and_copies(make_napari_viewer_proxy):
     viewer = make_napari_viewer_proxy()
     rgba = np.random.default_rng(1).random((20, 30, 4))
