@@ -12,7 +12,9 @@ Generators that run another one as a stage use :func:`stage`, which maps
 the inner fractions into a part of the outer range (other inner generators,
 such as kernel loops yielding units of work, go through :func:`mapped`, or
 :func:`result_of` where nobody watches them); a job of several stages
-gives each its :class:`Span` of [0, 1] by :func:`spans`. Work split into
+gives each its :class:`Span` of [0, 1] by :func:`spans`; a front end that
+shows a job's previews otherwise (converted, decimated) runs it through
+:func:`map_previews`. Work split into
 calls between records goes by :func:`row_blocks`, and runs side by side on
 the job pool (:mod:`car_napari._threads`) by :func:`iter_chains` (or, whole
 jobs, :func:`side_by_side`). Every job runs with BLAS limited to one thread
@@ -21,12 +23,13 @@ jobs, :func:`side_by_side`). Every job runs with BLAS limited to one thread
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, NamedTuple
 
 from ._threads import limited_blas
 
-__all__ = ["Progress", "Span", "drain", "iter_chains", "mapped", "result_of", "row_blocks",
+__all__ = ["Progress", "Span", "drain", "iter_chains", "map_previews", "mapped", "result_of",
+           "row_blocks",
            "side_by_side", "spans", "stage"]
 
 
@@ -357,6 +360,51 @@ def result_of(job):
             return stop.value
 
 
+def map_previews(job, transform):
+    """Run a job with each record's preview replaced by ``transform(preview)``.
+
+    Use as ``result = yield from map_previews(iter_other(...), convert)``:
+    the records' stages, fractions and messages are kept, records without a
+    preview pass as they are, and the result is the job's. Closing the
+    generator closes ``job`` (a Cancel stops it at its next record).
+
+    Parameters
+    ----------
+    job : generator
+        An ``iter_<name>(...)`` generator.
+    transform : callable
+        ``transform(preview)`` is what a record's preview becomes (called
+        where the job runs: in a widget's worker, not in the viewer's thread).
+
+    Yields
+    ------
+    record : Progress
+        The job's records, their previews transformed.
+
+    Returns
+    -------
+    result : object
+        The job's return value.
+
+    Examples
+    --------
+    >>> def job():
+    ...     yield Progress("rows", 0.5, "half", preview=[1, 2])
+    ...     yield Progress("rows", 1.0, "done")
+    ...     return "result"
+    >>> records = []
+    >>> drain(map_previews(job(), sum), records.append)
+    'result'
+    >>> [(record.message, record.preview) for record in records]
+    [('half', 3), ('done', None)]
+    """
+    try:
+        return (yield from mapped(job, lambda record: record if record.preview is None else
+                                  replace(record, preview=transform(record.preview))))
+    finally:
+        job.close()
+
+
 def iter_chains(pool, chains):
     """Run chains of calls, the chains side by side on ``pool``, each chain's
     calls one after the other: the one scheduler of every job's threads.
@@ -465,8 +513,6 @@ def side_by_side(jobs, pool):
     [2, 3]
     5
     """
-    from dataclasses import replace
-
     jobs = list(jobs)
     results = [None] * len(jobs)
     if pool is None:

@@ -14,7 +14,7 @@ from napari.utils.notifications import show_error
 from qtpy.QtCore import QEvent, QObject
 from qtpy.QtWidgets import QFrame, QSizePolicy
 
-from ._jobs import Job
+from ._jobs import Job, LatestWins
 from ._layers import RunRecord, layer_array
 
 
@@ -93,6 +93,9 @@ class JobWidget(Container):
     control_labels : dict
         The core's argument names -> this widget's control labels, so that
         the core's validation messages speak of the controls.
+    recuts_interrupt : bool
+        A newer :meth:`recut` cancels the one running in a worker (see
+        :class:`~._jobs.LatestWins`); False: the running one is shown first.
 
     Notes
     -----
@@ -103,6 +106,7 @@ class JobWidget(Container):
     """
 
     control_labels: dict = {}
+    recuts_interrupt = False
     #: The smallest height of a dock's scroll area, in lines of text.
     min_lines = 5
 
@@ -117,6 +121,7 @@ class JobWidget(Container):
         self._viewer = napari_viewer
         self.record = RunRecord(napari_viewer)
         self._job = None
+        self._recuts = LatestWins(interrupt=self.recuts_interrupt)
         self._actions = []  # (button, when): enabled when idle and when()
         self._image = create_widget(annotation="napari.layers.Image", label=image_label,
                                     options={"tooltip": image_tooltip})
@@ -240,13 +245,14 @@ class JobWidget(Container):
         if not any(widget.native.sizePolicy().verticalPolicy() in grows for widget in self):
             layout.addStretch(1)
 
-    def refresh_actions(self):
-        """Enable the action buttons that may be enabled now (no job running).
+    def _running(self):
+        """A run is under way. A cancelled job counts as ended: its worker
+        stops at the core's next record and hands nothing over."""
+        return self._job is not None and not (self._job.done or self._job.cancelled)
 
-        A cancelled job counts as ended: its worker stops at the core's next
-        record and hands nothing over.
-        """
-        busy = self._job is not None and not (self._job.done or self._job.cancelled)
+    def refresh_actions(self):
+        """Enable the action buttons that may be enabled now (no job running)."""
+        busy = self._running()
         for button, when in self._actions:
             button.enabled = not busy and bool(when())
 
@@ -351,6 +357,7 @@ class JobWidget(Container):
         """
         if self._job is not None and not self._job.done:
             self._job.cancel()
+        self._recuts.stop()  # a re-cut of an older result writes nothing any more
         self.record.commit()
         self._progress.value = 0
         self._status.value = "starting"
@@ -365,12 +372,63 @@ class JobWidget(Container):
             on_done=lambda result: self._on_done(result, done),
             on_error=self._on_error,
             on_cancel=self._on_cancel,
-            on_finished=lambda finished: self.refresh_actions(),
+            on_finished=lambda _job: self.refresh_actions(),
         )
         self._job = job_
         self._cancel.enabled = True
         self.refresh_actions()
         return job_
+
+    def recut(self, show, job=None):
+        """Show the last result anew at the controls' values (a re-cut, a
+        re-threshold), the latest request winning; no run.
+
+        ``show`` writes the layers through :attr:`record` as a run's
+        ``done`` does, and is treated alike: its changes are committed, or
+        undone when it fails (an error notification says why). Nothing is
+        shown while a run is under way (it owns the layers, and a new run
+        drops the re-cuts asked for before it).
+
+        Parameters
+        ----------
+        show : callable
+            ``show(value)`` with the job's result, or ``show()`` without a
+            job; a generator function's steps are all run at once.
+        job : generator, optional
+            Computes the value in a worker (see :class:`~._jobs.LatestWins`
+            and :attr:`recuts_interrupt`); None: ``show()`` runs now, and a
+            re-cut running or waiting in a worker is dropped.
+        """
+        if job is not None:
+            self._recuts.request(job, lambda value: self._show_recut(show, value),
+                                 self._recut_failed)
+            return
+        self._recuts.stop()
+        self._show_recut(show)
+
+    @property
+    def _recut_job(self):
+        """The re-cut running in a worker, or None."""
+        return self._recuts.job
+
+    def _show_recut(self, show, *value):
+        if self._running():
+            return
+        self.record.commit()  # what the re-cut changes, and nothing else, is undone
+        try:
+            shown = show(*value)
+            if inspect.isgenerator(shown):
+                for _step in shown:
+                    pass
+        except Exception as exc:  # a failure to show is the user's to see, as a run's
+            self._recut_failed(exc)
+            return
+        self.record.commit()
+
+    def _recut_failed(self, exc):
+        self.record.undo()
+        self._status.value = "re-cut failed"
+        self.notify_error(exc)
 
     def cancel(self, *_):
         """Stop the running job; the viewer is put back as it was before it.
@@ -481,7 +539,7 @@ class ModelWidget(JobWidget):
     Adds the synthesis controls (height, width, seed) and its Synthesize
     button, enabled once there is a model. A subclass defines ``_start()``
     (the fit, which sets :attr:`model`) and ``_synthesis(shape, seed)``
-    (which starts the synthesis job with :meth:`run`).
+    (which starts the synthesis job with :meth:`run`; there is no default).
 
     Parameters
     ----------
@@ -532,6 +590,3 @@ class ModelWidget(JobWidget):
             raise ValueError(self.no_model)
         shape = (int(self._height.value), int(self._width.value))
         return self._synthesis(shape, int(self._seed.value))
-
-    def _synthesis(self, shape, seed):
-        raise NotImplementedError("a model widget defines _synthesis(shape, seed)")

@@ -16,6 +16,10 @@ Showing a large result can be split across event-loop turns: when
 ``on_done`` returns a generator, the job runs one of its steps per turn (a
 layer added, then the next one), so that the viewer draws and answers in
 between; the job is done once the last step has run.
+
+A control that re-cuts a finished result (a slider) asks for jobs faster
+than they run: :class:`LatestWins` runs one at a time, the latest request
+winning.
 """
 
 from __future__ import annotations
@@ -309,3 +313,78 @@ class Job:
         self._runner.close()  # a stopped generator runs its clean-up; the thread is done
         if self._steps is None:  # otherwise, once the last step has run
             self._callbacks[4](self)
+
+
+def _ignore(*_):
+    """A callback with nothing to do (a re-cut shows no progress)."""
+
+
+class LatestWins:
+    """Jobs asked for faster than they run (a slider dragged), the latest
+    request winning: one runs at a time, and a request made while it runs
+    waits, replacing any older waiting one.
+
+    Parameters
+    ----------
+    interrupt : bool, optional
+        A new request cancels the running job and starts at once (for jobs
+        whose stale result is long to wait for). False (default): the
+        running job ends and is shown, then the latest request runs, so
+        that a dragged control shows values on the way.
+
+    Attributes
+    ----------
+    job : Job or None
+        The running job (None when none runs).
+
+    Examples
+    --------
+    >>> LatestWins().job is None  # a job needs a running Qt application; see the tests
+    True
+    """
+
+    def __init__(self, *, interrupt=False):
+        self.interrupt = interrupt
+        self.job = None
+        self._wanted = None  # (job, on_done, on_error): the latest request not yet started
+
+    def request(self, job, on_done, on_error):
+        """Run ``job`` now, or when the running one has ended (see above).
+
+        Parameters
+        ----------
+        job : generator
+            The job (not yet started; a request replaced while it waits
+            never starts it).
+        on_done : callable
+            ``on_done(result)``, in the main thread, unless a newer request
+            or :meth:`stop` came first.
+        on_error : callable
+            ``on_error(exc)`` when the job raised.
+        """
+        self._wanted = job, on_done, on_error
+        if self.job is not None and self.interrupt:
+            self.job.cancel()  # it hands nothing over any more
+            self.job = None
+        if self.job is None:
+            self._next()
+
+    def _next(self):
+        wanted, self._wanted = self._wanted, None
+        if wanted is None:
+            self.job = None
+            return
+        job, on_done, on_error = wanted
+        self.job = Job(job, on_progress=_ignore, on_done=on_done, on_error=on_error,
+                       on_cancel=_ignore, on_finished=self._finished)
+
+    def _finished(self, job):
+        if job is self.job:  # not one cancelled since
+            self._next()
+
+    def stop(self):
+        """Cancel the running job and forget the waiting request."""
+        self._wanted = None
+        if self.job is not None:
+            self.job.cancel()
+            self.job = None

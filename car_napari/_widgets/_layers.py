@@ -251,7 +251,7 @@ class RunRecord:
     def _layers(self):
         return self._viewer.layers
 
-    def put(self, name, data, add):
+    def put(self, name, data, add, *, read=None, write=None):
         """Set layer ``name``'s data, or create the layer.
 
         Parameters
@@ -259,20 +259,26 @@ class RunRecord:
         name, data, add
             As :meth:`add`: ``add(data, name)`` creates the layer when there
             is none of that name.
+        read, write : callable, optional
+            What a layer's data is, when not its ``data`` (a Shapes layer's
+            paths with their features): ``read(layer)`` gets it (kept for
+            undo), ``write(layer, data)`` sets it in place.
 
         Returns
         -------
         napari.layers.Layer
             The layer written.
         """
+        read = read or (lambda layer: layer.data)
+        write = write or (lambda layer, value: setattr(layer, "data", value))
         layers = self._layers()
         if name in layers:
             layer = layers[name]
             if id(layer) not in self._saved:
                 self._saved[id(layer)] = layer
-                old = layer.data
-                self._undo.append(lambda: setattr(layer, "data", old))
-            layer.data = data
+                old = read(layer)
+                self._undo.append(lambda: write(layer, old))
+            write(layer, data)
             return layer
         return self.add(name, data, add)  # created: removing it undoes all
 

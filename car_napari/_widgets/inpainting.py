@@ -2,15 +2,13 @@
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 from magicgui.widgets import CheckBox, ComboBox
 from napari.layers import Image, Labels
 from napari.utils.notifications import show_info
 
 from .._frames import DEFAULT_BLOCK, lazy_output
-from .._progress import Progress
+from .._progress import Progress, map_previews
 from ..inpainting import fit_mask, iter_detect_scratches, iter_inpaint, iter_inpaint_frames
 from ._base import JobWidget, guarded
 
@@ -35,21 +33,17 @@ def _restore_job(frames, mask, *, shape, clip, channel_axis, mask_name, mask_rgb
         raise ValueError(f"'scratch mask' ({mask_name!r}): {exc}") from exc
     if not fitted.any():
         return None
-    shown = np.array(frames) if clip else None  # the clip as shown live
     job = iter_inpaint(frames, fitted, channel_axis=channel_axis, temporal=temporal)
-    try:
-        while True:
-            try:
-                record = next(job)
-            except StopIteration as stop:
-                return stop.value
-            if clip and record.preview is not None:
-                index, frame = record.preview
-                shown[index] = frame
-                record = replace(record, preview=(index, shown))
-            yield record
-    finally:
-        job.close()
+    if not clip:
+        return (yield from job)
+    shown = np.array(frames)  # the clip as shown live
+
+    def fill(preview):
+        index, frame = preview
+        shown[index] = frame
+        return index, shown
+
+    return (yield from map_previews(job, fill))
 
 
 def _lazy(data):

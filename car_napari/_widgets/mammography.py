@@ -77,9 +77,15 @@ def _with_outlines(job):
             tissue)
 
 
-def _set_outlines(layer, outlines, features):
-    """The outlines layer's paths and their features replaced in place (not
-    recorded for undo: a re-cut is committed at once)."""
+def _outlines_of(layer):
+    """An outlines layer's (paths, features): what a re-cut puts back on undo."""
+    return layer.data, layer.features.copy()
+
+
+def _set_outlines(layer, content):
+    """The outlines layer's paths and their features, ``content``, replaced
+    in place (see :meth:`~._layers.RunRecord.put`)."""
+    outlines, features = content
     layer.data = []
     if len(outlines):
         layer.add(outlines, shape_type="path", **OUTLINE_STYLE)
@@ -231,11 +237,8 @@ class MammogramWidget(JobWidget):
     def _on_marks(self, *_):
         """The operating point moved: re-cut the last result (no new job)."""
         self._expected.value = _expected_text(float(self._marks.value))
-        if self._found is None or (self._job is not None and not self._job.done):
-            return  # a running job shows the current value when it is done
-        for _step in self._show_marks(recut=True):
-            pass
-        self.record.commit()
+        if self._found is not None:  # a running job shows the current value when it is done
+            self.recut(lambda: self._show_marks(recut=True))
 
     def _show_marks(self, recut=False):
         """Show the marks of the current operating point (a generator: the
@@ -255,6 +258,12 @@ class MammogramWidget(JobWidget):
         def add_labels(data, layer_name):
             return self._viewer.add_labels(data, name=layer_name, opacity=0.4, **geometry)
 
+        def add_outlines(content, layer_name):
+            paths, features = content
+            return self._viewer.add_shapes(paths, shape_type="path", name=layer_name,
+                                           features=features, text=OUTLINE_TEXT,
+                                           **OUTLINE_STYLE, **geometry)
+
         def ours(layer_name, kind):  # a re-cut writes into its own kinds of layer only
             return recut and layer_name in layers and isinstance(layers[layer_name], kind)
 
@@ -264,14 +273,10 @@ class MammogramWidget(JobWidget):
             self.record.replace(labels_name, cut_labels, add_labels)
         yield
         if ours(outlines_name, Shapes):  # in place: emptied when no region is marked
-            _set_outlines(layers[outlines_name], outlines[:m], cut)
+            self.record.put(outlines_name, (outlines[:m], cut), add_outlines,
+                            read=_outlines_of, write=_set_outlines)
         elif m:
-            self.record.replace(
-                outlines_name, outlines[:m],
-                lambda data, layer_name: self._viewer.add_shapes(
-                    data, shape_type="path", name=layer_name, features=cut,
-                    text=OUTLINE_TEXT, **OUTLINE_STYLE, **geometry),
-            )
+            self.record.replace(outlines_name, (outlines[:m], cut), add_outlines)
         else:
             self.record.remove(outlines_name)
         yield

@@ -10,7 +10,7 @@ import numpy as np
 from magicgui.widgets import CheckBox, ComboBox, FloatSlider
 
 from .._frames import lazy_output
-from .._progress import Progress
+from .._progress import Progress, map_previews
 from .._validation import from_unit, unit_dtype
 from ..restoration import (
     DEFAULT_KAPPA,
@@ -19,7 +19,6 @@ from ..restoration import (
     iter_restore_multichannel,
 )
 from ._base import JobWidget
-from ._jobs import Job
 from ._layers import grey_alpha, layer_array
 
 SINGLE = "single image"
@@ -75,18 +74,8 @@ def _for_display(job, rgb, show_changed, dtype=np.float32):
     """``job`` run for the viewer, in the worker: its records with previews
     as :func:`_shown`, and its result with what the viewer shows of it:
     (result, restored, probability, changed pixels as uint8 or None)."""
-    try:
-        while True:
-            try:
-                record = next(job)
-            except StopIteration as stop:
-                result = stop.value
-                break
-            if record.preview is not None:  # decimated here, in the worker
-                record = replace(record, preview=_preview(record.preview, rgb, dtype))
-            yield record
-    finally:
-        job.close()
+    # the previews decimated here, in the worker
+    result = yield from map_previews(job, lambda preview: _preview(preview, rgb, dtype))
     restored, changed, probability = yield from _iter_recut(result, None, rgb, show_changed,
                                                             dtype)
     return result, restored, probability, changed
@@ -156,8 +145,6 @@ class RestorationWidget(JobWidget):
         self.updates = 0
         self._preview_layer = None  # a large image's decimated preview, while it runs
         self._preview_owned = False  # ... in the result's own layer (made by this run)
-        self._recut_job = None  # the running re-threshold (a worker), if any
-        self._wanted = None  # the latest (kappa, show changed) asked for while one runs
         self._axis = ComboBox(value=SINGLE, choices=self._axis_choices, label="versions",
                               tooltip="a stack: the axis holding the degraded versions, one "
                                       "the viewer's slider steps through (not the image's "
@@ -283,7 +270,6 @@ class RestorationWidget(JobWidget):
         else:
             job = iter_restore_multichannel(data, axis=stack_axis, kappa=DEFAULT_KAPPA,
                                             **options)
-        self._stop_recut()
         self._source = self._image.value
         self._preview_layer = None
         self._out = self._names(self._source.name)
@@ -309,7 +295,6 @@ class RestorationWidget(JobWidget):
         job = iter_restore_frames(data, restored, probability, channel_axis=channel_axis,
                                   keep_edges=bool(self._keep_edges.value),
                                   neighbourhood=int(self._order.value))
-        self._stop_recut()
         self.result = None  # nothing to re-threshold: the clip is on disk
         self._dtype = np.dtype(np.float32)  # the zarr stores'
         self._source = layer
@@ -365,10 +350,6 @@ class RestorationWidget(JobWidget):
         where = "" if root is None else f" (zarr in {root.parent})"
         self._status.value = (f"{n_frames} frames restored{where}; prediction probability: "
                               "hidden layer below")
-
-    def _running(self):
-        """A run is under way (a cancelled one hands nothing over: it is not)."""
-        return self._job is not None and not (self._job.done or self._job.cancelled)
 
     def refresh_actions(self):
         """Enable the buttons, and the kappa controls when idle with a result."""
@@ -479,47 +460,20 @@ class RestorationWidget(JobWidget):
         latest request wins; no new restoration)."""
         if self.result is None:
             return
-        self._wanted = float(self._kappa.value), bool(self._show_changed.value)
-        if self._recut_job is None:
-            self._next_recut()
+        kappa, show_changed = float(self._kappa.value), bool(self._show_changed.value)
+        result, (names, rgb, dtype) = self.result, self._recut_target
+        self.recut(lambda cut: self._apply_recut(cut, result, names),
+                   _iter_recut(result, kappa, rgb, show_changed, dtype))
 
-    def _next_recut(self):
-        if self._wanted is None:
-            self._recut_job = None
-            return
-        (kappa, show_changed), self._wanted = self._wanted, None
-        result, shown = self.result, self._recut_target
-        self._recut_job = Job(
-            _iter_recut(result, kappa, shown[1], show_changed, shown[2]),
-            on_progress=lambda record: None,
-            on_done=lambda cut: self._apply_recut(cut, result, shown),
-            on_error=self.notify_error,
-            on_cancel=lambda: None,
-            on_finished=self._recut_finished,
-        )
-
-    def _recut_finished(self, job):
-        if job is self._recut_job:
-            self._next_recut()
-
-    def _stop_recut(self):
-        """A new run: no pending or running re-cut writes into the viewer."""
-        self._wanted = None
-        if self._recut_job is not None:
-            self._recut_job.cancel()  # its end starts nothing: nothing is wanted
-
-    def _apply_recut(self, cut, result, shown):
-        if result is not self.result or self._running():
+    def _apply_recut(self, cut, result, names):
+        """The re-cut's layers, through the run record (as a run's)."""
+        if result is not self.result:
             return  # a newer run owns the layers
         restored, changed, _ = cut
-        (restored_name, _, changed_name), _, _ = shown
-        layers = self._viewer.layers
-        if restored_name in layers:
-            layers[restored_name].data = restored
+        restored_name, _, changed_name = names
+        if restored_name in self._viewer.layers:  # one the user removed stays removed
+            self.record.put(restored_name, restored, self._add_restored)
         if changed is None:
-            if changed_name in layers:
-                layers.remove(changed_name)
-        elif changed_name in layers:
-            layers[changed_name].data = changed
+            self.record.remove(changed_name)
         else:
-            self._add_changed(changed, changed_name)
+            self.record.put(changed_name, changed, self._add_changed)

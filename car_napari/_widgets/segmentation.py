@@ -7,7 +7,6 @@ from magicgui.widgets import FloatSlider, Slider, SpinBox
 
 from ..segmentation import iter_segment
 from ._base import JobWidget
-from ._jobs import Job
 
 
 class SegmentationWidget(JobWidget):
@@ -24,6 +23,7 @@ class SegmentationWidget(JobWidget):
     :class:`~car_napari._widgets._base.JobWidget`.
     """
 
+    recuts_interrupt = True  # a stale re-cut labels every pixel again: not worth the wait
     control_labels = {"n_segments": "segments", "levels": "resolutions",
                       "neighbourhood": "order", "n_init": "initial K",
                       "threshold": "min probability"}
@@ -34,7 +34,6 @@ class SegmentationWidget(JobWidget):
         self.updates = 0  # live updates shown during the current run
         self._name = None  # the labels layer the current run writes
         self._layer = None  # the labels layer of self.result
-        self._recut_job = None  # the re-cut running in a worker, if any
         self._n_init = SpinBox(value=16, min=2, max=64, label="initial K",
                                tooltip="components of the initial division of the image")
         # (magicgui's spin box shows no special value text: the label says it)
@@ -70,7 +69,6 @@ class SegmentationWidget(JobWidget):
     def _start(self):
         """Segment the picked layer, the merges shown live."""
         data, channel_axis = self.input_array(copy=False)  # read in the worker only
-        self._stop_recut()
         self._name = f"{self._image.value.name} segments"
         self.updates = 0
         self._cut.enabled = self._threshold.enabled = False
@@ -81,10 +79,11 @@ class SegmentationWidget(JobWidget):
         )
         return self.run(job, preview=self._show_labels, done=self._finished)
 
+    def _add_labels(self, data, name):
+        return self._viewer.add_labels(data, name=name, opacity=0.5)
+
     def _put(self, labels):
-        return self.record.put(
-            self._name, np.asarray(labels, dtype=np.int32),
-            lambda data, name: self._viewer.add_labels(data, name=name, opacity=0.5))
+        return self.record.put(self._name, np.asarray(labels, dtype=np.int32), self._add_labels)
 
     def _show_labels(self, labels):
         self._put(labels)
@@ -107,42 +106,19 @@ class SegmentationWidget(JobWidget):
         is a look-up, else in a worker (a newer value cancels it)."""
         if self.result is None or self._layer not in self._viewer.layers:
             return
-        self._stop_recut()
         k, threshold = int(self._cut.value), float(self._threshold.value)
-        labels = self.result.cached_labels_at(k, threshold=threshold)
-        if labels is not None:
-            self._show_cut(labels, k)
-            return
         result = self.result
+        labels = result.cached_labels_at(k, threshold=threshold)
+        if labels is not None:
+            self.recut(lambda: self._show_cut(result, labels, k))
+            return
         self._status.value = f"re-cutting: K = {k}"
-        job = Job(
-            result.iter_labels_at(k, threshold=threshold),
-            on_progress=lambda record: None,
-            on_done=lambda labels: self._recut_done(job, result, labels, k),
-            on_error=self._recut_failed,
-            on_cancel=lambda: None,
-            on_finished=lambda finished: None,
-        )
-        self._recut_job = job
+        self.recut(lambda labels: self._show_cut(result, labels, k),
+                   result.iter_labels_at(k, threshold=threshold))
 
-    def _recut_done(self, job, result, labels, k):
-        if job is not self._recut_job or result is not self.result:
-            return  # a newer re-cut or run took over
-        self._recut_job = None
-        if self._layer in self._viewer.layers:
-            self._show_cut(labels, k)
-
-    def _recut_failed(self, exc):
-        self._recut_job = None
-        self._status.value = "re-cut failed"
-        self.notify_error(exc)
-
-    def _show_cut(self, labels, k):
-        self._layer.data = labels
+    def _show_cut(self, result, labels, k):
+        if result is not self.result or self._layer not in self._viewer.layers:
+            return  # a newer run took over, or its layer was removed
+        self.record.put(self._layer.name, labels, self._add_labels)  # the result's own layer
         n = int(labels.max(initial=0))
         self._status.value = f"{n} segments shown (K = {k})"
-
-    def _stop_recut(self):
-        if self._recut_job is not None:
-            self._recut_job.cancel()
-            self._recut_job = None

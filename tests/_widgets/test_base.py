@@ -308,6 +308,25 @@ def test_run_record_puts_everything_back(make_napari_viewer):
     assert a.data.all()
 
 
+def test_run_record_puts_a_layer_s_own_content_back(make_napari_viewer_proxy):
+    """``put`` with ``read`` and ``write``: what a layer's data is, when not
+    its ``data`` (the mammogram outlines' paths and their features)."""
+    from car_napari._widgets.mammography import OUTLINE_STYLE, _outlines_of, _set_outlines
+
+    viewer = make_napari_viewer_proxy()
+    square = np.array([[0.0, 0], [0, 3], [3, 3], [0, 0]])
+    layer = viewer.add_shapes([square, square + 4], shape_type="path",
+                              features={"score": [0.9, 0.5]}, **OUTLINE_STYLE)
+    record = RunRecord(viewer)
+    record.put(layer.name, ([square + 1], {"score": [0.7]}), None,
+               read=_outlines_of, write=_set_outlines)
+    assert len(layer.data) == 1 and list(layer.features["score"]) == [0.7]
+    record.undo()
+    assert len(layer.data) == 2 and list(layer.features["score"]) == [0.9, 0.5]
+    np.testing.assert_array_equal(layer.data[1], square + 4)
+    assert set(layer.shape_type) == {"path"} and set(layer.edge_width) == {2}
+
+
 def test_layer_array_crops_and_copies(make_napari_viewer_proxy):
     viewer = make_napari_viewer_proxy()
     rgba = np.random.default_rng(1).random((20, 30, 4))
@@ -475,3 +494,112 @@ def test_compact_labels_keeps_the_values():
     assert compact_labels(labels) is labels
     small = labels.astype(np.uint8)
     assert compact_labels(small) is small
+
+
+# --- re-cuts: the latest request wins, through the run record ---------------------------
+
+
+def _gated_value(value, gate, started):
+    """A re-cut job: says it started, waits for ``gate``, returns ``value``."""
+    started.append(value)
+    yield Progress("re-cut", 0.0)
+    if not gate.wait(30):
+        raise TimeoutError("the test never opened the gate")
+    return value
+
+
+class RecutWidget(StepsWidget):
+    """The steps widget with a re-cut: layer "<name> cut" filled with a value."""
+
+    def __init__(self, napari_viewer):
+        super().__init__(napari_viewer)
+        self.started, self.shown = [], []
+        self.recut_gate = threading.Event()
+
+    def put_value(self, value):
+        if value == "fail":
+            self.record.put("cut", np.full((4, 4), -1.0), self._add)  # undone: it fails
+            raise ValueError("the re-cut cannot be shown")
+        self.shown.append(value)
+        self.record.put("cut", np.full((4, 4), float(value)), self._add)
+
+    def _add(self, data, name):
+        return self._viewer.add_image(data, name=name)
+
+    def ask(self, value):
+        self.recut(self.put_value, _gated_value(value, self.recut_gate, self.started))
+
+
+@pytest.fixture(params=[False, True], ids=["finish", "interrupt"])
+def recut_widget(docked, request):
+    cls = type("RecutWidget", (RecutWidget,), {"recuts_interrupt": request.param})
+    return docked(cls, "re-cut")
+
+
+def test_recuts_the_latest_request_wins(recut_widget, qtbot):
+    viewer, w = recut_widget
+    for value in (1, 2, 3, 4):  # faster than they run
+        w.ask(value)
+        if value == 1:
+            first = w._recut_job
+    if w.recuts_interrupt:  # each newer request cancelled the one running
+        assert first.cancelled and w._recut_job is not first
+    else:  # one worker at a time: the others wait, the latest replacing the older
+        assert w._recut_job is first and not first.cancelled
+    w.recut_gate.set()
+    qtbot.waitUntil(lambda: w._recut_job is None, timeout=30000)
+    # finish: the running one is shown, then the latest; those between never run
+    assert w.shown == ([4] if w.recuts_interrupt else [1, 4])
+    if not w.recuts_interrupt:
+        assert w.started == [1, 4]
+    np.testing.assert_array_equal(viewer.layers["cut"].data, np.full((4, 4), 4.0))
+    assert w._job is None and w._run.enabled  # a re-cut is no run
+
+
+def test_a_recut_is_committed_and_a_cancelled_run_comes_back_to_it(recut_widget, qtbot):
+    viewer, w = recut_widget
+    w.recut_gate.set()
+    w.ask(5)
+    qtbot.waitUntil(lambda: w._recut_job is None, timeout=30000)
+    cut = viewer.layers["cut"]
+    w.record.undo()  # as after a completed run: nothing to undo
+    assert viewer.layers["cut"] == cut
+    np.testing.assert_array_equal(cut.data, np.full((4, 4), 5.0))
+    # a re-cut held in its worker, then a run: the run drops it
+    w.recut_gate.clear()
+    w.ask(6)
+    held = w._recut_job
+    job = w.run(_steps(np.zeros((4, 4)), w.gate),
+                preview=lambda out: w.record.put("cut", out, w._add))
+    assert held.cancelled and w._recut_job is None
+    qtbot.waitUntil(lambda: w._status.value.startswith("rows"), timeout=30000)
+    w.cancel()  # the run's preview is undone: the re-cut's data comes back
+    w.gate.set()
+    w.recut_gate.set()
+    qtbot.waitUntil(lambda: job.done, timeout=30000)
+    qtbot.wait(300)
+    np.testing.assert_array_equal(viewer.layers["cut"].data, np.full((4, 4), 5.0))
+    assert w.shown == [5]
+
+
+def test_a_failing_recut_is_undone_and_says_why(recut_widget, qtbot, last_notification):
+    viewer, w = recut_widget
+    w.recut_gate.set()
+    w.ask(7)
+    qtbot.waitUntil(lambda: w._recut_job is None, timeout=30000)
+    w.ask("fail")
+    qtbot.waitUntil(lambda: w._recut_job is None, timeout=30000)
+    np.testing.assert_array_equal(viewer.layers["cut"].data, np.full((4, 4), 7.0))
+    assert w._status.value == "re-cut failed"
+    assert last_notification() == "the re-cut cannot be shown"
+
+
+def test_a_recut_shown_at_once_drops_the_one_in_a_worker(recut_widget, qtbot):
+    viewer, w = recut_widget
+    w.ask(8)  # held in its worker
+    w.recut(lambda: w.put_value(9))  # a look-up: shown now, the worker's dropped
+    assert w._recut_job is None and w.shown == [9]
+    w.recut_gate.set()
+    qtbot.wait(300)
+    assert w.shown == [9]
+    np.testing.assert_array_equal(viewer.layers["cut"].data, np.full((4, 4), 9.0))

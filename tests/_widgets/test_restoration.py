@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from skimage import data as skdata
 
+from car_napari._progress import drain
 from car_napari._widgets import restoration as restoration_widget
 from car_napari._widgets.restoration import RestorationWidget
 from car_napari.io.sample_data import degraded_stack
@@ -112,6 +113,37 @@ def test_single_image_and_cancel(widget, qtbot):
     assert names(viewer) == before
     np.testing.assert_array_equal(changed.data, w.result.changed(float(w._kappa.value)))
     assert not np.array_equal(changed.data, old)
+
+
+def test_kappa_moves_re_cut_through_the_run_record(widget, qtbot):
+    """Kappa moved several times quickly: the latest value wins, its layers
+    are put as a run's (committed: an undo keeps them; a run cancelled after
+    it comes back to them)."""
+    viewer, w = widget
+    layer = viewer.add_image(noisy_camera(), name="camera")
+    w._image.value = layer
+    job = w.start()
+    qtbot.waitUntil(lambda: job.done, timeout=120000)
+    w._show_changed.value = True
+    qtbot.waitUntil(lambda: w._recut_job is None, timeout=30000)
+    before = names(viewer)
+    restored, changed = viewer.layers["camera restored"], viewer.layers["camera changed pixels"]
+    for kappa in (0.1, 0.2, 0.3, 0.4, 0.5):
+        w._kappa.value = kappa
+    qtbot.waitUntil(lambda: w._recut_job is None, timeout=30000)
+    assert w._job is job and names(viewer) == before  # no run, the same layers
+    fresh, fresh_changed, _ = drain(restoration_widget._iter_recut(w.result, 0.5, False, True))
+    np.testing.assert_array_equal(restored.data, fresh)
+    np.testing.assert_array_equal(changed.data, fresh_changed)
+    assert viewer.layers["camera restored"] == restored
+    w.record.undo()  # as after a run: the re-cut is committed, nothing to undo
+    np.testing.assert_array_equal(viewer.layers["camera restored"].data, fresh)
+    job = w.start()
+    w.cancel()  # a cancelled run puts back the re-cut's layers
+    qtbot.waitUntil(lambda: job.done, timeout=120000)
+    assert names(viewer) == before
+    np.testing.assert_array_equal(viewer.layers["camera restored"].data, fresh)
+    np.testing.assert_array_equal(viewer.layers["camera changed pixels"].data, fresh_changed)
 
 
 def test_restored_image_is_what_the_user_sees_first(widget, qtbot):
@@ -311,7 +343,6 @@ def test_decimation_keeps_every_fth_pixel():
 def test_display_by_bands_is_the_whole_result_as_shown(monkeypatch, kappa):
     """The result turned into layer data by bands of rows (a record between
     them, so that a Cancel need not wait) equals the whole conversion."""
-    from car_napari._progress import drain
     from car_napari.restoration import restore
 
     monkeypatch.setattr(restoration_widget, "DISPLAY_ROWS", 7)
