@@ -29,8 +29,7 @@ from typing import Any, NamedTuple
 from ._threads import limited_blas
 
 __all__ = ["Progress", "Span", "drain", "iter_chains", "map_previews", "mapped", "result_of",
-           "row_blocks",
-           "side_by_side", "spans", "stage"]
+           "row_blocks", "side_by_side", "spans", "stage"]
 
 
 @dataclass(frozen=True)
