@@ -708,10 +708,7 @@ def test_iter_forms_drain_to_the_function(name, h, w, seed_):
     }
     base = name[len("iter_"):]
     positional, options = args[base]
-    direct = {"fit_btf": car.texture.BTFModel.fit,
-              "fit_texture": car.texture.TextureModel.fit,
-              "fit_dynamic_texture": car.texture.DynamicTextureModel.fit}.get(base) \
-        or getattr(car, base, None) or getattr(car.mammography, base)
+    direct = getattr(car, base, None) or getattr(car.mammography, base)
     job = getattr(car, name, None) or getattr(car.mammography, name)
     got, want = _drained_and_direct(lambda: job(*positional, **options),
                                     lambda: direct(*positional, **options),
@@ -779,6 +776,26 @@ def test_iter_methods_drain_to_the_method(name):
         lambda: getattr(other, method[len("iter_"):])(*positional, **keywords),
         obj, other)
     _same(got, want)
+
+
+@pytest.mark.parametrize("name", ["fit_btf", "fit_texture", "fit_dynamic_texture"])
+def test_model_constructors_are_the_fit_functions(name):
+    """TextureModel.fit, BTFModel.fit and DynamicTextureModel.fit give, field
+    for field, what fit_texture, fit_btf and fit_dynamic_texture give."""
+    import car_napari as car
+    from car_napari import fit_btf, fit_dynamic_texture, fit_texture
+
+    rng = np.random.default_rng(3)
+    img = rng.random((32, 32))
+    stack, clip = [img, img[::-1]], np.stack([img, img.T, img[::-1]])
+    pairs = {"fit_btf": (lambda: car.BTFModel.fit(stack, levels=1, n_subspaces=1),
+                         lambda: fit_btf(stack, levels=1, n_subspaces=1)),
+             "fit_texture": (lambda: car.TextureModel.fit(img, levels=1),
+                             lambda: fit_texture(img, levels=1)),
+             "fit_dynamic_texture": (lambda: car.DynamicTextureModel.fit(clip, neighbourhood=1),
+                                     lambda: fit_dynamic_texture(clip, neighbourhood=1))}
+    constructor, function = pairs[name]
+    _same(constructor(), function())
 
 
 def test_every_public_job_is_checked_above():

@@ -12,11 +12,17 @@ from ._model import (
     FORMAT_VERSION,
     TextureModel,
     collapse_pyramid,
+    fit_texture,
     iter_fit_texture,
     laplacian_pyramid,
 )
-from .btf import BTFModel, cumulative_histograms, iter_fit_btf
-from .dynamic import DynamicTextureModel, iter_fit_dynamic_texture, temporal_context
+from .btf import BTFModel, cumulative_histograms, fit_btf, iter_fit_btf
+from .dynamic import (
+    DynamicTextureModel,
+    fit_dynamic_texture,
+    iter_fit_dynamic_texture,
+    temporal_context,
+)
 from .retrieval import Ranking, iter_rank, minimum_size, rank, texture_features
 
 __all__ = [
@@ -28,6 +34,9 @@ __all__ = [
     "TextureModel",
     "collapse_pyramid",
     "cumulative_histograms",
+    "fit_btf",
+    "fit_dynamic_texture",
+    "fit_texture",
     "iter_fit_btf",
     "iter_fit_dynamic_texture",
     "iter_fit_texture",

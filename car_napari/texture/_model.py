@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._docstrings import shared_parameters
+from .._docstrings import raises_as, shared_parameters, shared_sections
 from .._progress import drain
 from .._validation import check_shape
 from ..model.synthesis import cached_radius
@@ -185,12 +185,13 @@ class TextureModel:
 
     # ------------------------------------------------------------------ fit
     @classmethod
-    @shared_parameters(_FIT_PARAMETERS)
+    @shared_sections(parameters=_FIT_PARAMETERS,
+                     raises=raises_as("fit_texture", "ValueError", "TypeError"))
     def fit(cls, image, *, levels=None, model="3d", neighbourhood="auto", channel_axis=-1,
             pyramid="spectral"):
         """Fit a multiresolution CAR model to a texture.
 
-        The same as running :func:`iter_fit_texture` to its end.
+        The model's constructor: the same as :func:`fit_texture`.
 
         {parameters}
 
@@ -199,35 +200,21 @@ class TextureModel:
         TextureModel
             The fitted model.
 
-        Raises
-        ------
-        ValueError
-            If the texture is too small for the pyramid, constant, or not
-            finite, or ``levels``, ``model`` or ``neighbourhood`` is invalid.
-        TypeError
-            If ``levels`` is not an int, or the image is not numeric.
+        {raises}
 
         See Also
         --------
-        iter_fit_texture : The same fit as a job that reports its progress.
-
-        Notes
-        -----
-        A band whose fitted model is unstable (spectral radius >= 1, its field
-        would explode) falls back to a lower order; see ``fallbacks``.
+        fit_texture : The same, as a function.
 
         Examples
         --------
         >>> import numpy as np
         >>> from car_napari.texture import TextureModel
-        >>> texture = np.random.default_rng(0).random((64, 64))
-        >>> model = TextureModel.fit(texture, levels=2)
-        >>> model.levels, model.n_channels, model.grey
-        (2, 1, True)
+        >>> TextureModel.fit(np.random.default_rng(0).random((64, 64)), levels=2).levels
+        2
         """
-        return drain(iter_fit_texture(image, levels=levels, model=model,
-                                      neighbourhood=neighbourhood, channel_axis=channel_axis,
-                                      pyramid=pyramid))
+        return fit_texture(image, levels=levels, model=model, neighbourhood=neighbourhood,
+                           channel_axis=channel_axis, pyramid=pyramid)
 
     @staticmethod
     def levels_for(shape, most=_AUTO_LEVELS):
@@ -583,7 +570,7 @@ def iter_fit_texture(image, *, levels=None, model="3d", neighbourhood="auto", ch
                      pyramid="spectral"):
     """Fit a multiresolution CAR texture model, as a job reporting progress.
 
-    The generator form of :meth:`TextureModel.fit` (same arguments, same
+    The generator form of :func:`fit_texture` (same arguments, same
     result): every long pass runs by blocks of rows with a
     :class:`~car_napari.Progress` record between them (the reading of the
     image, its quantiles, the pyramid, each band's fit by
@@ -612,11 +599,11 @@ def iter_fit_texture(image, *, levels=None, model="3d", neighbourhood="auto", ch
     Raises
     ------
     ValueError
-        As :meth:`TextureModel.fit`: bad options, layout or size before the
+        As :func:`fit_texture`: bad options, layout or size before the
         first record; non-finite or constant values while the image is read
         (the first records).
     TypeError
-        As :meth:`TextureModel.fit`, before the first record.
+        As :func:`fit_texture`, before the first record.
 
     Examples
     --------
@@ -634,3 +621,48 @@ def iter_fit_texture(image, *, levels=None, model="3d", neighbourhood="auto", ch
     return TextureModel(**(yield from iter_fit_fields(
         image, levels=levels, model=model, neighbourhood=neighbourhood,
         channel_axis=channel_axis, pyramid=pyramid)))
+
+
+@shared_parameters(_FIT_PARAMETERS)
+def fit_texture(image, *, levels=None, model="3d", neighbourhood="auto", channel_axis=-1,
+                pyramid="spectral"):
+    """Fit a multiresolution CAR model to a texture.
+
+    The same as running :func:`iter_fit_texture` to its end.
+
+    {parameters}
+
+    Returns
+    -------
+    TextureModel
+        The fitted model.
+
+    Raises
+    ------
+    ValueError
+        If the texture is too small for the pyramid, constant, or not
+        finite, or ``levels``, ``model`` or ``neighbourhood`` is invalid.
+    TypeError
+        If ``levels`` is not an int, or the image is not numeric.
+
+    See Also
+    --------
+    iter_fit_texture : The same fit as a job that reports its progress.
+    TextureModel.fit : The same, as the model's constructor.
+
+    Notes
+    -----
+    A band whose fitted model is unstable (spectral radius >= 1, its field
+    would explode) falls back to a lower order; see ``fallbacks``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from car_napari.texture import fit_texture
+    >>> texture = np.random.default_rng(0).random((64, 64))
+    >>> model = fit_texture(texture, levels=2)
+    >>> model.levels, model.n_channels, model.grey
+    (2, 1, True)
+    """
+    return drain(iter_fit_texture(image, levels=levels, model=model, neighbourhood=neighbourhood,
+                                  channel_axis=channel_axis, pyramid=pyramid))

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._docstrings import shared_parameters
+from .._docstrings import raises_as, shared_parameters, shared_sections
 from .._progress import Progress, drain, stage
 from .._validation import check_memory, check_real, check_seed, check_shape, output_shape
 from ._fit import _check_options, _check_texture_size
@@ -122,7 +122,7 @@ def iter_fit_btf(stack, *, n_subspaces=4, levels=3, neighbourhood="auto", channe
                  seed=0):
     """Fit a BTF subspace model, as a job reporting progress.
 
-    The generator form of :meth:`BTFModel.fit` (same arguments, same
+    The generator form of :func:`fit_btf` (same arguments, same
     result): it yields :class:`~car_napari.Progress` records while the
     histograms are computed (one per image) and while every subspace model
     is fitted (``"subspace 2/4"``, then that fit's ``"level 1/3"`` records),
@@ -145,9 +145,9 @@ def iter_fit_btf(stack, *, n_subspaces=4, levels=3, neighbourhood="auto", channe
     Raises
     ------
     ValueError
-        As :meth:`BTFModel.fit`, before the first record.
+        As :func:`fit_btf`, before the first record.
     TypeError
-        As :meth:`BTFModel.fit`, before the first record.
+        As :func:`fit_btf`, before the first record.
 
     Examples
     --------
@@ -199,6 +199,50 @@ def iter_fit_btf(stack, *, n_subspaces=4, levels=3, neighbourhood="auto", channe
                     images.mean(axis=(1, 2)), images.std(axis=(1, 2)),
                     np.stack([images.min(axis=(1, 2)), images.max(axis=(1, 2))], axis=1),
                     grey)
+
+
+@shared_parameters(_FIT_PARAMETERS)
+def fit_btf(stack, *, n_subspaces=4, levels=3, neighbourhood="auto", channel_axis=-1, seed=0):
+    """Cluster a stack into subspaces and fit one texture model per subspace.
+
+    The same as running :func:`iter_fit_btf` to its end. The images are
+    clustered by K-means on their cumulative histograms, binned over the
+    stack's range per channel: the subspaces do not change when the whole
+    stack is scaled by a positive gain and an offset (float radiances
+    cluster as the stack scaled to [0, 1] does).
+
+    {parameters}
+
+    Returns
+    -------
+    BTFModel
+        The fitted model.
+
+    Raises
+    ------
+    ValueError
+        If the stack is not (n, H, W) or (n, H, W, C), is empty, constant or
+        not finite, its images are too small for ``levels``, or
+        ``n_subspaces`` is not from 1 to ``n``.
+    TypeError
+        If ``levels`` is not an int, or the stack is not numeric.
+
+    See Also
+    --------
+    iter_fit_btf : The same fit as a job that reports its progress.
+    BTFModel.fit : The same, as the model's constructor.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from car_napari.texture import fit_btf
+    >>> texture = np.random.default_rng(0).random((32, 32))
+    >>> stack = np.stack([texture * gain for gain in (0.2, 0.25, 0.8, 0.9)])
+    >>> fit_btf(stack, n_subspaces=2, levels=1).assignment.tolist()
+    [0, 0, 1, 1]
+    """
+    return drain(iter_fit_btf(stack, n_subspaces=n_subspaces, levels=levels,
+                              neighbourhood=neighbourhood, channel_axis=channel_axis, seed=seed))
 
 
 _SYNTHESIZE_PARAMETERS = """
@@ -256,16 +300,13 @@ class BTFModel:
     grey: bool
 
     @classmethod
-    @shared_parameters(_FIT_PARAMETERS)
+    @shared_sections(parameters=_FIT_PARAMETERS,
+                     raises=raises_as("fit_btf", "ValueError", "TypeError"))
     def fit(cls, stack, *, n_subspaces=4, levels=3, neighbourhood="auto", channel_axis=-1,
             seed=0):
         """Cluster a stack into subspaces and fit one texture model per subspace.
 
-        The same as running :func:`iter_fit_btf` to its end. The images are
-        clustered by K-means on their cumulative histograms, binned over the
-        stack's range per channel: the subspaces do not change when the whole
-        stack is scaled by a positive gain and an offset (float radiances
-        cluster as the stack scaled to [0, 1] does).
+        The model's constructor: the same as :func:`fit_btf`.
 
         {parameters}
 
@@ -274,31 +315,22 @@ class BTFModel:
         BTFModel
             The fitted model.
 
-        Raises
-        ------
-        ValueError
-            If the stack is not (n, H, W) or (n, H, W, C), is empty, constant or
-            not finite, its images are too small for ``levels``, or
-            ``n_subspaces`` is not from 1 to ``n``.
-        TypeError
-            If ``levels`` is not an int, or the stack is not numeric.
+        {raises}
 
         See Also
         --------
-        iter_fit_btf : The same fit as a job that reports its progress.
+        fit_btf : The same, as a function.
 
         Examples
         --------
         >>> import numpy as np
         >>> from car_napari.texture import BTFModel
-        >>> texture = np.random.default_rng(0).random((32, 32))
-        >>> stack = np.stack([texture * gain for gain in (0.2, 0.25, 0.8, 0.9)])
-        >>> BTFModel.fit(stack, n_subspaces=2, levels=1).assignment.tolist()
-        [0, 0, 1, 1]
+        >>> stack = np.random.default_rng(0).random((2, 32, 32))
+        >>> BTFModel.fit(stack, n_subspaces=1, levels=1).assignment.tolist()
+        [0, 0]
         """
-        return drain(iter_fit_btf(stack, n_subspaces=n_subspaces, levels=levels,
-                                  neighbourhood=neighbourhood, channel_axis=channel_axis,
-                                  seed=seed))
+        return fit_btf(stack, n_subspaces=n_subspaces, levels=levels, neighbourhood=neighbourhood,
+                       channel_axis=channel_axis, seed=seed)
 
     @property
     def n_images(self):

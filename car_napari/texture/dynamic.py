@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._docstrings import shared_parameters
+from .._docstrings import raises_as, shared_parameters, shared_sections
 from .._progress import Progress, drain, stage
 from .._validation import (
     MAX_CHANNELS,
@@ -181,7 +181,7 @@ channel_axis : int or None, optional
 def iter_fit_dynamic_texture(frames, *, neighbourhood=2, channel_axis=-1):
     """Fit a 3.5D CAR model to a clip, as a job reporting progress.
 
-    The generator form of :meth:`DynamicTextureModel.fit` (same arguments,
+    The generator form of :func:`fit_dynamic_texture` (same arguments,
     same result): it yields :class:`~car_napari.Progress` records while it
     gathers the statistics of every consecutive frame pair (by blocks of
     rows, ``"frame pair 2/9, rows 120/512"``), then while it fits the first
@@ -210,9 +210,9 @@ def iter_fit_dynamic_texture(frames, *, neighbourhood=2, channel_axis=-1):
     Raises
     ------
     ValueError
-        As :meth:`DynamicTextureModel.fit`, before the first record.
+        As :func:`fit_dynamic_texture`, before the first record.
     TypeError
-        As :meth:`DynamicTextureModel.fit`, before the first record.
+        As :func:`fit_dynamic_texture`, before the first record.
 
     Examples
     --------
@@ -276,6 +276,46 @@ def iter_fit_dynamic_texture(frames, *, neighbourhood=2, channel_axis=-1):
     return DynamicTextureModel(gamma, sigma, np.asarray(summary.mean, float), offsets,
                                first, np.stack([summary.min, summary.max]).astype(float), grey,
                                fallbacks=tuple(fallbacks))
+
+
+@shared_parameters(_FIT_PARAMETERS)
+def fit_dynamic_texture(frames, *, neighbourhood=2, channel_axis=-1):
+    """Fit a 3.5D CAR model to a clip of at least two frames.
+
+    The same as running :func:`iter_fit_dynamic_texture` to its end.
+
+    {parameters}
+
+    Returns
+    -------
+    DynamicTextureModel
+        The fitted model.
+
+    Raises
+    ------
+    ValueError
+        If the clip is not (T, H, W) or (T, H, W, C), has fewer than two
+        frames, is constant or not finite, or its frames are too small
+        for the neighbourhood.
+    TypeError
+        If the clip is not numeric.
+
+    See Also
+    --------
+    iter_fit_dynamic_texture : The same fit as a job that reports its progress.
+    DynamicTextureModel.fit : The same, as the model's constructor.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from car_napari.texture import fit_dynamic_texture
+    >>> clip = np.random.default_rng(0).random((3, 24, 24, 2))
+    >>> model = fit_dynamic_texture(clip, neighbourhood=1)
+    >>> model.n_channels, model.grey
+    (2, False)
+    """
+    return drain(iter_fit_dynamic_texture(frames, neighbourhood=neighbourhood,
+                                          channel_axis=channel_axis))
 
 
 _SYNTHESIZE_PARAMETERS = """
@@ -343,11 +383,12 @@ class DynamicTextureModel:
     fallbacks: tuple = ()
 
     @classmethod
-    @shared_parameters(_FIT_PARAMETERS)
+    @shared_sections(parameters=_FIT_PARAMETERS,
+                     raises=raises_as("fit_dynamic_texture", "ValueError", "TypeError"))
     def fit(cls, frames, *, neighbourhood=2, channel_axis=-1):
         """Fit a 3.5D CAR model to a clip of at least two frames.
 
-        The same as running :func:`iter_fit_dynamic_texture` to its end.
+        The model's constructor: the same as :func:`fit_dynamic_texture`.
 
         {parameters}
 
@@ -356,30 +397,21 @@ class DynamicTextureModel:
         DynamicTextureModel
             The fitted model.
 
-        Raises
-        ------
-        ValueError
-            If the clip is not (T, H, W) or (T, H, W, C), has fewer than two
-            frames, is constant or not finite, or its frames are too small
-            for the neighbourhood.
-        TypeError
-            If the clip is not numeric.
+        {raises}
 
         See Also
         --------
-        iter_fit_dynamic_texture : The same fit as a job that reports its progress.
+        fit_dynamic_texture : The same, as a function.
 
         Examples
         --------
         >>> import numpy as np
         >>> from car_napari.texture import DynamicTextureModel
-        >>> clip = np.random.default_rng(0).random((3, 24, 24, 2))
-        >>> model = DynamicTextureModel.fit(clip, neighbourhood=1)
-        >>> model.n_channels, model.grey
-        (2, False)
+        >>> clip = np.random.default_rng(0).random((3, 24, 24))
+        >>> DynamicTextureModel.fit(clip, neighbourhood=1).grey
+        True
         """
-        return drain(iter_fit_dynamic_texture(frames, neighbourhood=neighbourhood,
-                                              channel_axis=channel_axis))
+        return fit_dynamic_texture(frames, neighbourhood=neighbourhood, channel_axis=channel_axis)
 
     @property
     def n_channels(self):
