@@ -196,7 +196,7 @@ def _scores(labels, ranked):
 
 
 def run_retrieval(textures, levels, neighbourhood):
-    from car_napari.texture.retrieval import rank, texture_features
+    from car_napari.texture import rank, texture_features
 
     tiles, labels = illumination_tiles(textures)
     n = len(tiles)

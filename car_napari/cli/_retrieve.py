@@ -82,7 +82,7 @@ def luminance(image):
 
 
 def run(args):
-    from ..texture.retrieval import rank, texture_features
+    from ..texture import rank, texture_features
 
     query, colour = as_kind(read_one_image(args.query))
     folder = Path(args.gallery)

@@ -7,6 +7,13 @@ Every fit and the ranking also come as a job, ``iter_<name>``, that yields
 :class:`~car_napari.Progress` records and returns the result.
 """
 
+from ._btf import BTFModel, cumulative_histograms, fit_btf, iter_fit_btf
+from ._dynamic import (
+    DynamicTextureModel,
+    fit_dynamic_texture,
+    iter_fit_dynamic_texture,
+    temporal_context,
+)
 from ._model import (
     FORMAT_NAME,
     FORMAT_VERSION,
@@ -16,14 +23,7 @@ from ._model import (
     iter_fit_texture,
     laplacian_pyramid,
 )
-from .btf import BTFModel, cumulative_histograms, fit_btf, iter_fit_btf
-from .dynamic import (
-    DynamicTextureModel,
-    fit_dynamic_texture,
-    iter_fit_dynamic_texture,
-    temporal_context,
-)
-from .retrieval import Ranking, iter_rank, minimum_size, rank, texture_features
+from ._retrieval import Ranking, iter_rank, minimum_size, rank, texture_features
 
 __all__ = [
     "BTFModel",

@@ -9,7 +9,7 @@ from skimage import data as skdata
 
 from car_napari import Progress
 from car_napari._progress import drain
-from car_napari.texture.btf import BTFModel, cumulative_histograms, iter_fit_btf
+from car_napari.texture import BTFModel, cumulative_histograms, iter_fit_btf
 
 
 def _lit_stack(n_lights=8):

@@ -7,7 +7,7 @@ import pytest
 from car_napari import Progress, spectral_radius
 from car_napari._progress import drain
 from car_napari.model.synthesis import synthesize_field
-from car_napari.texture.dynamic import (
+from car_napari.texture._dynamic import (
     DynamicTextureModel,
     _stability,
     iter_fit_dynamic_texture,
@@ -190,7 +190,7 @@ def _reference_dynamic_synthesis(model, n_frames, shape, seed, burn_in=10):
 @pytest.mark.parametrize("channels", [1, 3])
 def test_synthesis_job_is_bit_identical_and_yields_by_rows(channels, monkeypatch):
     from car_napari.model import blocks, synthesis
-    from car_napari.texture import dynamic
+    from car_napari.texture import _dynamic as dynamic
 
     rng = np.random.default_rng(3)
     clip = rng.random((3, 30, 30, channels))[..., 0] if channels == 1 else \

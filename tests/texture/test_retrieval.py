@@ -7,7 +7,7 @@ from skimage import data as skdata
 
 from car_napari import Progress
 from car_napari._progress import drain
-from car_napari.texture.retrieval import Ranking, iter_rank, minimum_size, rank, texture_features
+from car_napari.texture import Ranking, iter_rank, minimum_size, rank, texture_features
 
 
 def _patch():
@@ -208,7 +208,7 @@ def _reference_features(image, levels, neighbourhood, channel_axis):
 def test_features_by_bands_match_the_whole_image_computation(monkeypatch, band_pixels, make,
                                                             levels, neighbourhood,
                                                             channel_axis):
-    from car_napari.texture import retrieval
+    from car_napari.texture import _retrieval as retrieval
 
     image = make()
     before = image.copy()
@@ -223,7 +223,7 @@ def test_features_by_bands_match_the_whole_image_computation(monkeypatch, band_p
 def test_ranking_by_bands_matches_plain_numpy(monkeypatch):
     """Same ranking and distances (float tolerance) as the normalised L1 of
     the whole-image features, computed here with plain NumPy."""
-    from car_napari.texture import retrieval
+    from car_napari.texture import _retrieval as retrieval
 
     astro = skdata.astronaut()
     gallery = [astro[i:i + 96, j:j + 96] for i in (0, 200, 400) for j in (0, 150, 300)]
@@ -239,7 +239,7 @@ def test_ranking_by_bands_matches_plain_numpy(monkeypatch):
 
 
 def test_a_large_image_reports_between_bands_and_stops_when_closed(monkeypatch):
-    from car_napari.texture import retrieval
+    from car_napari.texture import _retrieval as retrieval
 
     monkeypatch.setattr(retrieval, "BAND_PIXELS", 2048)
     image = np.tile(skdata.astronaut()[:128, :128], (2, 2, 1))  # 256 x 256: 32 bands a pass
