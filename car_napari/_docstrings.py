@@ -46,6 +46,14 @@ def raises_as(function, *errors):
                                          for error in errors)
 
 
+def constructor_sections(cls, function, errors=("ValueError", "TypeError")):
+    """The Returns, Raises and See Also sections of a model's constructor
+    ``cls.fit`` that is the same as the function ``function``, for
+    :func:`shared_sections`."""
+    return (f"Returns\n-------\n{cls}\n    The fitted model.\n\n" + raises_as(function, *errors)
+            + f"\nSee Also\n--------\n{function} : The same, as a function.\n")
+
+
 def shared_parameters(parameters):
     """Decorator: put the Parameters section of the numpydoc entries
     ``parameters`` at the docstring's ``{parameters}`` line."""

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._docstrings import raises_as, shared_parameters, shared_sections
+from .._docstrings import constructor_sections, shared_parameters, shared_sections
 from .._progress import Progress, drain, stage
 from .._validation import check_memory, check_real, check_seed, check_shape, output_shape
 from ._fit import _check_options, _check_texture_size
@@ -27,6 +27,23 @@ from ._synthesis import _SYNTHESIS_COPIES
 __all__ = ["BTFModel", "cumulative_histograms", "iter_fit_btf"]
 
 HISTOGRAM_BINS = 32
+# the examples' shared start (docstring sections written once)
+EXAMPLES_STACK = """
+Examples
+--------
+>>> import numpy as np
+>>> texture = np.random.default_rng(0).random((32, 32))
+>>> stack = np.stack([texture * gain for gain in (0.2, 0.25, 0.8, 0.9)])
+"""
+EXAMPLES_BTF = """
+Examples
+--------
+>>> import numpy as np
+>>> from car_napari.texture import BTFModel
+>>> stack = np.random.default_rng(0).random((3, 32, 32))
+"""
+
+
 _HISTOGRAM_SHARE = 0.1  # of the progress range: the histograms, before the fits
 
 
@@ -118,6 +135,7 @@ seed : int, optional
 
 
 @shared_parameters(_FIT_PARAMETERS)
+@shared_sections(examples_stack=EXAMPLES_STACK)
 def iter_fit_btf(stack, *, n_subspaces=4, levels=3, neighbourhood="auto", channel_axis=-1,
                  seed=0):
     """Fit a BTF subspace model, as a job reporting progress.
@@ -149,12 +167,8 @@ def iter_fit_btf(stack, *, n_subspaces=4, levels=3, neighbourhood="auto", channe
     TypeError
         As :func:`fit_btf`, before the first record.
 
-    Examples
-    --------
-    >>> import numpy as np
+    {examples_stack}
     >>> from car_napari.texture import iter_fit_btf
-    >>> texture = np.random.default_rng(0).random((32, 32))
-    >>> stack = np.stack([texture * gain for gain in (0.2, 0.25, 0.8, 0.9)])
     >>> records = list(iter_fit_btf(stack, n_subspaces=2, levels=1))
     >>> [r.message for r in records if r.message.endswith("fitted")]
     ['subspace 1/2, 1 level fitted', 'subspace 2/2, 1 level fitted']
@@ -202,6 +216,7 @@ def iter_fit_btf(stack, *, n_subspaces=4, levels=3, neighbourhood="auto", channe
 
 
 @shared_parameters(_FIT_PARAMETERS)
+@shared_sections(examples_stack=EXAMPLES_STACK)
 def fit_btf(stack, *, n_subspaces=4, levels=3, neighbourhood="auto", channel_axis=-1, seed=0):
     """Cluster a stack into subspaces and fit one texture model per subspace.
 
@@ -232,12 +247,8 @@ def fit_btf(stack, *, n_subspaces=4, levels=3, neighbourhood="auto", channel_axi
     iter_fit_btf : The same fit as a job that reports its progress.
     BTFModel.fit : The same, as the model's constructor.
 
-    Examples
-    --------
-    >>> import numpy as np
+    {examples_stack}
     >>> from car_napari.texture import fit_btf
-    >>> texture = np.random.default_rng(0).random((32, 32))
-    >>> stack = np.stack([texture * gain for gain in (0.2, 0.25, 0.8, 0.9)])
     >>> fit_btf(stack, n_subspaces=2, levels=1).assignment.tolist()
     [0, 0, 1, 1]
     """
@@ -254,6 +265,7 @@ seed : int, numpy Generator or None, optional
 
 
 @dataclass(eq=False)
+@shared_sections(examples_stack=EXAMPLES_STACK)
 class BTFModel:
     """Subspace models of a stack of images of one material.
 
@@ -280,12 +292,8 @@ class BTFModel:
     grey : bool
         True when the images have no colour axis.
 
-    Examples
-    --------
-    >>> import numpy as np
+    {examples_stack}
     >>> from car_napari.texture import BTFModel
-    >>> texture = np.random.default_rng(0).random((32, 32))
-    >>> stack = np.stack([texture * gain for gain in (0.2, 0.25, 0.8, 0.9)])
     >>> btf = BTFModel.fit(stack, n_subspaces=2, levels=1)
     >>> btf.n_images, len(btf.models), btf.synthesize((20, 24), seed=0).shape
     (4, 2, (4, 20, 24))
@@ -301,7 +309,7 @@ class BTFModel:
 
     @classmethod
     @shared_sections(parameters=_FIT_PARAMETERS,
-                     raises=raises_as("fit_btf", "ValueError", "TypeError"))
+                     constructor=constructor_sections("BTFModel", "fit_btf"))
     def fit(cls, stack, *, n_subspaces=4, levels=3, neighbourhood="auto", channel_axis=-1,
             seed=0):
         """Cluster a stack into subspaces and fit one texture model per subspace.
@@ -310,16 +318,7 @@ class BTFModel:
 
         {parameters}
 
-        Returns
-        -------
-        BTFModel
-            The fitted model.
-
-        {raises}
-
-        See Also
-        --------
-        fit_btf : The same, as a function.
+        {constructor}
 
         Examples
         --------
@@ -333,31 +332,25 @@ class BTFModel:
                        channel_axis=channel_axis, seed=seed)
 
     @property
+    @shared_sections(examples_btf=EXAMPLES_BTF)
     def n_images(self):
         """Number of images of the fitted stack (int).
 
-        Examples
-        --------
-        >>> import numpy as np
-        >>> from car_napari.texture import BTFModel
-        >>> stack = np.random.default_rng(0).random((3, 32, 32))
+        {examples_btf}
         >>> BTFModel.fit(stack, n_subspaces=1, levels=1).n_images
         3
         """
         return int(self.assignment.size)
 
     @property
+    @shared_sections(examples_btf=EXAMPLES_BTF)
     def nbytes(self):
         """Stored bytes (int): the compressed size.
 
         The subspace models, the assignment (1 byte an image) and the
         per-image mean, std and range (float32).
 
-        Examples
-        --------
-        >>> import numpy as np
-        >>> from car_napari.texture import BTFModel
-        >>> stack = np.random.default_rng(0).random((3, 32, 32))
+        {examples_btf}
         >>> btf = BTFModel.fit(stack, n_subspaces=1, levels=1)
         >>> btf.nbytes == btf.models[0].nbytes + 3 + 4 * 3 * 4
         True
@@ -365,6 +358,7 @@ class BTFModel:
         per_image = self.image_mean.size + self.image_std.size + self.image_range.size
         return sum(m.nbytes for m in self.models) + self.n_images + 4 * per_image
 
+    @shared_sections(examples_btf=EXAMPLES_BTF)
     def compression_ratio(self, stack_shape):
         """Raw float32 bytes of a stack of ``stack_shape`` over :attr:`nbytes`.
 
@@ -378,11 +372,7 @@ class BTFModel:
         float
             ``4 * prod(stack_shape) / nbytes``.
 
-        Examples
-        --------
-        >>> import numpy as np
-        >>> from car_napari.texture import BTFModel
-        >>> stack = np.random.default_rng(0).random((3, 32, 32))
+        {examples_btf}
         >>> btf = BTFModel.fit(stack, n_subspaces=1, levels=1)
         >>> btf.compression_ratio(stack.shape) == 4 * stack.size / btf.nbytes
         True

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._docstrings import raises_as, shared_parameters, shared_sections
+from .._docstrings import constructor_sections, shared_parameters, shared_sections
 from .._progress import Progress, drain, stage
 from .._validation import (
     MAX_CHANNELS,
@@ -46,6 +46,16 @@ from ._bandfit import _SHRINK_RADIUS, _iter_scale, _iter_stable_fit, _max_order_
 from ._stack import as_stack
 
 __all__ = ["DynamicTextureModel", "iter_fit_dynamic_texture", "temporal_context"]
+
+# the examples' shared start (docstring sections written once)
+EXAMPLES_CLIP = """
+Examples
+--------
+>>> import numpy as np
+>>> from car_napari.texture import DynamicTextureModel
+>>> clip = np.random.default_rng(0).random((3, 24, 24))
+"""
+
 
 _PRIOR = 1e-6
 _FREQUENCIES = 64  # per axis, of the frame-to-frame stability test
@@ -178,6 +188,7 @@ channel_axis : int or None, optional
 
 
 @shared_parameters(_FIT_PARAMETERS)
+@shared_sections(examples_clip=EXAMPLES_CLIP)
 def iter_fit_dynamic_texture(frames, *, neighbourhood=2, channel_axis=-1):
     """Fit a 3.5D CAR model to a clip, as a job reporting progress.
 
@@ -214,11 +225,8 @@ def iter_fit_dynamic_texture(frames, *, neighbourhood=2, channel_axis=-1):
     TypeError
         As :func:`fit_dynamic_texture`, before the first record.
 
-    Examples
-    --------
-    >>> import numpy as np
+    {examples_clip}
     >>> from car_napari.texture import iter_fit_dynamic_texture
-    >>> clip = np.random.default_rng(0).random((3, 24, 24))
     >>> records = list(iter_fit_dynamic_texture(clip, neighbourhood=1))
     >>> [r.message.split(",")[0].split(":")[0] for r in records]
     ['frame pair 1/2', 'frame pair 2/2', 'first frame', '3 frames fitted']
@@ -331,6 +339,7 @@ burn_in : int, optional
 
 
 @dataclass(eq=False)
+@shared_sections(examples_clip=EXAMPLES_CLIP)
 class DynamicTextureModel:
     """A 3.5D CAR model of a texture video.
 
@@ -363,11 +372,7 @@ class DynamicTextureModel:
         :class:`~car_napari.texture.TextureModel`'s ``fallbacks``). Empty
         when every first fit was stable.
 
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from car_napari.texture import DynamicTextureModel
-    >>> clip = np.random.default_rng(0).random((3, 24, 24))
+    {examples_clip}
     >>> model = DynamicTextureModel.fit(clip, neighbourhood=1)
     >>> model.gamma.shape, model.synthesize(2, (16, 20), seed=0).shape
     ((1, 5), (2, 16, 20))
@@ -384,7 +389,8 @@ class DynamicTextureModel:
 
     @classmethod
     @shared_sections(parameters=_FIT_PARAMETERS,
-                     raises=raises_as("fit_dynamic_texture", "ValueError", "TypeError"))
+                     constructor=constructor_sections("DynamicTextureModel", "fit_dynamic_texture"))
+    @shared_sections(examples_clip=EXAMPLES_CLIP)
     def fit(cls, frames, *, neighbourhood=2, channel_axis=-1):
         """Fit a 3.5D CAR model to a clip of at least two frames.
 
@@ -392,53 +398,34 @@ class DynamicTextureModel:
 
         {parameters}
 
-        Returns
-        -------
-        DynamicTextureModel
-            The fitted model.
+        {constructor}
 
-        {raises}
-
-        See Also
-        --------
-        fit_dynamic_texture : The same, as a function.
-
-        Examples
-        --------
-        >>> import numpy as np
-        >>> from car_napari.texture import DynamicTextureModel
-        >>> clip = np.random.default_rng(0).random((3, 24, 24))
+        {examples_clip}
         >>> DynamicTextureModel.fit(clip, neighbourhood=1).grey
         True
         """
         return fit_dynamic_texture(frames, neighbourhood=neighbourhood, channel_axis=channel_axis)
 
     @property
+    @shared_sections(examples_clip=EXAMPLES_CLIP)
     def n_channels(self):
         """Number of channels of a frame (int; 1 for grey).
 
-        Examples
-        --------
-        >>> import numpy as np
-        >>> from car_napari.texture import DynamicTextureModel
-        >>> clip = np.random.default_rng(0).random((3, 24, 24))
+        {examples_clip}
         >>> DynamicTextureModel.fit(clip, neighbourhood=1).n_channels
         1
         """
         return int(self.mean.size)
 
     @property
+    @shared_sections(examples_clip=EXAMPLES_CLIP)
     def nbytes(self):
         """Stored bytes (int): the compressed size.
 
         Every number of gamma, sigma, mean, offsets, range and the first
         frame's spatial model counts as a float32.
 
-        Examples
-        --------
-        >>> import numpy as np
-        >>> from car_napari.texture import DynamicTextureModel
-        >>> clip = np.random.default_rng(0).random((3, 24, 24))
+        {examples_clip}
         >>> DynamicTextureModel.fit(clip, neighbourhood=1).nbytes
         68
         """
@@ -447,6 +434,7 @@ class DynamicTextureModel:
                   first.gamma, first.sigma, first.mean)
         return 4 * sum(int(np.size(a)) for a in arrays)
 
+    @shared_sections(examples_clip=EXAMPLES_CLIP)
     def compression_ratio(self, clip_shape):
         """Raw float32 bytes of a clip of ``clip_shape`` over :attr:`nbytes`.
 
@@ -460,11 +448,7 @@ class DynamicTextureModel:
         float
             ``4 * prod(clip_shape) / nbytes``.
 
-        Examples
-        --------
-        >>> import numpy as np
-        >>> from car_napari.texture import DynamicTextureModel
-        >>> clip = np.random.default_rng(0).random((3, 24, 24))
+        {examples_clip}
         >>> model = DynamicTextureModel.fit(clip, neighbourhood=1)
         >>> round(model.compression_ratio(clip.shape), 1)
         101.6
@@ -474,6 +458,7 @@ class DynamicTextureModel:
         return 4.0 * float(math.prod(shape)) / self.nbytes
 
     @shared_parameters(_SYNTHESIZE_PARAMETERS)
+    @shared_sections(examples_clip=EXAMPLES_CLIP)
     def synthesize(self, n_frames, shape, *, seed=None, burn_in=10):
         """Generate a clip from the model, frame after frame.
 
@@ -494,11 +479,7 @@ class DynamicTextureModel:
             If ``n_frames`` or ``shape`` is not positive, or the model is
             unstable (the frames grow without bound).
 
-        Examples
-        --------
-        >>> import numpy as np
-        >>> from car_napari.texture import DynamicTextureModel
-        >>> clip = np.random.default_rng(0).random((3, 24, 24))
+        {examples_clip}
         >>> model = DynamicTextureModel.fit(clip, neighbourhood=1)
         >>> model.synthesize(4, (10, 12), seed=0).shape
         (4, 10, 12)

@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._docstrings import raises_as, shared_parameters, shared_sections
+from .._docstrings import constructor_sections, shared_parameters, shared_sections
 from .._progress import drain
 from .._validation import check_shape
 from ..model.synthesis import cached_radius
@@ -43,6 +43,22 @@ __all__ = [
     "TextureModel", "iter_fit_texture", "laplacian_pyramid", "collapse_pyramid", "FORMAT_NAME",
     "FORMAT_VERSION",
 ]
+
+
+# the examples' shared start (docstring sections written once)
+EXAMPLES_MODEL = """
+Examples
+--------
+>>> import numpy as np
+>>> from car_napari.texture import TextureModel
+>>> model = TextureModel.fit(np.random.default_rng(0).random((64, 64)), levels=2)
+"""
+EXAMPLES_TEXTURE = """
+Examples
+--------
+>>> import numpy as np
+>>> texture = np.random.default_rng(0).random((64, 64))
+"""
 
 
 _FIT_PARAMETERS = """
@@ -88,6 +104,7 @@ tileable : bool, optional
 
 
 @dataclass(eq=False)
+@shared_sections(examples_model=EXAMPLES_MODEL)
 class TextureModel:
     """A multiresolution CAR texture model: the compressed texture.
 
@@ -158,11 +175,7 @@ class TextureModel:
         Per palette colour, the distance that holds 95 % of the input's
         (sampled) pixels nearest to it.
 
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from car_napari.texture import TextureModel
-    >>> model = TextureModel.fit(np.random.default_rng(0).random((64, 64)), levels=2)
+    {examples_model}
     >>> model.synthesize((40, 50), seed=0).shape
     (40, 50)
     >>> model.nbytes
@@ -186,7 +199,7 @@ class TextureModel:
     # ------------------------------------------------------------------ fit
     @classmethod
     @shared_sections(parameters=_FIT_PARAMETERS,
-                     raises=raises_as("fit_texture", "ValueError", "TypeError"))
+                     constructor=constructor_sections("TextureModel", "fit_texture"))
     def fit(cls, image, *, levels=None, model="3d", neighbourhood="auto", channel_axis=-1,
             pyramid="spectral"):
         """Fit a multiresolution CAR model to a texture.
@@ -195,16 +208,7 @@ class TextureModel:
 
         {parameters}
 
-        Returns
-        -------
-        TextureModel
-            The fitted model.
-
-        {raises}
-
-        See Also
-        --------
-        fit_texture : The same, as a function.
+        {constructor}
 
         Examples
         --------
@@ -245,28 +249,22 @@ class TextureModel:
 
     # ----------------------------------------------------------- properties
     @property
+    @shared_sections(examples_model=EXAMPLES_MODEL)
     def levels(self):
         """Number of pyramid bands (int).
 
-        Examples
-        --------
-        >>> import numpy as np
-        >>> from car_napari.texture import TextureModel
-        >>> model = TextureModel.fit(np.random.default_rng(0).random((64, 64)), levels=2)
+        {examples_model}
         >>> model.levels
         2
         """
         return len(self.models)
 
     @property
+    @shared_sections(examples_model=EXAMPLES_MODEL)
     def n_channels(self):
         """Number of channels of the fitted texture (int; 1 for grey).
 
-        Examples
-        --------
-        >>> import numpy as np
-        >>> from car_napari.texture import TextureModel
-        >>> model = TextureModel.fit(np.random.default_rng(0).random((64, 64)), levels=2)
+        {examples_model}
         >>> model.n_channels
         1
         """
@@ -306,21 +304,19 @@ class TextureModel:
         return arrays
 
     @property
+    @shared_sections(examples_model=EXAMPLES_MODEL)
     def nbytes(self):
         """Bytes of the stored parameters (int): the compressed size.
 
         Every number (including the integer offsets) counts as a float32.
 
-        Examples
-        --------
-        >>> import numpy as np
-        >>> from car_napari.texture import TextureModel
-        >>> model = TextureModel.fit(np.random.default_rng(0).random((64, 64)), levels=2)
+        {examples_model}
         >>> model.nbytes
         728
         """
         return 4 * sum(int(np.size(a)) for a in self._parameter_arrays().values())
 
+    @shared_sections(examples_model=EXAMPLES_MODEL)
     def compression_ratio(self, input_shape):
         """Raw float32 bytes of an image of ``input_shape`` over :attr:`nbytes`.
 
@@ -340,11 +336,7 @@ class TextureModel:
         ValueError
             If ``input_shape`` is not (H, W) or (H, W, C) with positive sides.
 
-        Examples
-        --------
-        >>> import numpy as np
-        >>> from car_napari.texture import TextureModel
-        >>> model = TextureModel.fit(np.random.default_rng(0).random((64, 64)), levels=2)
+        {examples_model}
         >>> round(model.compression_ratio((512, 512)), 1)
         1440.4
         """
@@ -354,6 +346,7 @@ class TextureModel:
 
     # ------------------------------------------------------------ synthesis
     @shared_parameters(_SYNTHESIZE_PARAMETERS)
+    @shared_sections(examples_model=EXAMPLES_MODEL)
     def synthesize(self, shape, *, seed=None, tileable=False):
         """Generate a texture of any size from the model.
 
@@ -379,11 +372,7 @@ class TextureModel:
         ValueError
             If ``shape`` is not two positive sizes.
 
-        Examples
-        --------
-        >>> import numpy as np
-        >>> from car_napari.texture import TextureModel
-        >>> model = TextureModel.fit(np.random.default_rng(0).random((64, 64)), levels=2)
+        {examples_model}
         >>> texture = model.synthesize((30, 40), seed=1, tileable=True)
         >>> texture.shape
         (30, 40)
@@ -443,6 +432,7 @@ class TextureModel:
         return (yield from iter_synthesize_texture(self, shape, seed=seed, tileable=tileable))
 
     # ---------------------------------------------------------- persistence
+    @shared_sections(examples_model=EXAMPLES_MODEL)
     def save(self, path):
         """Write the model to an ``.npz`` file.
 
@@ -490,12 +480,8 @@ class TextureModel:
         --------
         load : Read the file back.
 
-        Examples
-        --------
+        {examples_model}
         >>> import os, tempfile
-        >>> import numpy as np
-        >>> from car_napari.texture import TextureModel
-        >>> model = TextureModel.fit(np.random.default_rng(0).random((64, 64)), levels=2)
         >>> with tempfile.TemporaryDirectory() as folder:
         ...     path = os.path.join(folder, "noise.npz")
         ...     model.save(path)
@@ -506,6 +492,7 @@ class TextureModel:
         write_model_file(self, path)
 
     @classmethod
+    @shared_sections(examples_model=EXAMPLES_MODEL)
     def load(cls, path):
         """Read a model written by :meth:`save`.
 
@@ -535,12 +522,8 @@ class TextureModel:
         --------
         save : The file format.
 
-        Examples
-        --------
+        {examples_model}
         >>> import os, tempfile
-        >>> import numpy as np
-        >>> from car_napari.texture import TextureModel
-        >>> model = TextureModel.fit(np.random.default_rng(0).random((64, 64)), levels=2)
         >>> with tempfile.TemporaryDirectory() as folder:
         ...     model.save(os.path.join(folder, "noise.npz"))
         ...     loaded = TextureModel.load(os.path.join(folder, "noise.npz"))
@@ -566,6 +549,7 @@ class TextureModel:
 
 
 @shared_parameters(_FIT_PARAMETERS)
+@shared_sections(examples_texture=EXAMPLES_TEXTURE)
 def iter_fit_texture(image, *, levels=None, model="3d", neighbourhood="auto", channel_axis=-1,
                      pyramid="spectral"):
     """Fit a multiresolution CAR texture model, as a job reporting progress.
@@ -605,11 +589,8 @@ def iter_fit_texture(image, *, levels=None, model="3d", neighbourhood="auto", ch
     TypeError
         As :func:`fit_texture`, before the first record.
 
-    Examples
-    --------
-    >>> import numpy as np
+    {examples_texture}
     >>> from car_napari.texture import iter_fit_texture
-    >>> texture = np.random.default_rng(0).random((64, 64))
     >>> records = list(iter_fit_texture(texture, levels=2))
     >>> list(dict.fromkeys(r.stage for r in records))  # in their order
     ['reading', 'quantiles', 'pyramid', 'fitting']
@@ -624,6 +605,7 @@ def iter_fit_texture(image, *, levels=None, model="3d", neighbourhood="auto", ch
 
 
 @shared_parameters(_FIT_PARAMETERS)
+@shared_sections(examples_texture=EXAMPLES_TEXTURE)
 def fit_texture(image, *, levels=None, model="3d", neighbourhood="auto", channel_axis=-1,
                 pyramid="spectral"):
     """Fit a multiresolution CAR model to a texture.
@@ -655,11 +637,8 @@ def fit_texture(image, *, levels=None, model="3d", neighbourhood="auto", channel
     A band whose fitted model is unstable (spectral radius >= 1, its field
     would explode) falls back to a lower order; see ``fallbacks``.
 
-    Examples
-    --------
-    >>> import numpy as np
+    {examples_texture}
     >>> from car_napari.texture import fit_texture
-    >>> texture = np.random.default_rng(0).random((64, 64))
     >>> model = fit_texture(texture, levels=2)
     >>> model.levels, model.n_channels, model.grey
     (2, 1, True)

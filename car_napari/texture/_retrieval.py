@@ -39,7 +39,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy import ndimage as ndi
 
-from .._docstrings import shared_parameters
+from .._docstrings import shared_parameters, shared_sections
 from .._progress import Progress, drain, mapped, result_of
 from .._validation import (
     MAGNITUDE_LIMIT,
@@ -63,6 +63,15 @@ BAND_PIXELS = 1 << 17
 # The Gaussian-Laplacian pyramid of skimage.transform.pyramid_laplacian
 # (downscale 2, its default sigma, scipy.ndimage's default truncation) that
 # illumination_invariants uses, computed band by band.
+# the examples' shared start (docstring sections written once)
+EXAMPLES_GALLERY = """
+Examples
+--------
+>>> import numpy as np
+>>> rng = np.random.default_rng(0)
+"""
+
+
 _SIGMA = 2 * 2 / 6.0
 _TRUNCATE = 4.0
 _RADIUS = int(_TRUNCATE * _SIGMA + 0.5)  # rows of the smoothing kernel on each side (3)
@@ -489,6 +498,7 @@ channel_axis : int or None, optional
 
 
 @shared_parameters(_RANK_PARAMETERS)
+@shared_sections(examples_gallery=EXAMPLES_GALLERY)
 def iter_rank(query, gallery, *, levels=3, neighbourhood=2, channel_axis=-1):
     """Rank a gallery by distance to a query, as a job reporting progress.
 
@@ -533,11 +543,8 @@ def iter_rank(query, gallery, *, levels=3, neighbourhood=2, channel_axis=-1):
     TypeError
         As :func:`rank`, before the first record.
 
-    Examples
-    --------
-    >>> import numpy as np
+    {examples_gallery}
     >>> from car_napari.texture import iter_rank
-    >>> rng = np.random.default_rng(0)
     >>> gallery = [rng.random((24, 24)) for _ in range(2)]
     >>> for record in iter_rank(gallery[1], gallery, levels=1, neighbourhood=1):
     ...     print(record.stage, record.message, round(record.fraction, 2))
@@ -624,6 +631,7 @@ def _moderate(feats):
 
 
 @shared_parameters(_RANK_PARAMETERS)
+@shared_sections(examples_gallery=EXAMPLES_GALLERY)
 def rank(query, gallery, *, levels=3, neighbourhood=2, channel_axis=-1):
     """Rank a gallery of textures by their distance to a query texture.
 
@@ -673,11 +681,8 @@ def rank(query, gallery, *, levels=3, neighbourhood=2, channel_axis=-1):
     or a colour image (both give ``levels * (eta + 1)`` values): keep grey and
     colour galleries apart yourself when passing vectors.
 
-    Examples
-    --------
-    >>> import numpy as np
+    {examples_gallery}
     >>> from car_napari.texture import rank
-    >>> rng = np.random.default_rng(0)
     >>> gallery = [rng.random((24, 24)) for _ in range(3)]
     >>> indices, distances = rank(gallery[2], gallery, levels=1)
     >>> int(indices[0]), float(distances[0])
