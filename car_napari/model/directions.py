@@ -3,6 +3,9 @@
 
 from __future__ import annotations
 
+from .._docstrings import shared_sections
+from ._doc_sections import RAISES_DIRECTION
+
 __all__ = ["DIRECTIONS", "check_direction", "scan_shape", "scan_view", "unscan_view"]
 
 DIRECTIONS = ("down", "up", "right", "left")
@@ -57,6 +60,7 @@ def scan_shape(shape, direction):
     return (w, h) if direction in ("right", "left") else (h, w)
 
 
+@shared_sections(raises_direction=RAISES_DIRECTION)
 def scan_view(image, direction):
     """A view of ``image`` in which the scan is the plain raster.
 
@@ -73,10 +77,7 @@ def scan_view(image, direction):
         A view (no copy): flipped for 'up', transposed for 'right',
         transposed and flipped for 'left'.
 
-    Raises
-    ------
-    ValueError
-        If ``direction`` is not one of the four.
+    {raises_direction}
 
     Examples
     --------
@@ -94,6 +95,7 @@ def scan_view(image, direction):
     return image[:, ::-1].swapaxes(0, 1)  # 'left'
 
 
+@shared_sections(raises_direction=RAISES_DIRECTION)
 def unscan_view(field, direction):
     """The inverse of :func:`scan_view`: the image whose scan reads ``field``.
 
@@ -109,10 +111,7 @@ def unscan_view(field, direction):
     ndarray
         A view in image geometry.
 
-    Raises
-    ------
-    ValueError
-        If ``direction`` is not one of the four.
+    {raises_direction}
 
     Examples
     --------

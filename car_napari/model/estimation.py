@@ -19,6 +19,7 @@ from .._validation import (
     check_not_constant,
     check_size,
 )
+from ._doc_sections import EXAMPLES_RECORDS
 from .blocks import iter_centre, iter_channel_last_float
 from .directions import check_direction, scan_view
 from .fitted import CARModel
@@ -235,6 +236,7 @@ _SELECT_SUPPORT_PARAMETERS = """
 
 @shared_sections(parameters=_SELECT_SUPPORT_PARAMETERS,
                  raises=raises_as("select_support", "ValueError", "TypeError"))
+@shared_sections(examples_records=EXAMPLES_RECORDS)
 def iter_select_support(image, orders=range(1, 6), *, channel_axis=-1, direction="down"):
     """Choose the most probable causal neighbourhood, as a job.
 
@@ -260,12 +262,7 @@ def iter_select_support(image, orders=range(1, 6), *, channel_axis=-1, direction
 
     {raises}
 
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from car_napari._progress import drain
-    >>> records = []
-    >>> image = np.random.default_rng(0).random((32, 32))
+    {examples_records}
     >>> best, scores = drain(iter_select_support(image, orders=[1, 2]), records.append)
     >>> [r.message.split(":")[0] for r in records[-2:]]
     ['order 1', 'order 2']
@@ -352,6 +349,7 @@ _FIT_CAR_PARAMETERS = """
 
 @shared_sections(parameters=_FIT_CAR_PARAMETERS,
                  raises=raises_as("fit_car", "ValueError", "TypeError"))
+@shared_sections(examples_records=EXAMPLES_RECORDS)
 def iter_fit_car(
     image,
     neighbourhood=2,
@@ -389,12 +387,7 @@ def iter_fit_car(
 
     {raises}
 
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from car_napari._progress import drain
-    >>> records = []
-    >>> image = np.random.default_rng(0).random((32, 32))
+    {examples_records}
     >>> model = drain(iter_fit_car(image, "auto", orders=[1, 2]), records.append)
     >>> sorted({r.stage for r in records}), records[-1].fraction
     (['statistics', 'support'], 1.0)

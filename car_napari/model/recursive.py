@@ -11,6 +11,7 @@ import numpy as np
 
 from .._docstrings import raises_as, shared_parameters, shared_sections
 from .._progress import Progress
+from ._doc_sections import EXAMPLES_FIELD
 from ._kernels import finish_factor, recursive_scan
 from .directions import DIRECTIONS, check_direction, scan_shape, scan_view, unscan_view
 
@@ -492,6 +493,7 @@ class RecursiveScan:
         self.advance(self.rows - self.position)
         return self.result()
 
+    @shared_sections(examples_field=EXAMPLES_FIELD)
     def iter_run(self, chunk_rows=None):
         """:meth:`run` as a job: the rows left in chunks, a record after each.
 
@@ -511,12 +513,7 @@ class RecursiveScan:
         ScanResult
             What :meth:`run` returns, bit for bit.
 
-        Examples
-        --------
-        >>> import numpy as np
-        >>> from car_napari._progress import drain
-        >>> from car_napari.model import Context
-        >>> y = np.random.default_rng(0).standard_normal((8, 8, 1))
+        {examples_field}
         >>> scanner = RecursiveScan(y, Context.spatial([[0, 1]], 1), prior=np.ones(2))
         >>> drain(scanner.iter_run(chunk_rows=3))["count"]
         56

@@ -7,8 +7,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .._docstrings import shared_parameters
+from .._docstrings import shared_parameters, shared_sections
 from .._progress import Progress, drain
+from ._doc_sections import EXAMPLES_FIELD
 from .directions import scan_view
 
 __all__ = ["Estimates", "covariant_estimates", "data_statistics", "design_chunks",
@@ -90,6 +91,7 @@ _DATA_STATISTICS_PARAMETERS = """
 
 
 @shared_parameters(_DATA_STATISTICS_PARAMETERS)
+@shared_sections(examples_field=EXAMPLES_FIELD)
 def iter_data_statistics(centred, context, *, direction="down"):
     """Accumulate the data-gathering matrix, as a job: Progress per block of rows.
 
@@ -109,12 +111,7 @@ def iter_data_statistics(centred, context, *, direction="down"):
         Stage ``"statistics"`` after each block of scan rows, message like
         ``"rows 120/512"``.
 
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from car_napari._progress import drain
-    >>> from car_napari.model import Context
-    >>> y = np.random.default_rng(0).standard_normal((8, 8, 1))
+    {examples_field}
     >>> V, n = drain(iter_data_statistics(y, Context.spatial([[0, 1], [1, 0]], 1)))
     >>> V.shape, n
     ((3, 3), 49)

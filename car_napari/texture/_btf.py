@@ -18,6 +18,7 @@ import numpy as np
 from .._docstrings import constructor_sections, shared_parameters, shared_sections
 from .._progress import Progress, drain, stage
 from .._validation import check_memory, check_real, check_seed, check_shape, output_shape
+from ._doc_sections import RAISES_SYNTHESIS
 from ._fit import _check_options, _check_texture_size
 from ._histogram import _iter_clip, _iter_restore
 from ._model import iter_fit_texture
@@ -412,6 +413,7 @@ class BTFModel:
         return drain(self.iter_synthesize(shape, seed=seed))
 
     @shared_parameters(_SYNTHESIZE_PARAMETERS)
+    @shared_sections(raises_synthesis=RAISES_SYNTHESIS)
     def iter_synthesize(self, shape, *, seed=None):
         """Synthesise every image of the stack, as a job: Progress, then the stack.
 
@@ -438,10 +440,7 @@ class BTFModel:
             (images not yet done are 0; it is the array returned, do not
             modify it).
 
-        Raises
-        ------
-        ValueError
-            If ``shape`` is not two positive sizes (before the first record).
+        {raises_synthesis}
 
         Examples
         --------

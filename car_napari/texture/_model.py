@@ -34,6 +34,7 @@ from .._docstrings import constructor_sections, shared_parameters, shared_sectio
 from .._progress import drain
 from .._validation import check_shape
 from ..model.synthesis import cached_radius
+from ._doc_sections import RAISES_SYNTHESIS
 from ._fit import _AUTO_LEVELS, _auto_levels, iter_fit_fields
 from ._format import FORMAT_NAME, FORMAT_VERSION, _read_model_file, model_fields, write_model_file
 from ._pyramid import collapse_pyramid, laplacian_pyramid
@@ -382,6 +383,7 @@ class TextureModel:
         return drain(self.iter_synthesize(shape, seed=seed, tileable=tileable))
 
     @shared_parameters(_SYNTHESIZE_PARAMETERS)
+    @shared_sections(raises_synthesis=RAISES_SYNTHESIS)
     def iter_synthesize(self, shape, *, seed=None, tileable=False):
         """Generate a texture from the model, as a job: Progress, then the texture.
 
@@ -411,10 +413,7 @@ class TextureModel:
             (rows not yet done are 0; it is the array returned, do not
             modify it).
 
-        Raises
-        ------
-        ValueError
-            If ``shape`` is not two positive sizes (before the first record).
+        {raises_synthesis}
 
         Examples
         --------
