@@ -91,6 +91,7 @@ from car_napari.mammography._rois import (
     BreastSegmentation,
     _iter_segment_grey,
 )
+from car_napari.mammography._trees import exported_trees
 
 ROOT = Path(os.environ.get("CAR_NAPARI_MAMMOGRAMS", Path(__file__).resolve().parents[1].parent
                            / "shared" / "data" / "mammograms"))
@@ -342,16 +343,8 @@ def fit_pixels(breasts, names, seg_model, seed=0):
         wt.append(np.full(len(idx), 1.0 / len(idx)))
     X, y, wt = np.vstack(X), np.concatenate(y), np.concatenate(wt)
     clf = HistGradientBoostingClassifier(**TREE_OPTIONS).fit(X, y, sample_weight=wt * len(breasts))
-    trees = []
-    for (predictor,) in clf._predictors:
-        nodes = predictor.nodes
-        trees.append({"feature": nodes["feature_idx"].tolist(),
-                      "threshold": nodes["num_threshold"].tolist(),
-                      "left": nodes["left"].tolist(), "right": nodes["right"].tolist(),
-                      "leaf": nodes["is_leaf"].astype(int).tolist(),
-                      "value": nodes["value"].tolist()})
-    spec = {"kind": "trees", "descriptors": list(names),
-            "baseline": float(np.ravel(clf._baseline_prediction)[0]), "trees": trees,
+    baseline, trees = exported_trees(clf)
+    spec = {"kind": "trees", "descriptors": list(names), "baseline": baseline, "trees": trees,
             "threshold": 0.5, "smoothing": SMOOTHING}
     model = T.PixelModel(spec)
     full = np.zeros((2000, len(T.PIXEL_DESCRIPTORS)), np.float32)

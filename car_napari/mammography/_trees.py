@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["TreeEnsemble"]
+__all__ = ["TreeEnsemble", "exported_trees"]
 
 _NODE_ARRAYS = ("feature", "threshold", "left", "right", "leaf", "value")
 
@@ -53,6 +53,21 @@ class TreeEnsemble:
                              f"got shape {X.shape}.")
         return _sum_of_leaves(X, self.roots, self.feature, self.threshold, self.left,
                               self.right, self.leaf, self.value, self.baseline)
+
+
+def exported_trees(classifier):
+    """(baseline, trees) of a fitted binary scikit-learn
+    ``HistGradientBoostingClassifier``, as :class:`TreeEnsemble` and the
+    model JSON files read them (used by the benchmarks that fit them)."""
+    trees = []
+    for (predictor,) in classifier._predictors:
+        nodes = predictor.nodes
+        trees.append({"feature": nodes["feature_idx"].tolist(),
+                      "threshold": nodes["num_threshold"].tolist(),
+                      "left": nodes["left"].tolist(), "right": nodes["right"].tolist(),
+                      "leaf": nodes["is_leaf"].astype(int).tolist(),
+                      "value": nodes["value"].tolist()})
+    return float(np.ravel(classifier._baseline_prediction)[0]), trees
 
 
 @njit(cache=True, nogil=True)
