@@ -9,11 +9,14 @@ every pooled labelling is described by what the CAR model knows of it (its
 local parameters and prediction-error energy against the breast's) and by its
 grey level relative to the breast; a logistic model gives the probability
 that it is fibroglandular; a pixel's probability is the mean over the pooled
-labellings. The percent density is the fibroglandular area over the breast
-area (the pectoral muscle, removed by :func:`detect_breast`, is not breast);
+labellings. Boosted trees of each working pixel's descriptors (its grey
+level, place and surroundings and its CAR features) then decide the mask
+pixel by pixel (the segments are coarser than the tissue). The percent
+density is the fibroglandular area over the breast area (the pectoral
+muscle, removed by :func:`detect_breast`, is not breast);
 the tissue class (F fatty, G fatty-glandular, D dense-glandular) comes from
 the density and the texture of the whole breast by a multinomial logistic
-model. Both models are shipped in ``tissue_model.json`` with their
+model. The models are shipped in ``tissue_model.json`` with their
 provenance (``benchmarks/bench_tissue.py --write-model``).
 """
 
@@ -602,11 +605,16 @@ def segment_tissue(image, *, breast=None, levels=3, neighbourhood=2, n_init=16, 
        relative to the breast (z score, rank, spread), its share of the
        breast and how deep in it it lies; the shipped logistic model
        (``tissue_model.json``, fitted on the DDSM films with pixel labels of
-       Tiryaki and Kaplanoglu) gives its fibroglandular probability. A
-       pixel's probability is the mean over the labellings; the
-       fibroglandular mask is where it exceeds the model's threshold.
-    3. Percent density: the mask's area over the breast's, in percent.
-    4. Tissue class: a multinomial logistic model (fitted on mini-MIAS) of
+       Tiryaki and Kaplanoglu) gives its fibroglandular probability; a
+       pixel's is the mean over the labellings.
+    3. The shipped boosted trees (fitted on the same films) give each
+       working pixel's fibroglandular probability from its grey level less
+       the breast's median at its distance from the skin, its place, that
+       grey level's Gaussian means over the breast around it and its CAR
+       features; smoothed over the breast, the mask is where it exceeds the
+       model's threshold.
+    4. Percent density: the mask's area over the breast's, in percent.
+    5. Tissue class: a multinomial logistic model (fitted on mini-MIAS) of
        the density and the whole breast's CAR texture (prediction-error
        energy and parameter spread per resolution, the fibroglandular-fat
        grey contrast) and grey histogram.
