@@ -65,6 +65,7 @@ from car_napari.mammography import _candidates as C
 from car_napari.mammography._images import _block_mean, _grey01
 from car_napari.mammography._regions import _ANALYSIS_SIDE, SPLIT_DELTA, SPLIT_SIGMAS
 from car_napari.mammography._rois import DEFAULT_POOL_SEGMENTS, _iter_segment_grey
+from car_napari.mammography._trees import exported_trees
 
 ROOT = Path(os.environ.get("CAR_NAPARI_MAMMOGRAMS", Path(__file__).resolve().parents[1].parent
                            / "shared" / "data" / "mammograms"))
@@ -365,16 +366,8 @@ def fit_trees(X, groups):
                                          min_samples_leaf=40, l2_regularization=1.0,
                                          early_stopping=False, random_state=0)
     clf.fit(X, groups >= 0, sample_weight=_weights(groups))
-    trees = []
-    for (predictor,) in clf._predictors:
-        nodes = predictor.nodes
-        trees.append({"feature": nodes["feature_idx"].tolist(),
-                      "threshold": nodes["num_threshold"].tolist(),
-                      "left": nodes["left"].tolist(), "right": nodes["right"].tolist(),
-                      "leaf": nodes["is_leaf"].astype(int).tolist(),
-                      "value": nodes["value"].tolist()})
-    spec = {"kind": "trees", "baseline": float(np.ravel(clf._baseline_prediction)[0]),
-            "trees": trees}
+    baseline, trees = exported_trees(clf)
+    spec = {"kind": "trees", "baseline": baseline, "trees": trees}
     return spec, clf
 
 

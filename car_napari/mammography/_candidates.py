@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from .._progress import Progress
+from ._trees import TreeEnsemble
 
 # Names of the candidate descriptors, in the order of the matrix
 # :func:`_describe` returns, and their families (a model may use a subset).
@@ -549,12 +550,7 @@ class RoiModel:
             raise ValueError(f"ROI model uses unknown descriptors {sorted(unknown)}.")
         self.columns = [DESCRIPTORS.index(n) for n in self.names]
         if self.kind == "trees":
-            self.baseline = float(spec["baseline"])
-            self.trees = [{k: np.asarray(t[k], float if k in ("threshold", "value") else int)
-                           for k in ("feature", "threshold", "left", "right", "leaf", "value")}
-                          for t in spec["trees"]]
-            for t in self.trees:
-                t["leaf"] = t["leaf"].astype(bool)
+            self.ensemble = TreeEnsemble(spec["baseline"], spec["trees"])
         else:
             self.mean, self.scale, self.coef, self.intercept = linear_terms(spec)
         # candidates within this fraction of a finding's score join it (:func:`_merge`)
@@ -573,19 +569,7 @@ class RoiModel:
         X = np.asarray(X, float).reshape(-1, len(DESCRIPTORS))[:, self.columns]
         if self.kind != "trees":
             return ((X - self.mean) / self.scale) @ self.coef + self.intercept
-        out = np.full(len(X), self.baseline)
-        rows = np.arange(len(X))
-        for t in self.trees:
-            node = np.zeros(len(X), int)
-            while True:
-                inner = ~t["leaf"][node]
-                if not inner.any():
-                    break
-                at = node[inner]
-                go_left = X[rows[inner], t["feature"][at]] <= t["threshold"][at]
-                node[inner] = np.where(go_left, t["left"][at], t["right"][at])
-            out += t["value"][node]
-        return out
+        return self.ensemble.log_odds(X)
 
     def score(self, X):
         """Scores in (0, 1) of descriptor rows ``X`` (n, len(DESCRIPTORS))."""

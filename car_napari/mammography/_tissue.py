@@ -9,11 +9,14 @@ every pooled labelling is described by what the CAR model knows of it (its
 local parameters and prediction-error energy against the breast's) and by its
 grey level relative to the breast; a logistic model gives the probability
 that it is fibroglandular; a pixel's probability is the mean over the pooled
-labellings. The percent density is the fibroglandular area over the breast
-area (the pectoral muscle, removed by :func:`detect_breast`, is not breast);
+labellings. Boosted trees of each working pixel's descriptors (its grey
+level, place and surroundings and its CAR features) then decide the mask
+pixel by pixel (the segments are coarser than the tissue). The percent
+density is the fibroglandular area over the breast area (the pectoral
+muscle, removed by :func:`detect_breast`, is not breast);
 the tissue class (F fatty, G fatty-glandular, D dense-glandular) comes from
 the density and the texture of the whole breast by a multinomial logistic
-model. Both models are shipped in ``tissue_model.json`` with their
+model. The models are shipped in ``tissue_model.json`` with their
 provenance (``benchmarks/bench_tissue.py --write-model``).
 """
 
@@ -43,6 +46,7 @@ from ._rois import (
     _iter_breast_stages,
     _iter_rank,
 )
+from ._trees import TreeEnsemble
 
 __all__ = [
     "IMAGE_DESCRIPTORS",
@@ -75,6 +79,16 @@ CAR_SEGMENT_DESCRIPTORS = (
     + tuple(f"energy_z_{m}" for m in range(_LEVELS))
 )
 SEGMENT_DESCRIPTORS = GREY_SEGMENT_DESCRIPTORS + PLACE_SEGMENT_DESCRIPTORS + CAR_SEGMENT_DESCRIPTORS
+# A working pixel's descriptors: its grey level less the breast's median at
+# its distance from the skin, where it lies, the Gaussian means over the
+# breast of that grey level at 2, 6 and 18 working pixels (its
+# surroundings), its CAR features standardised over the breast, and the
+# segment model's smoothed probability.
+CONTEXT_SIGMAS = (2, 6, 18)
+GREY_PLACE_PIXEL_DESCRIPTORS = (("grey_flat", "skin", "chest", "height")
+                                + tuple(f"grey_flat_mean_{s}" for s in CONTEXT_SIGMAS))
+CAR_PIXEL_DESCRIPTORS = CAR_SEGMENT_DESCRIPTORS + ("segment_probability",)
+PIXEL_DESCRIPTORS = GREY_PLACE_PIXEL_DESCRIPTORS + CAR_PIXEL_DESCRIPTORS
 # A breast's descriptors: the CAR ones (the density and the texture of the
 # whole breast: prediction-error energy and parameter spread per level, the
 # fibroglandular-fat grey contrast) and the grey-level histogram ones (the
@@ -157,13 +171,17 @@ class MammogramAnalysis(NamedTuple):
 
 
 class TissueModel:
-    """The shipped segment and tissue-class models (``tissue_model.json``).
+    """The shipped segment, pixel and tissue-class models (``tissue_model.json``).
 
     ``segment``: a logistic model of :data:`SEGMENT_DESCRIPTORS` (``mean``,
     ``scale``, ``coef``, ``intercept``), the ``smoothing`` of the pixel
     probabilities (a Gaussian mean over the breast, its sigma a fraction of
     the working crop's long side) and the probability ``threshold`` of a
-    fibroglandular pixel; ``tissue``: a multinomial logistic model of the
+    fibroglandular pixel; ``pixel`` (optional; when present it makes the
+    mask): gradient-boosted trees of the working pixels' ``descriptors``
+    (of :data:`PIXEL_DESCRIPTORS`; ``baseline`` and ``trees`` as
+    :class:`TreeEnsemble` reads them), with its own ``smoothing`` and
+    ``threshold``; ``tissue``: a multinomial logistic model of the
     ``descriptors`` it names (of :data:`IMAGE_DESCRIPTORS`) with ``classes``,
     ``mean``, ``scale``, ``coef`` (classes x descriptors), ``intercept``.
     """
@@ -176,6 +194,10 @@ class TissueModel:
         self.seg_mean, self.seg_scale, self.seg_coef, self.seg_intercept = linear_terms(seg)
         self.threshold = float(seg.get("threshold", 0.5))
         self.smoothing = float(seg.get("smoothing", 0.0))
+        pix = spec.get("pixel")
+        self.pixel = None if pix is None else PixelModel(pix)
+        if self.pixel is not None:  # the mask is the pixel model's
+            self.threshold = self.pixel.threshold
         tis = spec["tissue"]
         unknown = set(tis["descriptors"]) - set(IMAGE_DESCRIPTORS)
         if unknown:
@@ -197,6 +219,28 @@ class TissueModel:
         p = np.exp(raw - raw.max())
         p /= p.sum()
         return {c: float(p[self.classes.index(c)]) for c in TISSUE_CLASSES}
+
+
+class PixelModel:
+    """Fibroglandular probability of working pixels by boosted trees of a
+    subset of :data:`PIXEL_DESCRIPTORS` (the ``pixel`` part of
+    :class:`TissueModel`'s spec)."""
+
+    def __init__(self, spec):
+        self.spec = spec
+        unknown = set(spec["descriptors"]) - set(PIXEL_DESCRIPTORS)
+        if unknown:
+            raise ValueError(f"tissue model uses unknown pixel descriptors {sorted(unknown)}.")
+        self.columns = [PIXEL_DESCRIPTORS.index(n) for n in spec["descriptors"]]
+        self.trees = TreeEnsemble(spec["baseline"], spec["trees"])
+        self.threshold = float(spec["threshold"])
+        self.smoothing = float(spec.get("smoothing", 0.0))
+
+    def probability(self, X):
+        """Fibroglandular probability of pixel descriptor rows ``X`` (n,
+        len(PIXEL_DESCRIPTORS))."""
+        raw = self.trees.log_odds(np.asarray(X)[:, self.columns])
+        return 1.0 / (1.0 + np.exp(-raw))
 
 
 @lru_cache(maxsize=1)
@@ -317,16 +361,38 @@ def _probability(work, segment_rows, model):
         table = np.zeros(int(lab.max()) + 1)
         table[present] = model.segment_probability(rows)
         acc += table[lab[b]]
-    out = np.zeros(b.shape, np.float32)
-    out[b] = acc / len(segment_rows)
-    sigma = model.smoothing * max(b.shape)
-    if sigma > 0:  # a Gaussian mean over the breast only
+    return _breast_mean(acc / len(segment_rows), b, model.smoothing * max(b.shape))
+
+
+def _breast_mean(values, breast, sigma):
+    """The breast pixels' ``values`` as an (h, w) float32 map, 0 off the
+    breast, their Gaussian mean over the breast only when ``sigma`` > 0."""
+    out = np.zeros(breast.shape, np.float32)
+    out[breast] = values
+    if sigma > 0:
         from scipy import ndimage
 
-        weight = ndimage.gaussian_filter(b.astype(np.float32), sigma)
+        weight = ndimage.gaussian_filter(breast.astype(np.float32), sigma)
         out = ndimage.gaussian_filter(out, sigma) / np.maximum(weight, 1e-6)
-        out[~b] = 0.0
+        out[~breast] = 0.0
     return out
+
+
+def _pixel_rows(work, z, places, segment_probability):
+    """Descriptor rows (:data:`PIXEL_DESCRIPTORS`, float32) of the breast's
+    working pixels; ``segment_probability``: the segment model's (h, w) map."""
+    b = work.breast
+    flat = _flattened(work.grey[b], places[0])
+    context = [_breast_mean(flat, b, s)[b] for s in CONTEXT_SIGMAS]
+    return np.column_stack([flat, *places, *context, z, segment_probability[b]]).astype(
+        np.float32)
+
+
+def _pixel_probability(work, z, places, segment_probability, pixel):
+    """The pixel model's smoothed fibroglandular probability (h, w)."""
+    b = work.breast
+    p = pixel.probability(_pixel_rows(work, z, places, segment_probability))
+    return _breast_mean(p, b, pixel.smoothing * max(b.shape))
 
 
 def _histogram_row(g):
@@ -368,8 +434,11 @@ def _describe_breast(grey, segmentation, model):
     if not work.breast.any():
         raise ValueError("the segmentation has no breast pixel at its working resolution.")
     z, vals = _standardised(work.features, work.breast)
-    rows = _segment_rows(work, z, _places(work.breast))
+    places = _places(work.breast)
+    rows = _segment_rows(work, z, places)
     prob = _probability(work, rows, model)
+    if model.pixel is not None:
+        prob = _pixel_probability(work, z, places, prob, model.pixel)
     fg = prob > model.threshold
     return work, rows, prob, _image_row(work, vals, fg)
 
@@ -536,11 +605,16 @@ def segment_tissue(image, *, breast=None, levels=3, neighbourhood=2, n_init=16, 
        relative to the breast (z score, rank, spread), its share of the
        breast and how deep in it it lies; the shipped logistic model
        (``tissue_model.json``, fitted on the DDSM films with pixel labels of
-       Tiryaki and Kaplanoglu) gives its fibroglandular probability. A
-       pixel's probability is the mean over the labellings; the
-       fibroglandular mask is where it exceeds the model's threshold.
-    3. Percent density: the mask's area over the breast's, in percent.
-    4. Tissue class: a multinomial logistic model (fitted on mini-MIAS) of
+       Tiryaki and Kaplanoglu) gives its fibroglandular probability; a
+       pixel's is the mean over the labellings.
+    3. The shipped boosted trees (fitted on the same films) give each
+       working pixel's fibroglandular probability from its grey level less
+       the breast's median at its distance from the skin, its place, that
+       grey level's Gaussian means over the breast around it and its CAR
+       features; smoothed over the breast, the mask is where it exceeds the
+       model's threshold.
+    4. Percent density: the mask's area over the breast's, in percent.
+    5. Tissue class: a multinomial logistic model (fitted on mini-MIAS) of
        the density and the whole breast's CAR texture (prediction-error
        energy and parameter spread per resolution, the fibroglandular-fat
        grey contrast) and grey histogram.

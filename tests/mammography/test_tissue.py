@@ -146,3 +146,87 @@ def test_shipped_model_has_its_provenance():
     assert sorted(spec["tissue"]["classes"]) == sorted(mm.TISSUE_CLASSES)
     cv = spec["cross_validation"]
     assert {"ddsm_tissue", "mini_mias"} <= set(cv)
+    # the pixel model, when shipped, makes the mask and says how it was chosen
+    if "pixel" in spec:
+        assert set(spec["pixel"]["descriptors"]) <= set(mm._tissue.PIXEL_DESCRIPTORS)
+        assert _tissue.shipped_tissue_model().threshold == spec["pixel"]["threshold"]
+        assert "pixel trees, nested choice (CAR)" in cv["ddsm_tissue"]
+
+
+def test_tree_evaluator_against_scikit_learn():
+    """Our boosted-tree evaluation (the pixel model's and the ROI model's)
+    against scikit-learn's predict_proba on a small fitted model."""
+    from sklearn.ensemble import HistGradientBoostingClassifier
+
+    from car_napari.mammography._trees import TreeEnsemble, exported_trees
+
+    rng = np.random.default_rng(5)
+    X = rng.standard_normal((600, 3))
+    y = X[:, 0] + 0.5 * X[:, 1] ** 2 + 0.3 * rng.standard_normal(600) > 0.4
+    clf = HistGradientBoostingClassifier(max_iter=20, max_leaf_nodes=7,
+                                         random_state=0).fit(X, y)
+    baseline, trees = exported_trees(clf)
+    test = rng.standard_normal((300, 3))
+    raw = TreeEnsemble(baseline, trees).log_odds(test)
+    np.testing.assert_allclose(1 / (1 + np.exp(-raw)), clf.predict_proba(test)[:, 1],
+                               rtol=0, atol=1e-12)
+    # the pixel model reads its own descriptor columns out of the full rows
+    names = ["grey_flat", "skin", "segment_probability"]
+    model = _tissue.PixelModel({"descriptors": names, "baseline": baseline, "trees": trees,
+                                "threshold": 0.4})
+    full = np.zeros((300, len(mm._tissue.PIXEL_DESCRIPTORS)))
+    full[:, [mm._tissue.PIXEL_DESCRIPTORS.index(n) for n in names]] = test
+    np.testing.assert_allclose(model.probability(full), clf.predict_proba(test)[:, 1],
+                               rtol=0, atol=1e-12)
+    with pytest.raises(ValueError, match="unknown pixel descriptors"):
+        _tissue.PixelModel({"descriptors": ["nope"], "baseline": 0.0, "trees": trees,
+                            "threshold": 0.5})
+
+
+def test_pixel_rows_against_direct_computations(half):
+    """Each working pixel's descriptors: its flattened grey, place, CAR
+    features and segment probability as computed here, and the context means
+    as Gaussian-weighted sums over the breast written out pixel by pixel."""
+    seg = mm.segment_breast(half, pool=mm.DEFAULT_POOL_SEGMENTS, keep_features=True)
+    grey = half / 255.0
+    work = _tissue._working(grey, seg)
+    b = work.breast
+    z, _ = _tissue._standardised(work.features, b)
+    places = _tissue._places(b)
+    seg_prob = np.random.default_rng(6).random(b.shape).astype(np.float32)
+    rows = _tissue._pixel_rows(work, z, places, seg_prob)
+    names = mm._tissue.PIXEL_DESCRIPTORS
+    assert rows.shape == (b.sum(), len(names)) and rows.dtype == np.float32
+    flat = _tissue._flattened(work.grey[b], places[0])
+    np.testing.assert_allclose(rows[:, 0], flat, rtol=1e-6, atol=1e-6)
+    for k, name in enumerate(("skin", "chest", "height")):
+        np.testing.assert_allclose(rows[:, names.index(name)], places[k], rtol=1e-6)
+    car_cols = [names.index(n) for n in mm._tissue.CAR_SEGMENT_DESCRIPTORS]
+    np.testing.assert_allclose(rows[:, car_cols], z, rtol=1e-5, atol=1e-5)
+    np.testing.assert_array_equal(rows[:, -1], seg_prob[b])
+    # context means away from the image's edge (scipy's kernel: radius 4 sigma)
+    flat_map = np.zeros(b.shape)
+    flat_map[b] = flat
+    rr, cc = np.nonzero(b)
+    for sigma in (2, 6):
+        r = int(4 * sigma + 0.5)
+        inside = np.flatnonzero((rr >= r) & (rr < b.shape[0] - r) & (cc >= r)
+                                & (cc < b.shape[1] - r))[::997]
+        d = np.arange(-r, r + 1)
+        w = np.exp(-(d[:, None] ** 2 + d[None, :] ** 2) / (2.0 * sigma**2))
+        got = rows[inside, names.index(f"grey_flat_mean_{sigma}")]
+        for i, value in zip(inside, got, strict=True):
+            win = (slice(rr[i] - r, rr[i] + r + 1), slice(cc[i] - r, cc[i] + r + 1))
+            want = (w * flat_map[win]).sum() / (w * b[win]).sum()
+            assert value == pytest.approx(want, rel=1e-4, abs=1e-4)
+
+
+def test_shipped_mask_is_its_probability_over_threshold(half, job):
+    """The mask is the working probability over the shipped model's
+    threshold, block-upsampled onto the breast."""
+    tissue, _ = job
+    model = _tissue.shipped_tissue_model()
+    seg = mm.segment_breast(half, pool=mm.DEFAULT_POOL_SEGMENTS, keep_features=True)
+    want = _tissue._full_mask(tissue.probability > model.threshold, seg, half.shape)
+    np.testing.assert_array_equal(tissue.fibroglandular, want)
+    assert tissue.density == pytest.approx(100.0 * want.sum() / seg.breast.sum())
