@@ -231,7 +231,7 @@ def iter_collapse(bands, *, wrap=False, single=False):
             out, lambda c, s=band.shape[:2]: expand(c, s, wrap=wrap, single=single), "collapse",
             done / total, pixels[k] / total, f"level {len(finer) - k}")
         done += pixels[k]
-        out = band + up
+        out = np.add(band, up, out=up)  # (up is ours: no new array)
     return out
 
 
