@@ -375,7 +375,7 @@ def iter_synthesize(model, shape, *, seed=None, margin=None, chunk_rows=None):
     out = np.zeros((h, w, d))
     shown = out[..., 0] if d == 1 else out
     for start, stop in row_ranges(h, w * d):
-        out[start:stop] = image[start:stop] + model.mean
+        np.add(image[start:stop], model.mean, out=out[start:stop])  # (no temporary)
         fraction = edges[2] + (1.0 - edges[2]) * stop / h
         yield Progress("synthesis", fraction, f"output rows {stop}/{h}", shown)
     return shown

@@ -6,7 +6,7 @@ from __future__ import annotations
 from .._progress import Progress, stage
 from ..model.estimation import CARModel, iter_fit_car
 from ..model.neighbourhood import as_offsets
-from ..model.synthesis import spectral_radius
+from ..model.synthesis import cached_radius, spectral_radius
 from ._blocks import _f32
 
 _MAX_ORDER = 5  # largest candidate order for neighbourhood='auto'
@@ -74,10 +74,12 @@ def _iter_shrunk(model, target=_SHRINK_RADIUS):
 
 def _stored_radius(model):
     """The spectral radius of ``model`` with ``gamma`` rounded to float32, as
-    a fitted texture keeps it (the stability that synthesis will test)."""
+    a fitted texture keeps it (the stability that synthesis will test):
+    remembered (:func:`~car_napari.model.synthesis.cached_radius`), so that
+    the first synthesis from the fitted texture does not compute it again."""
     rounded = CARModel(**{**model.__dict__})
     rounded.gamma = _f32(model.gamma)
-    return spectral_radius(rounded)
+    return cached_radius(rounded)
 
 
 def _radius_text(radius):

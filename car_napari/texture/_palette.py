@@ -86,27 +86,69 @@ def fit_palette(image, k=PALETTE_COLOURS, *, seed=0):
     return centres, radius
 
 
+# pixels whose nearest colours are sought together (their coordinates as
+# planes, their best distances so far: a few kB, in the L1 cache)
+_SNAP_BLOCK = 256
+
+
+@numba.njit(cache=True, nogil=True)
+def _squared_distances(planes, centre, n, out):
+    """Into ``out[:n]``: the squared distance of each of the first ``n``
+    pixels of (d, block) ``planes`` to ``centre``, summed over the channels
+    in order from 0.0 (as a pixel-by-pixel loop sums it); a loop over the
+    pixels, which the compiler runs on several at once."""
+    d = planes.shape[0]
+    if d == 3:
+        r0, r1, r2 = planes[0], planes[1], planes[2]
+        c0, c1, c2 = centre[0], centre[1], centre[2]
+        for p in range(n):
+            t0, t1, t2 = r0[p] - c0, r1[p] - c1, r2[p] - c2
+            out[p] = ((0.0 + t0 * t0) + t1 * t1) + t2 * t2
+        return
+    out[:n] = 0.0
+    for j in range(d):
+        row, cj = planes[j], centre[j]
+        for p in range(n):
+            t = row[p] - cj
+            out[p] += t * t
+
+
 @numba.njit(cache=True, nogil=True)
 def _snap_kernel(values, centres, radius, out):
+    """:func:`snap` of (n, d) ``values`` into (n, d) ``out`` (may be
+    ``values``: a block is read before it is written). The nearest colour
+    of a pixel is the first of the smallest squared distances, the colours
+    taken in order, as a scan of the colours per pixel finds it; the scan
+    runs a colour at a time over a block of pixels."""
     n, d = values.shape
-    k = centres.shape[0]
-    for p in range(n):
-        best, which = np.inf, 0
-        for c in range(k):
-            s = 0.0
+    block = _SNAP_BLOCK
+    planes = np.empty((d, block))
+    distance = np.empty(block)
+    best = np.empty(block)
+    which = np.zeros(block, np.int64)
+    for start in range(0, n, block):
+        m = min(block, n - start)
+        for p in range(m):
             for j in range(d):
-                t = values[p, j] - centres[c, j]
-                s += t * t
-            if s < best:
-                best, which = s, c
-        r = radius[which]
-        if best > r * r:
-            f = r / np.sqrt(best)
-            for j in range(d):
-                out[p, j] = centres[which, j] + (values[p, j] - centres[which, j]) * f
-        else:
-            for j in range(d):
-                out[p, j] = values[p, j]
+                planes[j, p] = values[start + p, j]
+            best[p] = np.inf
+            which[p] = 0
+        for c in range(centres.shape[0]):
+            _squared_distances(planes, centres[c], m, distance)
+            for p in range(m):  # (selects, not branches: vectorised)
+                closer = distance[p] < best[p]
+                best[p] = distance[p] if closer else best[p]
+                which[p] = c if closer else which[p]
+        for p in range(m):
+            i, w = start + p, which[p]
+            r = radius[w]
+            if best[p] > r * r:
+                f = r / np.sqrt(best[p])
+                for j in range(d):
+                    out[i, j] = centres[w, j] + (planes[j, p] - centres[w, j]) * f
+            else:
+                for j in range(d):
+                    out[i, j] = planes[j, p]
 
 
 def snap(values, centres, radius, *, out=None):

@@ -106,7 +106,7 @@ def reduce(image, *, wrap=False):
 
 def _working(values, single):
     """``values`` as the transforms take them: float32 with ``single``."""
-    return values.astype(np.float32) if single else values
+    return values.astype(np.float32, copy=False) if single else values
 
 
 def expand(image, shape, *, wrap=False, single=False):
@@ -136,7 +136,8 @@ def expand(image, shape, *, wrap=False, single=False):
     coeffs[: image.shape[0], : image.shape[1]] = sfft.dctn(_working(image, single),
                                                            axes=(0, 1), norm="ortho")
     scale = math.sqrt(h * w / (image.shape[0] * image.shape[1]))  # (keeps float32 float32)
-    return scale * sfft.idctn(coeffs, axes=(0, 1), norm="ortho")
+    up = sfft.idctn(coeffs, axes=(0, 1), norm="ortho")
+    return np.multiply(up, scale, out=up)  # (scale * up, in place)
 
 
 def highpass(band, *, wrap=False, single=False):
@@ -171,15 +172,19 @@ def pyramid(image, levels):
     return drain(iter_pyramid(image, levels))
 
 
-def _by_channel(values, what, stage, start, share, message):
+def _by_channel(values, what, stage, start, share, message, single=False):
     """``what`` applied to every channel of (h, w, d) ``values`` in turn, as
-    a job: a record after each (the transforms run on whole planes)."""
+    a job: a record after each (the transforms run on whole planes; with
+    ``single`` each plane is handed over as float32)."""
     d = values.shape[2]
     out = None
     for c in range(d):
         # a contiguous copy of the plane: the transforms run a third faster
         # on it than on the strided view, with the same numbers
-        plane = what(np.ascontiguousarray(values[..., c : c + 1]))
+        # (float32 in the same one copy: the values the transforms' own
+        # conversion would give)
+        plane = what(np.ascontiguousarray(values[..., c : c + 1],
+                                          np.float32 if single else None))
         if out is None:
             out = np.empty(plane.shape[:2] + (d,))
         out[..., c : c + 1] = plane
@@ -229,9 +234,9 @@ def iter_collapse(bands, *, wrap=False, single=False):
     for k, band in enumerate(finer):
         up = yield from _by_channel(
             out, lambda c, s=band.shape[:2]: expand(c, s, wrap=wrap, single=single), "collapse",
-            done / total, pixels[k] / total, f"level {len(finer) - k}")
+            done / total, pixels[k] / total, f"level {len(finer) - k}", single=single and not wrap)
         done += pixels[k]
-        out = band + up
+        out = np.add(band, up, out=up)  # (up is ours: no new array)
     return out
 
 
@@ -239,4 +244,4 @@ def iter_highpass(band, *, wrap=False, single=False, stage="highpass"):
     """:func:`highpass` as a job: a record after every channel (the result
     is float64, whatever ``single``)."""
     return (yield from _by_channel(band, lambda c: highpass(c, wrap=wrap, single=single), stage,
-                                   0.0, 1.0, "band frequencies"))
+                                   0.0, 1.0, "band frequencies", single=single and not wrap))

@@ -145,7 +145,9 @@ def iter_synthesize_texture(texture, shape, *, seed=None, tileable=False):
                 prefix=part, name="synthesis")
         bounds = texture.band_ranges[k]
         if texture.band_quantiles is not None:
-            band = yield from stage(_iter_match(band, texture.band_quantiles[k], clip=bounds),
+            # in place: every band array here is the synthesis's own
+            band = yield from stage(_iter_match(band, texture.band_quantiles[k], clip=bounds,
+                                                out=band),
                                     e[3], e[4], prefix=part + "matching, ",
                                     name="synthesis")
         else:

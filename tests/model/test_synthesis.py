@@ -253,3 +253,69 @@ def test_batched_spectral_radius_equals_the_per_frequency_loop(channels, order):
     singular = fit_car(rng.random((30, 30)), 1)
     singular.gamma = np.array([[1.0, 0.0]])  # (0, 1) tap of 1: A(0, w2) = 0 at w2 = 1
     assert spectral_radius(singular) == _reference_spectral_radius(singular) == np.inf
+
+
+def _reference_field(gamma, chol, noise, taps, limit):
+    """The field's recursion in plain Python, pixel by pixel in raster order
+    (Python floats: the same IEEE sums, in the same order, as the kernel)."""
+    H, W, _ = noise.shape
+    d = gamma.shape[0]
+    field = noise.copy()
+    for i in range(H):
+        for j in range(W):
+            x = [float(field[i - di, j - dj, c]) if i - di >= 0 and 0 <= j - dj < W else 0.0
+                 for di, dj, c in taps.tolist()]
+            drawn = [float(v) for v in field[i, j, :d]]
+            values = []
+            for t in range(d):
+                acc = 0.0
+                for c in range(t + 1):
+                    acc += float(chol[t, c]) * drawn[c]
+                for k in range(len(x)):
+                    acc += float(gamma[t, k]) * x[k]
+                if not abs(acc) <= limit:
+                    return False, field
+                values.append(acc)
+            field[i, j, :d] = values
+    return True, field
+
+
+@pytest.mark.parametrize("channels, context, order, direction", [
+    (1, 0, 2, "down"), (3, 0, 3, "down"), (3, 0, 1, "right"), (2, 0, 2, "down"),
+    (1, 1, 2, "down"), (3, 3, 1, "down")])
+def test_field_kernel_matches_the_plain_recursion(channels, context, order, direction):
+    # the two-row wavefront (grey and colour, C-contiguous) and the scan
+    # (other channel counts, strided arrays) against the recursion itself,
+    # bit for bit: interior and border pixels, chunks of rows, context
+    # channels of the 3.5D model, and an exploding model's early stop
+    from car_napari.model.synthesis import innovation_factor, synthesize_field
+    from car_napari.texture import temporal_context
+
+    rng = np.random.default_rng(channels + 10 * context + 100 * order)
+    model = fit_car(rng.random((40, 40, channels))[..., :channels], order, direction=direction)
+    taps = model.context.taps
+    gamma = np.ascontiguousarray(model.gamma)
+    if context:  # the previous frame's channels, read at (0, 0) and the offsets
+        taps = temporal_context(model.offsets, channels).taps
+        gamma = rng.normal(0.0, 0.05, (channels, len(taps)))
+    chol = innovation_factor(model.sigma)
+    args = (taps[:, 0].copy(), taps[:, 1].copy(), taps[:, 2].copy())
+    for shape in ((23, 31), (4, 3), (1, 7), (9, 2)):
+        noise = rng.standard_normal(shape + (channels + context,))
+        ok, want = _reference_field(gamma, chol, noise, taps, 1e8)
+        assert ok
+        whole = noise.copy()
+        assert synthesize_field(gamma, chol, whole, *args, 1e8)
+        np.testing.assert_array_equal(whole, want)
+        chunked = noise.copy()
+        for start in range(0, shape[0], 3):
+            assert synthesize_field(gamma, chol, chunked, *args, 1e8, start, start + 3)
+        np.testing.assert_array_equal(chunked, want)
+        strided = np.zeros((shape[0], 2 * shape[1], noise.shape[2]))[:, ::2]
+        strided[...] = noise
+        assert synthesize_field(gamma, chol, strided, *args, 1e8)
+        np.testing.assert_array_equal(strided, want)
+    exploding = gamma * 40.0
+    noise = rng.standard_normal((30, 20, channels + context))
+    assert not _reference_field(exploding, chol, noise, taps, 1e3)[0]
+    assert not synthesize_field(exploding, chol, noise.copy(), *args, 1e3)

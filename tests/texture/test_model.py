@@ -531,19 +531,21 @@ def test_palette_snap_equals_plain_numpy_and_keeps_inliers():
     assert moved.mean() < 0.2
 
 
-@pytest.mark.parametrize("k", [1, 2, 7, 32])
-def test_palette_snap_search_finds_the_nearest_colour_with_ties(k):
-    # the kernel walks the colours sorted by their first coordinate and stops
-    # early: on a coarse grid (many equal distances, repeated colours) it
-    # must still pick the nearest colour, the lowest index among equals
+@pytest.mark.parametrize("k, channels", [(1, 3), (2, 3), (7, 3), (32, 3), (5, 1), (9, 2)])
+def test_palette_snap_search_finds_the_nearest_colour_with_ties(k, channels):
+    # the kernel scans the colours a colour at a time over blocks of pixels:
+    # on a coarse grid (many equal distances, repeated colours) it must pick
+    # the nearest colour, the lowest index among equals, with the distances
+    # summed as plain NumPy sums them; also in place, and for any pixel
+    # count (1200: not a whole number of blocks)
     from car_napari.texture import _palette
 
     rng = np.random.default_rng(k)
-    centres = np.round(rng.random((k, 3)), 1)
+    centres = np.round(rng.random((k, channels)), 1)
     centres[k // 2] = centres[0]
     radius = rng.random(k) * 0.2
-    values = np.round(rng.random((40, 30, 3)), 1)
-    flat = values.reshape(-1, 3)
+    values = np.round(rng.random((40, 30, channels)), 1)
+    flat = values.reshape(-1, channels)
     squared = ((flat[:, None, :] - centres[None]) ** 2).sum(-1)  # (the kernel's sums)
     nearest = np.argmin(squared, axis=1)
     best = squared[np.arange(len(flat)), nearest]
@@ -551,7 +553,9 @@ def test_palette_snap_search_finds_the_nearest_colour_with_ties(k):
     want = np.where((best > r * r)[:, None],
                     centres[nearest] + (flat - centres[nearest]) * (r / np.sqrt(best))[:, None],
                     flat)
-    np.testing.assert_array_equal(_palette.snap(values, centres, radius).reshape(-1, 3), want)
+    got = _palette.snap(values, centres, radius)
+    np.testing.assert_array_equal(got.reshape(-1, channels), want)
+    np.testing.assert_array_equal(_palette.snap(values, centres, radius, out=values), got)
 
 
 @pytest.mark.parametrize("tileable", [False, True])
