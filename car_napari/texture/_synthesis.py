@@ -50,7 +50,7 @@ def _torus(field, shape, mean):
     return drain(_iter_torus(field, shape, mean))
 
 
-def _fade(n, b, axis):
+def _fade(b, axis):
     """The weights of the own and the extra samples of a cross-fade over
     ``b`` samples, shaped to broadcast along ``axis`` of an (h, w, d) array."""
     t = 0.5 * np.pi * np.arange(b) / b
@@ -64,8 +64,8 @@ def _iter_torus(field, shape, mean):
     each, stage ``"tiling"``): the same numbers."""
     h, w = shape
     bh, bw = field.shape[0] - h, field.shape[1] - w
-    cols = _fade(w, bw, 1) if bw > 0 else None
-    rows = _fade(h, bh, 0) if bh > 0 else None
+    cols = _fade(bw, 1) if bw > 0 else None
+    rows = _fade(bh, 0) if bh > 0 else None
 
     def faded(r0, r1):  # rows r0:r1 of the field, centred, its columns cross-faded
         f = field[r0:r1] - mean
