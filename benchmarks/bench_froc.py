@@ -8,7 +8,7 @@
 ``shared/``.)
 
 1. **Segmentation, cached.** Every breast is segmented once with the
-   package's pipeline (``_iter_segment_grey``: breast detection, work side
+   package's pipeline (``_rois._iter_default_segmentation``: breast detection, work side
    512, the merge history's 8, 10 and 12 segment states, the CAR features
    kept); the labellings and the CAR features on the analysis grid are
    cached per image (``--cache``, .npz), in ``--jobs`` single-threaded
@@ -64,7 +64,7 @@ from car_napari._progress import drain
 from car_napari.mammography import _candidates as C
 from car_napari.mammography._images import _block_mean, _grey01
 from car_napari.mammography._regions import _ANALYSIS_SIDE, SPLIT_DELTA, SPLIT_SIGMAS
-from car_napari.mammography._rois import DEFAULT_POOL_SEGMENTS, _iter_segment_grey
+from car_napari.mammography._rois import _iter_default_segmentation
 from car_napari.mammography._trees import exported_trees
 
 ROOT = Path(os.environ.get("CAR_NAPARI_MAMMOGRAMS", Path(__file__).resolve().parents[1].parent
@@ -180,10 +180,7 @@ def segmentation(ds, name, cache):
         return z["labellings"], z["texture"].astype(np.float32), float(z["seconds"])
     grey = _grey01(ds.read(name))
     t = time.perf_counter()
-    seg = drain(_iter_segment_grey(grey, breast=None, n_segments=None, levels=3,
-                                   neighbourhood=2, n_init=16, work_side=512, seed=0,
-                                   pool=DEFAULT_POOL_SEGMENTS, segment_options=None,
-                                   keep_features=True))
+    seg = drain(_iter_default_segmentation(grey))
     seconds = time.perf_counter() - t
     f, small = analysis_grid(grey)
     h, w = small.shape

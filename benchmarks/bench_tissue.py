@@ -9,7 +9,7 @@
 
 1. **Segmentation, cached.** Every breast (60 ddsm-tissue films, 161
    mini-MIAS images) is segmented once by the package's pipeline
-   (``_iter_segment_grey`` with the ROI job's options: breast detection,
+   (``_rois._iter_default_segmentation``, the ROI job's options: breast detection,
    work side 512, the merge history's 8, 10 and 12 segment states, the CAR
    features kept), in ``--jobs`` single-threaded processes, cached per image
    (``--cache``, .npz). Everything after it is the package's own code
@@ -87,9 +87,8 @@ from car_napari._progress import drain
 from car_napari.mammography import _tissue as T
 from car_napari.mammography._images import _grey01
 from car_napari.mammography._rois import (
-    DEFAULT_POOL_SEGMENTS,
     BreastSegmentation,
-    _iter_segment_grey,
+    _iter_default_segmentation,
 )
 from car_napari.mammography._trees import exported_trees
 
@@ -131,10 +130,7 @@ def segmentation(key, name, cache):
         return seg, float(z["seconds"])
     grey = _grey01(read(key, name))
     t = time.perf_counter()
-    seg = drain(_iter_segment_grey(grey, breast=None, n_segments=None, levels=3,
-                                   neighbourhood=2, n_init=16, work_side=512, seed=0,
-                                   pool=DEFAULT_POOL_SEGMENTS, segment_options=None,
-                                   keep_features=True))
+    seg = drain(_iter_default_segmentation(grey))
     seconds = time.perf_counter() - t
     path.parent.mkdir(parents=True, exist_ok=True)
     np.savez_compressed(path, segments=seg.segments.astype(np.uint8), breast=seg.breast,

@@ -502,6 +502,15 @@ def _iter_breast_stages(image, *, breast, n_segments, levels, neighbourhood, n_i
     return grey, segmentation, tuple(span("regions"))
 
 
+def _iter_default_segmentation(grey):
+    """The mammogram jobs' breast segmentation of a grey image on [0, 1]
+    with their default options, the CAR features kept: what the benchmarks
+    segment once and cache (bench_froc.py, bench_tissue.py)."""
+    return _iter_segment_grey(grey, breast=None, n_segments=None, levels=3, neighbourhood=2,
+                              n_init=16, work_side=512, seed=0, pool=DEFAULT_POOL_SEGMENTS,
+                              segment_options=None, keep_features=True)
+
+
 def _band(reference, tolerance):
     """The chapter's grey-level filter as (centre, half width), or None."""
     if tolerance is None:
