@@ -35,6 +35,8 @@ REPORT):
   components: the pieces of one texture come closer).
 - ``kl_em10``: ``kl`` with 10 EM steps after every merge instead of 3 (a
   re-fit after each merge).
+- ``kl_ni9``: ``kl`` from 9 initial blocks instead of 16 (fewer pieces of
+  each texture to merge; declared after the others were measured).
 
 Printed per variant: the ceiling (the share of simple mosaics whose history
 has a state with the true K whose merge costs more than every earlier
@@ -72,7 +74,8 @@ from bench_auto_k import (  # noqa: E402
 )
 from mosaics import all_scores, mosaic_set  # noqa: E402
 
-VARIANTS = ("kl", "adj", "contact", "contactb", "runnalls", "js", "kl_vf0.4", "kl_em10")
+VARIANTS = ("kl", "adj", "contact", "contactb", "runnalls", "js", "kl_vf0.4", "kl_em10",
+            "kl_ni9")
 # the stops read off every history: (nats per feature, relative, apart);
 # the first is the package's
 STOPS = ((0.06, 0.22, 3.25), (0.06, 0.22, 2.5), (0.06, 0.3, 3.25), (0.05, 0.22, 3.25),
@@ -171,12 +174,13 @@ def history(name, image, truth, variant, features_dir, cache):
         return pickle.loads(path.read_bytes())
     var_floor = float(variant.split("_vf")[1]) if "_vf" in variant else 0.2
     em_steps = int(variant.split("_em")[1]) if "_em" in variant else 3
+    n_init = int(variant.split("_ni")[1]) if "_ni" in variant else 16
     features = features_of(name, image, features_dir)
     h, w, d = features.shape
     # as iter_segment: its EM sample, start, steps and weak-component drop
     pick = np.random.default_rng(0).choice(h * w, size=min(h * w, 40000), replace=False)
     sample = features[pick // w, pick % w].astype(np.float64)
-    mix = _em_steps(sample, _block_init(features, 16, var_floor), 10, var_floor)
+    mix = _em_steps(sample, _block_init(features, n_init, var_floor), 10, var_floor)
     k_ini, states = mix.k, []
 
     def scored(mix):
