@@ -243,13 +243,13 @@ def line(picked, records):
     exact = [100.0 * (p["K"] == r["true_k"]) for p, r in zip(picked, records, strict=True)]
     m, lo, hi = bootstrap(exact)
     return (f"{m:.1f} ({lo:.1f}-{hi:.1f}) | {np.mean([p['K'] for p in picked]):.2f} | "
-            f"{np.mean([p['ARI'] for p in picked]):.3f}")
+            f"{np.mean([p['CS'] for p in picked]):.1f} | {np.mean([p['ARI'] for p in picked]):.3f}")
 
 
 def main():
     parser = argparse.ArgumentParser()
     parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=VARIANTS)
-    parser.add_argument("--five-variants", nargs="+", default=["kl", "runnalls"],
+    parser.add_argument("--five-variants", nargs="*", default=["kl", "runnalls"],
                         choices=VARIANTS)
     parser.add_argument("--seeds", nargs="+", type=int, default=[1])
     parser.add_argument("--features", type=Path, default=None)
@@ -265,11 +265,12 @@ def main():
         chosen = simple + (five if variant in args.five_variants else [])
         runs[variant] = {name: history(name, image, truth, variant, args.features, args.cache)
                          for name, image, truth in chosen}
-    print(f"\nTUNING seeds {args.seeds}: {len(simple)} simple mosaics, {len(five)} of 5 "
+    n_five = max(sum(name.startswith("five") for name in records) for records in runs.values())
+    print(f"\nTUNING seeds {args.seeds}: {len(simple)} simple mosaics, {n_five} of 5 "
           "textures\n")
-    print("| variant | stop | ceiling % | true-K ARI>=0.7 % | exact K % (95 %) | mean K | ARI "
-          "| 5 textures CS | ARI |")
-    print("|---" * 9 + "|")
+    print("| variant | stop | ceiling % | true-K ARI>=0.7 % | exact K % (95 %) | mean K | CS "
+          "| ARI | 5 textures CS | ARI |")
+    print("|---" * 10 + "|")
     for variant, records in runs.items():
         s_recs = [records[n] for n, _, _ in simple]
         f_recs = [records[n] for n, _, _ in five if n in records]
@@ -282,11 +283,12 @@ def main():
                          f"{np.mean([p['ARI'] for p in five_picked]):.3f}") if f_recs else "- | -"
             print(f"| {variant} | {stop[0]}, {stop[1]}, {stop[2]:g} | {top:.1f} | {good:.1f} | "
                   f"{line(picked, s_recs)} | {five_text} |", flush=True)
-    if "kl" in runs and "runnalls" in runs and "runnalls" in args.five_variants:
+    if "kl" in runs and "runnalls" in runs:
         print("\nhybrids: the runnalls state when it has <= 3 components (stop t nats per "
               "feature), [only when the package's K <= 3], else the package's\n")
-        print("| hybrid | t | exact K % (95 %) | mean K | ARI | 5 textures changed | CS | ARI |")
-        print("|---" * 8 + "|")
+        print("| hybrid | t | exact K % (95 %) | mean K | CS | ARI | 5 textures changed | CS "
+              "| ARI |")
+        print("|---" * 9 + "|")
         for gated in (False, True):
             for t in (0.08, 0.09, 0.10, 0.11, 0.12):
                 def pick(name, t=t, gated=gated):
@@ -296,12 +298,14 @@ def main():
                         return ru["states"][ir]["scores"], True
                     return kl["states"][ik]["scores"], False
                 s_pick = [pick(n)[0] for n, _, _ in simple]
-                f_pick = [pick(n) for n, _, _ in five]
+                f_pick = [pick(n) for n, _, _ in five
+                          if n in runs["runnalls"] and n in runs["kl"]]
                 print(f"| {'gated' if gated else 'plain'} | {t} | "
                       f"{line(s_pick, [runs['kl'][n] for n, _, _ in simple])} | "
-                      f"{sum(u for _, u in f_pick)} | "
-                      f"{np.mean([p['CS'] for p, _ in f_pick]):.2f} | "
-                      f"{np.mean([p['ARI'] for p, _ in f_pick]):.3f} |", flush=True)
+                      + (f"{sum(u for _, u in f_pick)} | "
+                         f"{np.mean([p['CS'] for p, _ in f_pick]):.2f} | "
+                         f"{np.mean([p['ARI'] for p, _ in f_pick]):.3f} |" if f_pick
+                         else "- | - | - |"), flush=True)
 
 
 if __name__ == "__main__":
