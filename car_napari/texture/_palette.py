@@ -43,6 +43,7 @@ _COVER = 0.95  # share of a colour's nearest sampled pixels within its radius
 _TOLERANCE = 0.08
 _DIRECTIONS = 256  # probe directions of a colour's ball
 _MAX_CELLS = 1 << 22  # cells of the grid of input colours (4 MB of flags)
+_GRID_BLOCK = 1 << 16  # pixels placed on the grid at a time
 
 
 def _nearest(values, centres):
@@ -139,8 +140,10 @@ def _colour_grid(pixels, tolerance):
     cell = max(cell, float(np.prod(span) / _MAX_CELLS) ** (1 / d))
     sides = np.maximum(np.ceil(span / cell).astype(np.int64), 1)
     flags = np.zeros(tuple(sides.tolist()), bool)
-    index = np.minimum(((pixels - low) / cell).astype(np.int64), sides - 1)
-    flags[tuple(index.T)] = True
+    for start in range(0, len(pixels), _GRID_BLOCK):  # (no image-sized temporaries)
+        part = pixels[start:start + _GRID_BLOCK]
+        index = np.minimum(((part - low) / cell).astype(np.int64), sides - 1)
+        flags[tuple(index.T)] = True
     for axis in range(d):  # the 3^d neighbourhood, an axis at a time
         grown = flags.copy()
         lead = [slice(None)] * d
