@@ -174,7 +174,8 @@ class TextureModel:
         files before version 3.
     palette_radius : (k,) ndarray or None
         Per palette colour, the distance that holds 95 % of the input's
-        (sampled) pixels nearest to it.
+        (sampled) pixels nearest to it, cut by :meth:`fit` to the ball the
+        input's colours cover (files fitted before keep their radii).
 
     {examples_model}
     >>> model.synthesize((40, 50), seed=0).shape

@@ -676,6 +676,21 @@ def test_histogram_matching_kernels_equal_plain_numpy(q, monkeypatch):
     np.testing.assert_array_equal(counts, np.histogram(v, bins=4096, range=(lo, hi))[0])
 
 
+@pytest.mark.parametrize("lo, hi", [(-1.2345, 3.14159), (0.1, 0.1 + 1e-12), (0.0, 1e-306),
+                                    (-1e300, 1e300)])
+def test_histogram_kernel_counts_values_on_and_beside_every_edge_as_numpy(lo, hi):
+    # on the edges themselves and one float either side the kernel's bins
+    # must be NumPy's (also for a range of tiny and of huge bins)
+    from car_napari.texture import _kernels
+
+    edges = np.linspace(lo, hi, 4097)
+    values = np.concatenate([edges, np.nextafter(edges, -np.inf), np.nextafter(edges, np.inf),
+                             np.random.default_rng(0).uniform(lo, hi, 5000)])
+    counts = np.zeros(4096, np.int64)
+    _kernels.block_histogram(values.reshape(-1, 1, 1), 0, lo, hi, edges, counts)
+    np.testing.assert_array_equal(counts, np.histogram(values, bins=4096, range=(lo, hi))[0])
+
+
 def _reference_fit_palette(image, k, seed=0):
     """The palette fit before issue 34's speed-up (every centre's distances
     recomputed each k-means++ round, np.add.at sums), kept as the reference."""
@@ -717,7 +732,9 @@ def test_palette_fit_equals_its_reference(k):
     for img in (image, few):  # (few: k-means++ stops early, fewer distinct colours)
         got, want = _palette.fit_palette(img, k), _reference_fit_palette(img, k)
         np.testing.assert_array_equal(got[0], want[0])
-        np.testing.assert_array_equal(got[1], want[1])
+        # the 95 % radii, then their cut to the covered balls (tests/texture/test_palette.py)
+        cut = _palette._covered_radius(img.reshape(-1, 3), want[0], want[1])
+        np.testing.assert_array_equal(got[1], cut)
 
 
 def test_jobs_and_their_plain_forms_document_the_same_parameters():
