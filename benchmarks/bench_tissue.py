@@ -2,7 +2,7 @@
 
     PYTHONPATH=. nice -n 5 python benchmarks/bench_tissue.py [--jobs 2] [--cache /tmp/tissue]
         [--boot 1000] [--png docs/tissue_overlays.png] [--write-model] [--speed]
-        [--prepare-only] [--no-mias]
+        [--prepare-only] [--no-mias] [--classes-only]
 
 (``CAR_NAPARI_MAMMOGRAMS``: the data folder, when the checkout is not next to
 ``shared/``.)
@@ -80,7 +80,24 @@
    The shipped class model ("CAR, nested") is chosen by the same inner CV
    on all 161 images and fitted on them. The pass criterion is read against
    "histogram, nested (control)" (the same procedure on the histogram
-   descriptors alone).
+   descriptors alone). **Class shipping rule** (declared before measuring):
+   "CAR, nested" replaces "CAR+histogram" as the shipped class model if its
+   outer accuracy is higher.
+   **Mask, second nested choice** (stop 39, declared before measuring): one
+   more pixel variant, "pixel trees + context (CAR)" ("pixel trees (CAR)"'s
+   descriptors and ``T.CONTEXT_PIXEL_DESCRIPTORS``: the grey level's rank in
+   the breast and its height above the breast's fat reference over the
+   range above it, the local standard deviation of the flattened grey at 2
+   and 6 pixels, its Gaussian mean at 54, and the Gaussian means at 6 and
+   18 pixels of the standardised prediction-error energy per resolution);
+   "pixel trees, nested choice v2 (CAR)": on the same inner validation
+   films, the choice of the CAR variant (the two above and this one), the
+   probability smoothing (0.01, 0.02, 0.04) and the mask rule (a fixed
+   threshold of the grid, or per film the threshold that makes the mask's
+   area the mean probability over the breast, "expected area") of best
+   inner mean Dice. **Shipping rule**: v2 replaces the first nested choice
+   as the shipped pixel model if its outer CV beats it on both mean Dice
+   and density MAE; it is then chosen and fitted on all 60 films as above.
 4. 95 % bootstrap intervals over images (``--boot`` resamples), paired for
    differences. The variants were declared before they were measured; the
    probability smoothing (0.02) was chosen on a first run on 42 of the 60
@@ -278,6 +295,7 @@ class SegmentModel:
         self.coef, self.intercept = np.asarray(spec["coef"]), spec["intercept"]
         self.threshold = spec["threshold"]
         self.smoothing = spec.get("smoothing", SMOOTHING)
+        self.expected_area = False
 
     def segment_probability(self, X):
         z = (np.asarray(X)[:, self.cols] - self.mean) / self.scale
@@ -329,10 +347,19 @@ def fit_segments(breasts, names, c=1.0):
 
 PIXEL_VARIANTS = {  # declared before any was measured in this benchmark
     "pixel trees (CAR)": T.GREY_PLACE_PIXEL_DESCRIPTORS + T.CAR_SEGMENT_DESCRIPTORS,
-    "pixel trees + segment probability (CAR)": T.PIXEL_DESCRIPTORS,
+    "pixel trees + segment probability (CAR)": (T.GREY_PLACE_PIXEL_DESCRIPTORS
+                                                + T.CAR_PIXEL_DESCRIPTORS),
     "pixel trees, no CAR descriptor (control)": T.GREY_PLACE_PIXEL_DESCRIPTORS,
 }
+CONTEXT_VARIANT = "pixel trees + context (CAR)"  # declared at stop 39, before measuring
+PIXEL_VARIANTS[CONTEXT_VARIANT] = (T.GREY_PLACE_PIXEL_DESCRIPTORS + T.CONTEXT_PIXEL_DESCRIPTORS
+                                   + T.CAR_SEGMENT_DESCRIPTORS)
 CAR_PIXEL_VARIANTS = ("pixel trees (CAR)", "pixel trees + segment probability (CAR)")
+# the second nested choice (stop 39): variant, smoothing and mask rule
+NESTED_V2 = "pixel trees, nested choice v2 (CAR)"
+CAR_PIXEL_VARIANTS_V2 = (*CAR_PIXEL_VARIANTS, CONTEXT_VARIANT)
+SMOOTHINGS = (0.01, 0.02, 0.04)
+EXPECTED_AREA = "expected area"
 NESTED = "pixel trees, nested choice (CAR)"  # the shipping candidate
 NESTED_DENSITY = "pixel trees, nested choice, threshold for density (CAR)"
 PIXELS_PER_FILM = 4000
@@ -386,18 +413,37 @@ def pixel_probability(b, pixel, seg_model):
 def choose_pixel_thresholds(breasts, pixel, seg_model):
     """On these (validation) films: the threshold of best mean Dice (working
     grid) with that Dice, and the threshold of least mean absolute density
-    error (working grid)."""
-    scores = np.zeros(len(PIXEL_THRESHOLDS))
+    error (working grid), at the smoothing :data:`SMOOTHING`; and the mean
+    Dice of every (smoothing of :data:`SMOOTHINGS`, rule) where a rule is a
+    threshold of :data:`PIXEL_THRESHOLDS` or :data:`EXPECTED_AREA`."""
+    rules = [*map(float, PIXEL_THRESHOLDS), EXPECTED_AREA]
+    scores = {(sm, r): 0.0 for sm in SMOOTHINGS for r in rules}
     errors = np.zeros(len(PIXEL_THRESHOLDS))
     for b in breasts:
-        prob = pixel_probability(b, pixel, seg_model)[b.work.breast]
-        for i, t in enumerate(PIXEL_THRESHOLDS):
-            p = prob > t
-            scores[i] += dice(p, b.small_truth)
-            errors[i] += abs(100.0 * p.mean() - b.true_density)
-    best = int(scores.argmax())
-    return (float(PIXEL_THRESHOLDS[best]), scores[best] / len(breasts),
-            float(PIXEL_THRESHOLDS[errors.argmin()]))
+        bm = b.work.breast
+        raw = pixel.probability(pixel_matrix(b, seg_model))
+        for sm in SMOOTHINGS:
+            prob = T._breast_mean(raw, bm, sm * max(bm.shape))[bm]
+            for r in rules:
+                t = float(np.quantile(prob, 1.0 - prob.mean())) if r == EXPECTED_AREA else r
+                p = prob > t
+                scores[sm, r] += dice(p, b.small_truth)
+                if sm == SMOOTHING and r != EXPECTED_AREA:
+                    errors[rules.index(r)] += abs(100.0 * p.mean() - b.true_density)
+    scores = {k: v / len(breasts) for k, v in scores.items()}
+    best = max(map(float, PIXEL_THRESHOLDS), key=lambda t: scores[SMOOTHING, t])
+    return best, scores[SMOOTHING, best], float(PIXEL_THRESHOLDS[errors.argmin()]), scores
+
+
+def with_rule(model, smoothing, rule):
+    """A copy of a ``T.PixelModel`` with this smoothing and rule (a
+    threshold or :data:`EXPECTED_AREA`)."""
+    spec = {**model.spec, "smoothing": smoothing}
+    if rule == EXPECTED_AREA:
+        spec["rule"] = EXPECTED_AREA
+    else:
+        spec["threshold"] = rule
+    return T.PixelModel(spec)
 
 
 def nested_pixel_models(breasts, inner_val):
@@ -406,7 +452,8 @@ def nested_pixel_models(breasts, inner_val):
     and the CAR variant chosen on ``inner_val``; then every variant refitted
     on all of ``breasts`` with its chosen Dice threshold. Returns
     ({variant: (PixelModel, density threshold)}, the chosen CAR variant,
-    the segment model fitted on ``breasts``, the inner Dice per variant)."""
+    the segment model fitted on ``breasts``, the inner Dice per variant,
+    the second nested choice's PixelModel and (variant, smoothing, rule))."""
     inner_train = [b for b, v in zip(breasts, inner_val, strict=True) if not v]
     val = [b for b, v in zip(breasts, inner_val, strict=True) if v]
     seg_inner = fit_segments(inner_train, SEGMENT_VARIANTS["CAR"])
@@ -417,18 +464,21 @@ def nested_pixel_models(breasts, inner_val):
                                             seg_inner)
         inner_dice[v] = round(chosen[v][1], 4)
     best = max(CAR_PIXEL_VARIANTS, key=lambda v: chosen[v][1])
+    v2 = max(((v, sm, r) for v in CAR_PIXEL_VARIANTS_V2 for (sm, r) in chosen[v][3]),
+             key=lambda k: chosen[k[0]][3][k[1], k[2]])
     for v, names in PIXEL_VARIANTS.items():
         model = fit_pixels(breasts, names, seg)
         model.threshold = model.spec["threshold"] = chosen[v][0]
         out[v] = (model, chosen[v][2])
-    return out, best, seg, inner_dice
+    inner_dice["v2"] = round(chosen[v2[0]][3][v2[1], v2[2]], 4)
+    return out, best, seg, inner_dice, with_rule(out[v2[0]][0], v2[1], v2[2]), v2
 
 
 def evaluate_pixels(breasts, res, masks):
-    """Outer 5-fold CV of the pixel variants and of the nested choice (into
+    """Outer 5-fold CV of the pixel variants and of the nested choices (into
     ``res`` and ``masks`` as :func:`evaluate_ddsm` fills them)."""
     folds = np.array([fold_of(b.name) for b in breasts])
-    names = [*PIXEL_VARIANTS, NESTED, NESTED_DENSITY]
+    names = [*PIXEL_VARIANTS, NESTED, NESTED_DENSITY, NESTED_V2]
     for v in names:
         res[v] = {"dice": np.zeros(len(breasts)), "density": np.zeros(len(breasts)),
                   "thresholds": [], "chosen": [], "inner_dice": []}
@@ -436,18 +486,22 @@ def evaluate_pixels(breasts, res, masks):
     for k in range(FOLDS):
         part = [b for b, f in zip(breasts, folds, strict=True) if f != k]
         inner_val = [fold_of(b.name) == (k + 1) % FOLDS for b in part]
-        models, best, seg, inner = nested_pixel_models(part, inner_val)
-        print(f"fold {k}: inner Dice {inner}, chose {best}", file=sys.stderr)
+        models, best, seg, inner, model_v2, v2 = nested_pixel_models(part, inner_val)
+        print(f"fold {k}: inner Dice {inner}, chose {best}, v2 {v2}", file=sys.stderr)
         runs = {v: (m, m.threshold) for v, (m, _) in models.items()}
         runs[NESTED] = (models[best][0], models[best][0].threshold)
         runs[NESTED_DENSITY] = (models[best][0], models[best][1])
+        runs[NESTED_V2] = (model_v2, None)
         for v, (model, threshold) in runs.items():
-            res[v]["thresholds"].append(threshold)
-            res[v]["chosen"].append(best)
+            res[v]["thresholds"].append(threshold if threshold is not None else v2[1:])
+            res[v]["chosen"].append(v2 if v == NESTED_V2 else best)
             res[v]["inner_dice"].append(inner)
             for i in np.flatnonzero(folds == k):
                 b = breasts[i]
-                fg = T._full_mask(pixel_probability(b, model, seg) > threshold, b.seg, b.shape)
+                prob = pixel_probability(b, model, seg)
+                t = T._mask_threshold(prob, b.work.breast, model) if threshold is None else \
+                    threshold
+                fg = T._full_mask(prob > t, b.seg, b.shape)
                 res[v]["dice"][i] = dice(fg, b.truth)
                 res[v]["density"][i] = 100.0 * fg.sum() / b.seg.breast.sum()
                 masks[v][i] = fg
@@ -466,8 +520,9 @@ def predict(b, model, pixel=None):
         prob = T._breast_mean(pixel.probability(np.column_stack([b.pixels, prob[b.work.breast]])),
                               b.work.breast, pixel.smoothing * max(b.work.breast.shape))
         model = pixel
-    small = prob > model.threshold
-    row = T._image_row(b.work, b.vals, small)
+    threshold = T._mask_threshold(prob, b.work.breast, model)
+    small = prob > threshold
+    row = T._image_row(b.work, b.vals, prob, threshold)
     if b.seg is not None:
         fg = T._full_mask(small, b.seg, b.shape)
         density = 100.0 * fg.sum() / b.seg.breast.sum()
@@ -596,7 +651,131 @@ def evaluate_mias(breasts, classes, model, n_boot, pixel=None):
             out[v]["minus_control"] = float(mine.mean() - ctl.mean())
             out[v]["minus_control_interval"] = bootstrap((mine, ctl), n_boot,
                                                          stat=lambda a, c: np.mean(a - c))
+    out.update(evaluate_nested_classes(rows, y, folds, n_boot))
     return out, rows, y
+
+
+# --- the nested whole-breast class models ----------------------------------------------
+
+NESTED_CLASS_VARIANTS = {  # declared before any was measured (docstring, step 3)
+    "CAR, nested": T.IMAGE_DESCRIPTORS,
+    "CAR without histogram, nested": (T.CAR_IMAGE_DESCRIPTORS + T.DENSITY_DESCRIPTORS
+                                      + T.TEXTURE_DESCRIPTORS),
+    "histogram, nested (control)": T.HISTOGRAM_DESCRIPTORS + T.FAT_HISTOGRAM_DESCRIPTORS,
+}
+NESTED_CONTROL = "histogram, nested (control)"
+NESTED_SHIPPED = "CAR, nested"
+CLASSIFIERS = {  # declared before any was measured
+    **{f"multinomial logistic C={c}": ("multinomial", c) for c in (0.01, 0.1, 1.0)},
+    **{f"ordinal logistic C={c}": ("ordinal logistic", c) for c in (0.01, 0.1, 1.0)},
+    **{f"ordinal trees {n}": ("ordinal trees", n) for n in (50, 150)},
+}
+CLASS_TREE_OPTIONS = dict(max_leaf_nodes=4, learning_rate=0.05, min_samples_leaf=20,
+                          random_state=0)
+INNER_SEEDS = (0, 1)
+
+
+def _standardised_logistic(X, y, c):
+    """A logistic model of ``y`` on standardised ``X``: (fitted model, spec
+    terms mean, scale, coef, intercept)."""
+    from sklearn.linear_model import LogisticRegression
+
+    mean, scale = X.mean(axis=0), X.std(axis=0)
+    scale[scale <= 0] = 1.0
+    lr = LogisticRegression(C=c, max_iter=5000).fit((X - mean) / scale, y)
+    return lr, {"mean": mean.tolist(), "scale": scale.tolist()}
+
+
+def fit_class_model(rows, y, names, classifier):
+    """``T.ClassModel`` of the descriptors ``names`` fitted on image rows
+    (:data:`T.IMAGE_DESCRIPTORS`) and classes ``y`` by one of
+    :data:`CLASSIFIERS`; checked against scikit-learn's probabilities."""
+    from sklearn.ensemble import HistGradientBoostingClassifier
+
+    kind, option = CLASSIFIERS[classifier]
+    X = rows[:, [T.IMAGE_DESCRIPTORS.index(n) for n in names]]
+    spec = {"descriptors": list(names), "classifier": classifier}
+    reference = []
+    if kind == "multinomial":
+        lr, terms = _standardised_logistic(X, y, option)
+        spec.update(kind="multinomial", classes=[str(c) for c in lr.classes_], **terms,
+                    coef=lr.coef_.tolist(), intercept=lr.intercept_.tolist())
+        z = (X - np.asarray(terms["mean"])) / np.asarray(terms["scale"])
+        reference = lr.predict_proba(z)[:, [list(lr.classes_).index(c)
+                                            for c in T.TISSUE_CLASSES]]
+    else:
+        index = np.array([T.TISSUE_CLASSES.index(c) for c in y])
+        spec.update(kind="ordinal", steps=[])
+        for step in (1, 2):  # above F, above G
+            target = index >= step
+            if kind == "ordinal logistic":
+                lr, terms = _standardised_logistic(X, target, option)
+                spec["steps"].append({**terms, "coef": lr.coef_[0].tolist(),
+                                      "intercept": float(lr.intercept_[0])})
+                z = (X - np.asarray(terms["mean"])) / np.asarray(terms["scale"])
+                reference.append(lr.predict_proba(z)[:, 1])
+            else:
+                clf = HistGradientBoostingClassifier(max_iter=option, **CLASS_TREE_OPTIONS)
+                clf.fit(X, target)
+                baseline, trees = exported_trees(clf)
+                spec["steps"].append({"baseline": baseline, "trees": trees})
+                reference.append(clf.predict_proba(X)[:, 1])
+        a, g = reference
+        reference = np.column_stack([1 - a, np.maximum(a - g, 0), g])
+        reference /= reference.sum(axis=1, keepdims=True)
+    model = T.ClassModel(spec)
+    diff = np.abs(model.probabilities(rows) - reference).max()
+    assert diff < 1e-9, diff  # our evaluator against scikit-learn's
+    return model
+
+
+def predicted_classes(model, rows):
+    return np.array(T.TISSUE_CLASSES)[model.probabilities(rows).argmax(axis=1)]
+
+
+def choose_classifier(rows, y, names):
+    """The classifier of best mean accuracy over an inner 5-fold stratified
+    CV repeated with :data:`INNER_SEEDS` on these (training) images, and
+    every classifier's inner accuracy."""
+    from sklearn.model_selection import StratifiedKFold
+
+    scores = dict.fromkeys(CLASSIFIERS, 0.0)
+    for seed in INNER_SEEDS:
+        for tr, te in StratifiedKFold(5, shuffle=True, random_state=seed).split(rows, y):
+            for c in CLASSIFIERS:
+                model = fit_class_model(rows[tr], y[tr], names, c)
+                scores[c] += np.mean(predicted_classes(model, rows[te]) == y[te])
+    scores = {c: round(v / (5 * len(INNER_SEEDS)), 4) for c, v in scores.items()}
+    return max(CLASSIFIERS, key=scores.get), scores
+
+
+def evaluate_nested_classes(rows, y, folds, n_boot):
+    """Outer 5-fold CV of :data:`NESTED_CLASS_VARIANTS`, the classifier chosen
+    by :func:`choose_classifier` inside each training part."""
+    out, preds = {}, {}
+    for v, names in NESTED_CLASS_VARIANTS.items():
+        p = np.empty(len(y), object)
+        chosen = []
+        for k in range(FOLDS):
+            tr = folds != k
+            best, _ = choose_classifier(rows[tr], y[tr], names)
+            chosen.append(best)
+            p[~tr] = predicted_classes(fit_class_model(rows[tr], y[tr], names, best), rows[~tr])
+        print(f"{v}: chose {chosen}", file=sys.stderr)
+        preds[v] = p.astype(str)
+        ok = (preds[v] == y).astype(float)
+        out[v] = {"accuracy": float(ok.mean()), "accuracy_interval": bootstrap(ok, n_boot),
+                  "kappa": kappa(y, preds[v]),
+                  "kappa_interval": bootstrap((y, preds[v]), n_boot, stat=kappa),
+                  "confusion": confusion(y, preds[v]), "chosen": chosen}
+    ctl = (preds[NESTED_CONTROL] == y).astype(float)
+    for v in NESTED_CLASS_VARIANTS:
+        if v != NESTED_CONTROL:
+            mine = (preds[v] == y).astype(float)
+            out[v]["minus_control"] = float(mine.mean() - ctl.mean())
+            out[v]["minus_control_interval"] = bootstrap((mine, ctl), n_boot,
+                                                         stat=lambda a, c: np.mean(a - c))
+    return out
 
 
 def confusion(y, p):
@@ -657,6 +836,9 @@ def _report_mias(mias, masks):
               f"{iv(r['kappa_interval'])} | {d} |")
     for v, r in mias.items():
         print(f"confusion {v} (rows true F,G,D; cols predicted): {r['confusion']}")
+    for v, r in mias.items():
+        if "chosen" in r:
+            print(f"classifiers chosen in the folds, {v}: {r['chosen']}")
 
 
 def plot(breasts, masks, png, n=4):
@@ -778,11 +960,19 @@ def main():
     ap.add_argument("--write-model", action="store_true")
     ap.add_argument("--speed", action="store_true")
     ap.add_argument("--no-mias", action="store_true")
+    ap.add_argument("--classes-only", action="store_true",
+                    help="mini-MIAS only, with the shipped segment and pixel models")
     a = ap.parse_args()
     cache = Path(a.cache)
     prepare(cache, a.jobs, not a.no_mias)
     if a.prepare_only:
         return
+    if a.classes_only:  # the shipped segment and pixel models: no mini-MIAS image fitted them
+        shipped = T.shipped_tissue_model()
+        classes = mias_names()
+        mias = evaluate_mias(load("mias", sorted(classes), cache), classes, shipped, a.boot,
+                             shipped.pixel)[0]
+        return report({}, mias, "shipped pixel model's masks")
     ddsm_breasts = load("ddsm", ddsm_names(), cache)
     ddsm, masks, _ = evaluate_ddsm(ddsm_breasts, a.boot)
     seg_model = fit_segments(ddsm_breasts, SEGMENT_VARIANTS["CAR"])

@@ -88,7 +88,20 @@ CONTEXT_SIGMAS = (2, 6, 18)
 GREY_PLACE_PIXEL_DESCRIPTORS = (("grey_flat", "skin", "chest", "height")
                                 + tuple(f"grey_flat_mean_{s}" for s in CONTEXT_SIGMAS))
 CAR_PIXEL_DESCRIPTORS = CAR_SEGMENT_DESCRIPTORS + ("segment_probability",)
-PIXEL_DESCRIPTORS = GREY_PLACE_PIXEL_DESCRIPTORS + CAR_PIXEL_DESCRIPTORS
+# More context of a working pixel: its grey level's rank in the breast, its
+# grey level above the breast's fat reference (the mean of the darker
+# quarter) over the breast's range above it (exposure-free), the local
+# standard deviation of the flattened grey at 2 and 6 pixels, its Gaussian
+# mean at 54 pixels, and the Gaussian means at 6 and 18 pixels of the
+# standardised prediction-error energy per resolution (the texture around).
+WIDE_SIGMA = 54
+CONTEXT_PIXEL_DESCRIPTORS = (
+    ("grey_rank", "grey_above_fat", "grey_flat_std_2", "grey_flat_std_6",
+     f"grey_flat_mean_{WIDE_SIGMA}")
+    + tuple(f"energy_z_{m}_mean_{s}" for s in (6, 18) for m in range(_LEVELS))
+)
+PIXEL_DESCRIPTORS = (GREY_PLACE_PIXEL_DESCRIPTORS + CONTEXT_PIXEL_DESCRIPTORS
+                     + CAR_PIXEL_DESCRIPTORS)
 # A breast's descriptors: the CAR ones (the density and the texture of the
 # whole breast: prediction-error energy and parameter spread per level, the
 # fibroglandular-fat grey contrast) and the grey-level histogram ones (the
@@ -101,7 +114,33 @@ CAR_IMAGE_DESCRIPTORS = (
 )
 HISTOGRAM_DESCRIPTORS = ("grey_mean", "grey_std", "grey_skew", "grey_kurtosis", "grey_p05",
                          "grey_p25", "grey_p50", "grey_p75", "grey_p95", "otsu_fraction")
-IMAGE_DESCRIPTORS = CAR_IMAGE_DESCRIPTORS + HISTOGRAM_DESCRIPTORS
+# The whole breast's density and texture: the pixel model's probability
+# (its mean and the breast's fractions above 0.25, 0.5, 0.75) and per
+# resolution the quantiles over the breast of the log prediction-error
+# energy and of each local parameter, and the energy's mean on the
+# fibroglandular mask less that on the fat.
+_QUANTILES = (10, 25, 50, 75, 90)
+_PARAM_QUANTILES = (10, 50, 90)
+_PROBABILITY_STEPS = (0.25, 0.5, 0.75)
+DENSITY_DESCRIPTORS = ("probability_mean",) + tuple(
+    f"probability_above_{int(100 * t)}" for t in _PROBABILITY_STEPS)
+TEXTURE_DESCRIPTORS = (
+    tuple(f"energy_q{q}_{m}" for m in range(_LEVELS) for q in _QUANTILES)
+    + tuple(f"param{k}_q{q}_{m}" for m in range(_LEVELS) for k in range(4)
+            for q in _PARAM_QUANTILES)
+    + tuple(f"energy_fg_minus_fat_{m}" for m in range(_LEVELS))
+)
+# The grey histogram normalised to the breast's fat: the fat reference is the
+# mean grey of the breast's darker quarter (film exposure moves it, the
+# tissue's contrast above it stays); quantiles of the grey above it and the
+# breast's fractions above it by fixed grey steps.
+_FAT_STEPS = (0.05, 0.1, 0.15, 0.2, 0.3)
+FAT_HISTOGRAM_DESCRIPTORS = (
+    ("fat_reference",) + tuple(f"above_fat_q{q}" for q in _QUANTILES)
+    + tuple(f"above_fat_{int(100 * t):02d}" for t in _FAT_STEPS)
+)
+IMAGE_DESCRIPTORS = (CAR_IMAGE_DESCRIPTORS + HISTOGRAM_DESCRIPTORS + DENSITY_DESCRIPTORS
+                     + TEXTURE_DESCRIPTORS + FAT_HISTOGRAM_DESCRIPTORS)
 
 _MODEL_FILE = Path(__file__).with_name("tissue_model.json")
 
@@ -181,9 +220,8 @@ class TissueModel:
     mask): gradient-boosted trees of the working pixels' ``descriptors``
     (of :data:`PIXEL_DESCRIPTORS`; ``baseline`` and ``trees`` as
     :class:`TreeEnsemble` reads them), with its own ``smoothing`` and
-    ``threshold``; ``tissue``: a multinomial logistic model of the
-    ``descriptors`` it names (of :data:`IMAGE_DESCRIPTORS`) with ``classes``,
-    ``mean``, ``scale``, ``coef`` (classes x descriptors), ``intercept``.
+    ``threshold``; ``tissue``: the class model of the breast's descriptors
+    (:class:`ClassModel`).
     """
 
     def __init__(self, spec):
@@ -194,17 +232,13 @@ class TissueModel:
         self.seg_mean, self.seg_scale, self.seg_coef, self.seg_intercept = linear_terms(seg)
         self.threshold = float(seg.get("threshold", 0.5))
         self.smoothing = float(seg.get("smoothing", 0.0))
+        self.expected_area = False
         pix = spec.get("pixel")
         self.pixel = None if pix is None else PixelModel(pix)
         if self.pixel is not None:  # the mask is the pixel model's
             self.threshold = self.pixel.threshold
-        tis = spec["tissue"]
-        unknown = set(tis["descriptors"]) - set(IMAGE_DESCRIPTORS)
-        if unknown:
-            raise ValueError(f"tissue model uses unknown descriptors {sorted(unknown)}.")
-        self.columns = [IMAGE_DESCRIPTORS.index(n) for n in tis["descriptors"]]
-        self.classes = tuple(tis["classes"])
-        self.tis_mean, self.tis_scale, self.tis_coef, self.tis_intercept = linear_terms(tis)
+            self.expected_area = self.pixel.expected_area
+        self.tissue = ClassModel(spec["tissue"])
 
     def segment_probability(self, X):
         """Fibroglandular probability of segment descriptor rows ``X``."""
@@ -214,11 +248,63 @@ class TissueModel:
     def class_probabilities(self, x):
         """{class: probability} of one breast's descriptor row ``x``
         (:data:`IMAGE_DESCRIPTORS`)."""
-        z = (np.asarray(x, float)[self.columns] - self.tis_mean) / self.tis_scale
-        raw = self.tis_coef @ z + self.tis_intercept
-        p = np.exp(raw - raw.max())
-        p /= p.sum()
-        return {c: float(p[self.classes.index(c)]) for c in TISSUE_CLASSES}
+        p = self.tissue.probabilities(np.asarray(x, float)[None])[0]
+        return {c: float(v) for c, v in zip(TISSUE_CLASSES, p, strict=True)}
+
+
+class ClassModel:
+    """The tissue class of a breast from its ``descriptors`` (names of
+    :data:`IMAGE_DESCRIPTORS`; the ``tissue`` part of :class:`TissueModel`'s
+    spec).
+
+    ``kind`` "multinomial" (the default): a multinomial logistic model with
+    ``classes``, ``mean``, ``scale``, ``coef`` (classes x descriptors) and
+    ``intercept``. ``kind`` "ordinal" (F < G < D): two binary ``steps``, the
+    probability of a class above F and of one above G, each a logistic model
+    (``mean``, ``scale``, ``coef``, ``intercept``) or boosted trees
+    (``baseline``, ``trees`` as :class:`TreeEnsemble` reads them); the class
+    probabilities are their differences (a negative one, where the two
+    disagree, counts 0; then all are rescaled to sum to 1).
+    """
+
+    def __init__(self, spec):
+        self.spec = spec
+        unknown = set(spec["descriptors"]) - set(IMAGE_DESCRIPTORS)
+        if unknown:
+            raise ValueError(f"tissue model uses unknown descriptors {sorted(unknown)}.")
+        self.columns = [IMAGE_DESCRIPTORS.index(n) for n in spec["descriptors"]]
+        self.kind = spec.get("kind", "multinomial")
+        if self.kind == "multinomial":
+            classes = list(spec["classes"])
+            self.order = [classes.index(c) for c in TISSUE_CLASSES]
+            self.linear = linear_terms(spec)
+        elif self.kind == "ordinal":
+            self.steps = [_binary_step(step) for step in spec["steps"]]
+        else:
+            raise ValueError(f"tissue model of unknown kind {self.kind!r}.")
+
+    def probabilities(self, X):
+        """(n, 3) probabilities of :data:`TISSUE_CLASSES` of descriptor rows
+        ``X`` (n, len(IMAGE_DESCRIPTORS))."""
+        X = np.asarray(X, float)[:, self.columns]
+        if self.kind == "multinomial":
+            mean, scale, coef, intercept = self.linear
+            raw = ((X - mean) / scale) @ coef.T + intercept
+            p = np.exp(raw - raw.max(axis=1, keepdims=True))
+            return (p / p.sum(axis=1, keepdims=True))[:, self.order]
+        above_f, above_g = (step(X) for step in self.steps)
+        p = np.column_stack([1.0 - above_f, np.maximum(above_f - above_g, 0.0), above_g])
+        return p / p.sum(axis=1, keepdims=True)
+
+
+def _binary_step(spec):
+    """The probability function of one binary step of an ordinal class
+    model: logistic (``coef``) or boosted trees (``trees``)."""
+    if "trees" in spec:
+        trees = TreeEnsemble(spec["baseline"], spec["trees"])
+        return lambda X: 1.0 / (1.0 + np.exp(-trees.log_odds(X)))
+    mean, scale, coef, intercept = linear_terms(spec)
+    return lambda X: 1.0 / (1.0 + np.exp(-(((X - mean) / scale) @ coef + intercept)))
 
 
 class PixelModel:
@@ -234,6 +320,9 @@ class PixelModel:
         self.columns = [PIXEL_DESCRIPTORS.index(n) for n in spec["descriptors"]]
         self.trees = TreeEnsemble(spec["baseline"], spec["trees"])
         self.threshold = float(spec["threshold"])
+        # rule "expected area": each film's threshold makes the mask's area
+        # the mean probability over its breast (else the fixed threshold)
+        self.expected_area = spec.get("rule", "threshold") == "expected area"
         self.smoothing = float(spec.get("smoothing", 0.0))
 
     def probability(self, X):
@@ -382,10 +471,20 @@ def _pixel_rows(work, z, places, segment_probability):
     """Descriptor rows (:data:`PIXEL_DESCRIPTORS`, float32) of the breast's
     working pixels; ``segment_probability``: the segment model's (h, w) map."""
     b = work.breast
-    flat = _flattened(work.grey[b], places[0])
+    g = work.grey[b]
+    flat = _flattened(g, places[0])
     context = [_breast_mean(flat, b, s)[b] for s in CONTEXT_SIGMAS]
-    return np.column_stack([flat, *places, *context, z, segment_probability[b]]).astype(
-        np.float32)
+    rank = np.argsort(np.argsort(g, kind="stable"), kind="stable") / max(g.size - 1, 1)
+    fat = float(g[g <= np.percentile(g, 25)].mean())
+    above_fat = (g - fat) / max(float(g.max()) - fat, 1e-6)
+    local_std = [np.sqrt(np.maximum(_breast_mean(flat * flat, b, s)[b]
+                                    - context[CONTEXT_SIGMAS.index(s)] ** 2, 0.0))
+                 for s in (2, 6)]
+    wide = _breast_mean(flat, b, WIDE_SIGMA)[b]
+    energy = z[:, 4 * _LEVELS :]
+    texture = [_breast_mean(energy[:, m], b, s)[b] for s in (6, 18) for m in range(_LEVELS)]
+    return np.column_stack([flat, *places, *context, rank, above_fat, *local_std, wide,
+                            *texture, z, segment_probability[b]]).astype(np.float32)
 
 
 def _pixel_probability(work, z, places, segment_probability, pixel):
@@ -411,20 +510,31 @@ def _otsu(g):
     return float(threshold_otsu(g, nbins=256)) if g.max() > g.min() else float(g.max())
 
 
-def _image_row(work, vals, fg):
-    """:data:`IMAGE_DESCRIPTORS` of a breast: its CAR ones (from the raw
-    breast features ``vals`` and the fibroglandular mask ``fg`` on the crop)
-    and its grey histogram."""
+def _image_row(work, vals, prob, threshold):
+    """:data:`IMAGE_DESCRIPTORS` of a breast from its working view, the raw
+    breast features ``vals`` and the fibroglandular probability map ``prob``
+    on the crop (the mask is where it exceeds ``threshold``)."""
     b = work.breast
     g = work.grey[b]
-    f = fg[b]
+    p = prob[b]
+    f = p > threshold
     gs = max(float(g.std()), 1e-6)
-    contrast = (float(g[f].mean() - g[~f].mean()) / gs) if 0 < f.sum() < f.size else 0.0
+    has_both = 0 < f.sum() < f.size
+    contrast = (float(g[f].mean() - g[~f].mean()) / gs) if has_both else 0.0
     energy = vals[:, 4 * _LEVELS :]
     params = vals[:, : 4 * _LEVELS].reshape(len(vals), _LEVELS, 4)
     row = [float(f.mean()), contrast, *energy.mean(axis=0), *energy.std(axis=0),
            *np.sqrt((params.var(axis=0)).sum(axis=1))]
-    return np.array(row + _histogram_row(g), float)
+    row += _histogram_row(g)
+    row += [float(p.mean()), *(float(np.mean(p > t)) for t in _PROBABILITY_STEPS)]
+    row += [*np.percentile(energy, _QUANTILES, axis=0).T.ravel()]
+    row += [*np.percentile(params, _PARAM_QUANTILES, axis=0).transpose(1, 2, 0).ravel()]
+    row += [*(energy[f].mean(axis=0) - energy[~f].mean(axis=0) if has_both
+              else np.zeros(_LEVELS))]
+    fat = float(g[g <= np.percentile(g, 25)].mean())
+    row += [fat, *np.percentile(g - fat, _QUANTILES),
+            *(float(np.mean(g - fat > t)) for t in _FAT_STEPS)]
+    return np.array(row, float)
 
 
 def _describe_breast(grey, segmentation, model):
@@ -439,8 +549,18 @@ def _describe_breast(grey, segmentation, model):
     prob = _probability(work, rows, model)
     if model.pixel is not None:
         prob = _pixel_probability(work, z, places, prob, model.pixel)
-    fg = prob > model.threshold
-    return work, rows, prob, _image_row(work, vals, fg)
+    return work, rows, prob, _image_row(work, vals, prob, _mask_threshold(prob, work.breast,
+                                                                          model))
+
+
+def _mask_threshold(prob, breast, model):
+    """The probability threshold of a breast's mask: the model's, or with
+    the rule "expected area" the quantile of the breast's probabilities
+    that leaves their mean as the mask's share of the breast."""
+    if not model.expected_area:
+        return model.threshold
+    p = prob[breast]
+    return float(np.quantile(p, 1.0 - float(p.mean())))
 
 
 def _full_mask(small, segmentation, shape):
@@ -465,7 +585,8 @@ def _full_mask(small, segmentation, shape):
 def _tissue_of(grey, segmentation, model):
     """:class:`TissueResult` of a segmented breast."""
     work, _, prob, row = _describe_breast(grey, segmentation, model)
-    fg = _full_mask(prob > model.threshold, segmentation, grey.shape)
+    fg = _full_mask(prob > _mask_threshold(prob, work.breast, model), segmentation,
+                    grey.shape)
     breast = segmentation.breast
     density = 100.0 * float(fg.sum()) / float(breast.sum())
     row = row.copy()
