@@ -453,16 +453,21 @@ def _probability(work, segment_rows, model):
     return _breast_mean(acc / len(segment_rows), b, model.smoothing * max(b.shape))
 
 
-def _breast_mean(values, breast, sigma):
+def _breast_mean(values, breast, sigma, weights=None):
     """The breast pixels' ``values`` as an (h, w) float32 map, 0 off the
-    breast, their Gaussian mean over the breast only when ``sigma`` > 0."""
+    breast, their Gaussian mean over the breast only when ``sigma`` > 0.
+    ``weights``: an optional dict {sigma: the breast's Gaussian weight map}
+    that keeps each sigma's weight map for the next call (the same values,
+    one filter fewer)."""
     out = np.zeros(breast.shape, np.float32)
     out[breast] = values
     if sigma > 0:
         from scipy import ndimage
 
-        weight = ndimage.gaussian_filter(breast.astype(np.float32), sigma)
-        out = ndimage.gaussian_filter(out, sigma) / np.maximum(weight, 1e-6)
+        weights = {} if weights is None else weights
+        if sigma not in weights:
+            weights[sigma] = ndimage.gaussian_filter(breast.astype(np.float32), sigma)
+        out = ndimage.gaussian_filter(out, sigma) / np.maximum(weights[sigma], 1e-6)
         out[~breast] = 0.0
     return out
 
@@ -473,16 +478,19 @@ def _pixel_rows(work, z, places, segment_probability):
     b = work.breast
     g = work.grey[b]
     flat = _flattened(g, places[0])
-    context = [_breast_mean(flat, b, s)[b] for s in CONTEXT_SIGMAS]
-    rank = np.argsort(np.argsort(g, kind="stable"), kind="stable") / max(g.size - 1, 1)
+    weights = {}
+    context = [_breast_mean(flat, b, s, weights)[b] for s in CONTEXT_SIGMAS]
+    rank = np.empty(g.size)
+    rank[np.argsort(g, kind="stable")] = np.arange(g.size) / max(g.size - 1, 1)
     fat = float(g[g <= np.percentile(g, 25)].mean())
     above_fat = (g - fat) / max(float(g.max()) - fat, 1e-6)
-    local_std = [np.sqrt(np.maximum(_breast_mean(flat * flat, b, s)[b]
+    local_std = [np.sqrt(np.maximum(_breast_mean(flat * flat, b, s, weights)[b]
                                     - context[CONTEXT_SIGMAS.index(s)] ** 2, 0.0))
                  for s in (2, 6)]
-    wide = _breast_mean(flat, b, WIDE_SIGMA)[b]
+    wide = _breast_mean(flat, b, WIDE_SIGMA, weights)[b]
     energy = z[:, 4 * _LEVELS :]
-    texture = [_breast_mean(energy[:, m], b, s)[b] for s in (6, 18) for m in range(_LEVELS)]
+    texture = [_breast_mean(energy[:, m], b, s, weights)[b] for s in (6, 18)
+               for m in range(_LEVELS)]
     return np.column_stack([flat, *places, *context, rank, above_fat, *local_std, wide,
                             *texture, z, segment_probability[b]]).astype(np.float32)
 
