@@ -88,20 +88,7 @@ CONTEXT_SIGMAS = (2, 6, 18)
 GREY_PLACE_PIXEL_DESCRIPTORS = (("grey_flat", "skin", "chest", "height")
                                 + tuple(f"grey_flat_mean_{s}" for s in CONTEXT_SIGMAS))
 CAR_PIXEL_DESCRIPTORS = CAR_SEGMENT_DESCRIPTORS + ("segment_probability",)
-# More context of a working pixel: its grey level's rank in the breast, its
-# grey level above the breast's fat reference (the mean of the darker
-# quarter) over the breast's range above it (exposure-free), the local
-# standard deviation of the flattened grey at 2 and 6 pixels, its Gaussian
-# mean at 54 pixels, and the Gaussian means at 6 and 18 pixels of the
-# standardised prediction-error energy per resolution (the texture around).
-WIDE_SIGMA = 54
-CONTEXT_PIXEL_DESCRIPTORS = (
-    ("grey_rank", "grey_above_fat", "grey_flat_std_2", "grey_flat_std_6",
-     f"grey_flat_mean_{WIDE_SIGMA}")
-    + tuple(f"energy_z_{m}_mean_{s}" for s in (6, 18) for m in range(_LEVELS))
-)
-PIXEL_DESCRIPTORS = (GREY_PLACE_PIXEL_DESCRIPTORS + CONTEXT_PIXEL_DESCRIPTORS
-                     + CAR_PIXEL_DESCRIPTORS)
+PIXEL_DESCRIPTORS = GREY_PLACE_PIXEL_DESCRIPTORS + CAR_PIXEL_DESCRIPTORS
 # A breast's descriptors: the CAR ones (the density and the texture of the
 # whole breast: prediction-error energy and parameter spread per level, the
 # fibroglandular-fat grey contrast) and the grey-level histogram ones (the
@@ -232,12 +219,10 @@ class TissueModel:
         self.seg_mean, self.seg_scale, self.seg_coef, self.seg_intercept = linear_terms(seg)
         self.threshold = float(seg.get("threshold", 0.5))
         self.smoothing = float(seg.get("smoothing", 0.0))
-        self.expected_area = False
         pix = spec.get("pixel")
         self.pixel = None if pix is None else PixelModel(pix)
         if self.pixel is not None:  # the mask is the pixel model's
             self.threshold = self.pixel.threshold
-            self.expected_area = self.pixel.expected_area
         self.tissue = ClassModel(spec["tissue"])
 
     def segment_probability(self, X):
@@ -320,9 +305,6 @@ class PixelModel:
         self.columns = [PIXEL_DESCRIPTORS.index(n) for n in spec["descriptors"]]
         self.trees = TreeEnsemble(spec["baseline"], spec["trees"])
         self.threshold = float(spec["threshold"])
-        # rule "expected area": each film's threshold makes the mask's area
-        # the mean probability over its breast (else the fixed threshold)
-        self.expected_area = spec.get("rule", "threshold") == "expected area"
         self.smoothing = float(spec.get("smoothing", 0.0))
 
     def probability(self, X):
@@ -453,21 +435,16 @@ def _probability(work, segment_rows, model):
     return _breast_mean(acc / len(segment_rows), b, model.smoothing * max(b.shape))
 
 
-def _breast_mean(values, breast, sigma, weights=None):
+def _breast_mean(values, breast, sigma):
     """The breast pixels' ``values`` as an (h, w) float32 map, 0 off the
-    breast, their Gaussian mean over the breast only when ``sigma`` > 0.
-    ``weights``: an optional dict {sigma: the breast's Gaussian weight map}
-    that keeps each sigma's weight map for the next call (the same values,
-    one filter fewer)."""
+    breast, their Gaussian mean over the breast only when ``sigma`` > 0."""
     out = np.zeros(breast.shape, np.float32)
     out[breast] = values
     if sigma > 0:
         from scipy import ndimage
 
-        weights = {} if weights is None else weights
-        if sigma not in weights:
-            weights[sigma] = ndimage.gaussian_filter(breast.astype(np.float32), sigma)
-        out = ndimage.gaussian_filter(out, sigma) / np.maximum(weights[sigma], 1e-6)
+        weight = ndimage.gaussian_filter(breast.astype(np.float32), sigma)
+        out = ndimage.gaussian_filter(out, sigma) / np.maximum(weight, 1e-6)
         out[~breast] = 0.0
     return out
 
@@ -476,23 +453,10 @@ def _pixel_rows(work, z, places, segment_probability):
     """Descriptor rows (:data:`PIXEL_DESCRIPTORS`, float32) of the breast's
     working pixels; ``segment_probability``: the segment model's (h, w) map."""
     b = work.breast
-    g = work.grey[b]
-    flat = _flattened(g, places[0])
-    weights = {}
-    context = [_breast_mean(flat, b, s, weights)[b] for s in CONTEXT_SIGMAS]
-    rank = np.empty(g.size)
-    rank[np.argsort(g, kind="stable")] = np.arange(g.size) / max(g.size - 1, 1)
-    fat = float(g[g <= np.percentile(g, 25)].mean())
-    above_fat = (g - fat) / max(float(g.max()) - fat, 1e-6)
-    local_std = [np.sqrt(np.maximum(_breast_mean(flat * flat, b, s, weights)[b]
-                                    - context[CONTEXT_SIGMAS.index(s)] ** 2, 0.0))
-                 for s in (2, 6)]
-    wide = _breast_mean(flat, b, WIDE_SIGMA, weights)[b]
-    energy = z[:, 4 * _LEVELS :]
-    texture = [_breast_mean(energy[:, m], b, s, weights)[b] for s in (6, 18)
-               for m in range(_LEVELS)]
-    return np.column_stack([flat, *places, *context, rank, above_fat, *local_std, wide,
-                            *texture, z, segment_probability[b]]).astype(np.float32)
+    flat = _flattened(work.grey[b], places[0])
+    context = [_breast_mean(flat, b, s)[b] for s in CONTEXT_SIGMAS]
+    return np.column_stack([flat, *places, *context, z, segment_probability[b]]).astype(
+        np.float32)
 
 
 def _pixel_probability(work, z, places, segment_probability, pixel):
@@ -557,18 +521,7 @@ def _describe_breast(grey, segmentation, model):
     prob = _probability(work, rows, model)
     if model.pixel is not None:
         prob = _pixel_probability(work, z, places, prob, model.pixel)
-    return work, rows, prob, _image_row(work, vals, prob, _mask_threshold(prob, work.breast,
-                                                                          model))
-
-
-def _mask_threshold(prob, breast, model):
-    """The probability threshold of a breast's mask: the model's, or with
-    the rule "expected area" the quantile of the breast's probabilities
-    that leaves their mean as the mask's share of the breast."""
-    if not model.expected_area:
-        return model.threshold
-    p = prob[breast]
-    return float(np.quantile(p, 1.0 - float(p.mean())))
+    return work, rows, prob, _image_row(work, vals, prob, model.threshold)
 
 
 def _full_mask(small, segmentation, shape):
@@ -593,8 +546,7 @@ def _full_mask(small, segmentation, shape):
 def _tissue_of(grey, segmentation, model):
     """:class:`TissueResult` of a segmented breast."""
     work, _, prob, row = _describe_breast(grey, segmentation, model)
-    fg = _full_mask(prob > _mask_threshold(prob, work.breast, model), segmentation,
-                    grey.shape)
+    fg = _full_mask(prob > model.threshold, segmentation, grey.shape)
     breast = segmentation.breast
     density = 100.0 * float(fg.sum()) / float(breast.sum())
     row = row.copy()

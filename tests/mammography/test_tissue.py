@@ -323,3 +323,19 @@ def test_class_model_against_scikit_learn(classifier):
         _tissue.ClassModel({**spec, "descriptors": ["nope"]})
     with pytest.raises(ValueError, match="unknown kind"):
         _tissue.ClassModel({**spec, "kind": "nope"})
+
+
+def test_class_is_the_shipped_class_model_of_the_breast_row(half, job):
+    """segment_tissue's class probabilities are the shipped class model's of
+    the breast's descriptor row (as the benchmark computes it: the working
+    probability map and the model's threshold, the full-resolution density)."""
+    tissue, _ = job
+    model = _tissue.shipped_tissue_model()
+    seg = mm.segment_breast(half, pool=mm.DEFAULT_POOL_SEGMENTS, keep_features=True)
+    work = _tissue._working(half / 255.0, seg)
+    _, vals = _tissue._standardised(work.features, work.breast)
+    row = _tissue._image_row(work, vals, tissue.probability, model.threshold)
+    row[0] = tissue.density / 100.0
+    want = model.tissue.probabilities(row[None])[0]
+    np.testing.assert_allclose([tissue.probabilities[c] for c in "FGD"], want, rtol=0,
+                               atol=1e-12)
