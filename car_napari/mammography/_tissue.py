@@ -254,10 +254,7 @@ class ClassModel:
 
     def __init__(self, spec):
         self.spec = spec
-        unknown = set(spec["descriptors"]) - set(IMAGE_DESCRIPTORS)
-        if unknown:
-            raise ValueError(f"tissue model uses unknown descriptors {sorted(unknown)}.")
-        self.columns = [IMAGE_DESCRIPTORS.index(n) for n in spec["descriptors"]]
+        self.columns = _descriptor_columns(spec["descriptors"], IMAGE_DESCRIPTORS, "descriptors")
         self.kind = spec.get("kind", "multinomial")
         if self.kind == "multinomial":
             classes = list(spec["classes"])
@@ -282,6 +279,15 @@ class ClassModel:
         return p / p.sum(axis=1, keepdims=True)
 
 
+def _descriptor_columns(names, known, what):
+    """The columns of the descriptors ``names`` among ``known``; a
+    ValueError naming the unknown ones (``what`` they are)."""
+    unknown = set(names) - set(known)
+    if unknown:
+        raise ValueError(f"tissue model uses unknown {what} {sorted(unknown)}.")
+    return [known.index(n) for n in names]
+
+
 def _binary_step(spec):
     """The probability function of one binary step of an ordinal class
     model: logistic (``coef``) or boosted trees (``trees``)."""
@@ -299,10 +305,8 @@ class PixelModel:
 
     def __init__(self, spec):
         self.spec = spec
-        unknown = set(spec["descriptors"]) - set(PIXEL_DESCRIPTORS)
-        if unknown:
-            raise ValueError(f"tissue model uses unknown pixel descriptors {sorted(unknown)}.")
-        self.columns = [PIXEL_DESCRIPTORS.index(n) for n in spec["descriptors"]]
+        self.columns = _descriptor_columns(spec["descriptors"], PIXEL_DESCRIPTORS,
+                                           "pixel descriptors")
         self.trees = TreeEnsemble(spec["baseline"], spec["trees"])
         self.threshold = float(spec["threshold"])
         self.smoothing = float(spec.get("smoothing", 0.0))
