@@ -101,7 +101,33 @@ CAR_IMAGE_DESCRIPTORS = (
 )
 HISTOGRAM_DESCRIPTORS = ("grey_mean", "grey_std", "grey_skew", "grey_kurtosis", "grey_p05",
                          "grey_p25", "grey_p50", "grey_p75", "grey_p95", "otsu_fraction")
-IMAGE_DESCRIPTORS = CAR_IMAGE_DESCRIPTORS + HISTOGRAM_DESCRIPTORS
+# The whole breast's density and texture: the pixel model's probability
+# (its mean and the breast's fractions above 0.25, 0.5, 0.75) and per
+# resolution the quantiles over the breast of the log prediction-error
+# energy and of each local parameter, and the energy's mean on the
+# fibroglandular mask less that on the fat.
+_QUANTILES = (10, 25, 50, 75, 90)
+_PARAM_QUANTILES = (10, 50, 90)
+_PROBABILITY_STEPS = (0.25, 0.5, 0.75)
+DENSITY_DESCRIPTORS = ("probability_mean",) + tuple(
+    f"probability_above_{int(100 * t)}" for t in _PROBABILITY_STEPS)
+TEXTURE_DESCRIPTORS = (
+    tuple(f"energy_q{q}_{m}" for m in range(_LEVELS) for q in _QUANTILES)
+    + tuple(f"param{k}_q{q}_{m}" for m in range(_LEVELS) for k in range(4)
+            for q in _PARAM_QUANTILES)
+    + tuple(f"energy_fg_minus_fat_{m}" for m in range(_LEVELS))
+)
+# The grey histogram normalised to the breast's fat: the fat reference is the
+# mean grey of the breast's darker quarter (film exposure moves it, the
+# tissue's contrast above it stays); quantiles of the grey above it and the
+# breast's fractions above it by fixed grey steps.
+_FAT_STEPS = (0.05, 0.1, 0.15, 0.2, 0.3)
+FAT_HISTOGRAM_DESCRIPTORS = (
+    ("fat_reference",) + tuple(f"above_fat_q{q}" for q in _QUANTILES)
+    + tuple(f"above_fat_{int(100 * t):02d}" for t in _FAT_STEPS)
+)
+IMAGE_DESCRIPTORS = (CAR_IMAGE_DESCRIPTORS + HISTOGRAM_DESCRIPTORS + DENSITY_DESCRIPTORS
+                     + TEXTURE_DESCRIPTORS + FAT_HISTOGRAM_DESCRIPTORS)
 
 _MODEL_FILE = Path(__file__).with_name("tissue_model.json")
 
@@ -181,9 +207,8 @@ class TissueModel:
     mask): gradient-boosted trees of the working pixels' ``descriptors``
     (of :data:`PIXEL_DESCRIPTORS`; ``baseline`` and ``trees`` as
     :class:`TreeEnsemble` reads them), with its own ``smoothing`` and
-    ``threshold``; ``tissue``: a multinomial logistic model of the
-    ``descriptors`` it names (of :data:`IMAGE_DESCRIPTORS`) with ``classes``,
-    ``mean``, ``scale``, ``coef`` (classes x descriptors), ``intercept``.
+    ``threshold``; ``tissue``: the class model of the breast's descriptors
+    (:class:`ClassModel`).
     """
 
     def __init__(self, spec):
@@ -198,13 +223,7 @@ class TissueModel:
         self.pixel = None if pix is None else PixelModel(pix)
         if self.pixel is not None:  # the mask is the pixel model's
             self.threshold = self.pixel.threshold
-        tis = spec["tissue"]
-        unknown = set(tis["descriptors"]) - set(IMAGE_DESCRIPTORS)
-        if unknown:
-            raise ValueError(f"tissue model uses unknown descriptors {sorted(unknown)}.")
-        self.columns = [IMAGE_DESCRIPTORS.index(n) for n in tis["descriptors"]]
-        self.classes = tuple(tis["classes"])
-        self.tis_mean, self.tis_scale, self.tis_coef, self.tis_intercept = linear_terms(tis)
+        self.tissue = ClassModel(spec["tissue"])
 
     def segment_probability(self, X):
         """Fibroglandular probability of segment descriptor rows ``X``."""
@@ -214,11 +233,69 @@ class TissueModel:
     def class_probabilities(self, x):
         """{class: probability} of one breast's descriptor row ``x``
         (:data:`IMAGE_DESCRIPTORS`)."""
-        z = (np.asarray(x, float)[self.columns] - self.tis_mean) / self.tis_scale
-        raw = self.tis_coef @ z + self.tis_intercept
-        p = np.exp(raw - raw.max())
-        p /= p.sum()
-        return {c: float(p[self.classes.index(c)]) for c in TISSUE_CLASSES}
+        p = self.tissue.probabilities(np.asarray(x, float)[None])[0]
+        return {c: float(v) for c, v in zip(TISSUE_CLASSES, p, strict=True)}
+
+
+class ClassModel:
+    """The tissue class of a breast from its ``descriptors`` (names of
+    :data:`IMAGE_DESCRIPTORS`; the ``tissue`` part of :class:`TissueModel`'s
+    spec).
+
+    ``kind`` "multinomial" (the default): a multinomial logistic model with
+    ``classes``, ``mean``, ``scale``, ``coef`` (classes x descriptors) and
+    ``intercept``. ``kind`` "ordinal" (F < G < D): two binary ``steps``, the
+    probability of a class above F and of one above G, each a logistic model
+    (``mean``, ``scale``, ``coef``, ``intercept``) or boosted trees
+    (``baseline``, ``trees`` as :class:`TreeEnsemble` reads them); the class
+    probabilities are their differences (a negative one, where the two
+    disagree, counts 0; then all are rescaled to sum to 1).
+    """
+
+    def __init__(self, spec):
+        self.spec = spec
+        self.columns = _descriptor_columns(spec["descriptors"], IMAGE_DESCRIPTORS, "descriptors")
+        self.kind = spec.get("kind", "multinomial")
+        if self.kind == "multinomial":
+            classes = list(spec["classes"])
+            self.order = [classes.index(c) for c in TISSUE_CLASSES]
+            self.linear = linear_terms(spec)
+        elif self.kind == "ordinal":
+            self.steps = [_binary_step(step) for step in spec["steps"]]
+        else:
+            raise ValueError(f"tissue model of unknown kind {self.kind!r}.")
+
+    def probabilities(self, X):
+        """(n, 3) probabilities of :data:`TISSUE_CLASSES` of descriptor rows
+        ``X`` (n, len(IMAGE_DESCRIPTORS))."""
+        X = np.asarray(X, float)[:, self.columns]
+        if self.kind == "multinomial":
+            mean, scale, coef, intercept = self.linear
+            raw = ((X - mean) / scale) @ coef.T + intercept
+            p = np.exp(raw - raw.max(axis=1, keepdims=True))
+            return (p / p.sum(axis=1, keepdims=True))[:, self.order]
+        above_f, above_g = (step(X) for step in self.steps)
+        p = np.column_stack([1.0 - above_f, np.maximum(above_f - above_g, 0.0), above_g])
+        return p / p.sum(axis=1, keepdims=True)
+
+
+def _descriptor_columns(names, known, what):
+    """The columns of the descriptors ``names`` among ``known``; a
+    ValueError naming the unknown ones (``what`` they are)."""
+    unknown = set(names) - set(known)
+    if unknown:
+        raise ValueError(f"tissue model uses unknown {what} {sorted(unknown)}.")
+    return [known.index(n) for n in names]
+
+
+def _binary_step(spec):
+    """The probability function of one binary step of an ordinal class
+    model: logistic (``coef``) or boosted trees (``trees``)."""
+    if "trees" in spec:
+        trees = TreeEnsemble(spec["baseline"], spec["trees"])
+        return lambda X: 1.0 / (1.0 + np.exp(-trees.log_odds(X)))
+    mean, scale, coef, intercept = linear_terms(spec)
+    return lambda X: 1.0 / (1.0 + np.exp(-(((X - mean) / scale) @ coef + intercept)))
 
 
 class PixelModel:
@@ -228,10 +305,8 @@ class PixelModel:
 
     def __init__(self, spec):
         self.spec = spec
-        unknown = set(spec["descriptors"]) - set(PIXEL_DESCRIPTORS)
-        if unknown:
-            raise ValueError(f"tissue model uses unknown pixel descriptors {sorted(unknown)}.")
-        self.columns = [PIXEL_DESCRIPTORS.index(n) for n in spec["descriptors"]]
+        self.columns = _descriptor_columns(spec["descriptors"], PIXEL_DESCRIPTORS,
+                                           "pixel descriptors")
         self.trees = TreeEnsemble(spec["baseline"], spec["trees"])
         self.threshold = float(spec["threshold"])
         self.smoothing = float(spec.get("smoothing", 0.0))
@@ -411,20 +486,31 @@ def _otsu(g):
     return float(threshold_otsu(g, nbins=256)) if g.max() > g.min() else float(g.max())
 
 
-def _image_row(work, vals, fg):
-    """:data:`IMAGE_DESCRIPTORS` of a breast: its CAR ones (from the raw
-    breast features ``vals`` and the fibroglandular mask ``fg`` on the crop)
-    and its grey histogram."""
+def _image_row(work, vals, prob, threshold):
+    """:data:`IMAGE_DESCRIPTORS` of a breast from its working view, the raw
+    breast features ``vals`` and the fibroglandular probability map ``prob``
+    on the crop (the mask is where it exceeds ``threshold``)."""
     b = work.breast
     g = work.grey[b]
-    f = fg[b]
+    p = prob[b]
+    f = p > threshold
     gs = max(float(g.std()), 1e-6)
-    contrast = (float(g[f].mean() - g[~f].mean()) / gs) if 0 < f.sum() < f.size else 0.0
+    has_both = 0 < f.sum() < f.size
+    contrast = (float(g[f].mean() - g[~f].mean()) / gs) if has_both else 0.0
     energy = vals[:, 4 * _LEVELS :]
     params = vals[:, : 4 * _LEVELS].reshape(len(vals), _LEVELS, 4)
     row = [float(f.mean()), contrast, *energy.mean(axis=0), *energy.std(axis=0),
            *np.sqrt((params.var(axis=0)).sum(axis=1))]
-    return np.array(row + _histogram_row(g), float)
+    row += _histogram_row(g)
+    row += [float(p.mean()), *(float(np.mean(p > t)) for t in _PROBABILITY_STEPS)]
+    row += [*np.percentile(energy, _QUANTILES, axis=0).T.ravel()]
+    row += [*np.percentile(params, _PARAM_QUANTILES, axis=0).transpose(1, 2, 0).ravel()]
+    row += [*(energy[f].mean(axis=0) - energy[~f].mean(axis=0) if has_both
+              else np.zeros(_LEVELS))]
+    fat = float(g[g <= np.percentile(g, 25)].mean())
+    row += [fat, *np.percentile(g - fat, _QUANTILES),
+            *(float(np.mean(g - fat > t)) for t in _FAT_STEPS)]
+    return np.array(row, float)
 
 
 def _describe_breast(grey, segmentation, model):
@@ -439,8 +525,7 @@ def _describe_breast(grey, segmentation, model):
     prob = _probability(work, rows, model)
     if model.pixel is not None:
         prob = _pixel_probability(work, z, places, prob, model.pixel)
-    fg = prob > model.threshold
-    return work, rows, prob, _image_row(work, vals, fg)
+    return work, rows, prob, _image_row(work, vals, prob, model.threshold)
 
 
 def _full_mask(small, segmentation, shape):

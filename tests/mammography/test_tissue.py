@@ -230,3 +230,112 @@ def test_shipped_mask_is_its_probability_over_threshold(half, job):
     want = _tissue._full_mask(tissue.probability > model.threshold, seg, half.shape)
     np.testing.assert_array_equal(tissue.fibroglandular, want)
     assert tissue.density == pytest.approx(100.0 * want.sum() / seg.breast.sum())
+
+
+def test_image_row_against_direct_computations():
+    """Each breast descriptor (:data:`IMAGE_DESCRIPTORS`) by name, computed
+    here pixel list by pixel list from a small random breast."""
+    rng = np.random.default_rng(7)
+    h, w = 40, 30
+    breast = np.zeros((h, w), bool)
+    breast[3:37, 2:25] = True
+    grey = rng.random((h, w))
+    prob = np.where(breast, rng.random((h, w)), 0.0).astype(np.float32)
+    n = int(breast.sum())
+    vals = rng.standard_normal((n, 15))
+    work = _tissue._Working(grey, np.zeros((1, h, w), np.int32), breast, None)
+    row = _tissue._image_row(work, vals, prob, 0.4)
+    names = mm._tissue.IMAGE_DESCRIPTORS
+    assert row.shape == (len(names),)
+    got = dict(zip(names, row, strict=True))
+    g, p = grey[breast], prob[breast]
+    fg = p > 0.4
+    assert got["density"] == pytest.approx(fg.sum() / n)
+    assert got["fg_contrast"] == pytest.approx((g[fg].mean() - g[~fg].mean()) / g.std())
+    assert got["probability_mean"] == pytest.approx(p.mean())
+    assert got["probability_above_75"] == pytest.approx(np.mean(p > 0.75))
+    for m in range(3):
+        energy = vals[:, 12 + m]
+        assert got[f"energy_mean_{m}"] == pytest.approx(energy.mean())
+        assert got[f"energy_q25_{m}"] == pytest.approx(np.percentile(energy, 25))
+        assert got[f"energy_fg_minus_fat_{m}"] == pytest.approx(
+            energy[fg].mean() - energy[~fg].mean())
+        for k in range(4):
+            assert got[f"param{k}_q90_{m}"] == pytest.approx(np.percentile(vals[:, 4 * m + k], 90))
+    # the darker quarter: the sorted greys up to numpy's 25th percentile
+    # (linear interpolation; random greys have no ties)
+    fat = np.sort(g)[: int(np.floor(0.25 * (n - 1))) + 1].mean()
+    assert got["fat_reference"] == pytest.approx(fat)
+    assert got["above_fat_q50"] == pytest.approx(np.median(g) - fat)
+    assert got["above_fat_15"] == pytest.approx(np.mean(g > fat + 0.15))
+    assert got["grey_p75"] == pytest.approx(np.percentile(g, 75))
+
+
+@pytest.mark.parametrize("classifier", ["multinomial", "ordinal logistic", "ordinal trees"])
+def test_class_model_against_scikit_learn(classifier):
+    """The class probabilities of every kind of class model as scikit-learn
+    computes them (the multinomial softmax; the ordinal steps' differences)."""
+    from sklearn.ensemble import HistGradientBoostingClassifier
+    from sklearn.linear_model import LogisticRegression
+
+    from car_napari.mammography._trees import exported_trees
+
+    rng = np.random.default_rng(8)
+    names = ["density", "grey_mean", "energy_q50_1"]
+    rows = rng.standard_normal((150, len(mm._tissue.IMAGE_DESCRIPTORS)))
+    cols = [mm._tissue.IMAGE_DESCRIPTORS.index(n) for n in names]
+    X = rows[:, cols]
+    index = np.digitize(X[:, 0] + 0.5 * X[:, 1] + 0.3 * rng.standard_normal(150), [-0.5, 0.5])
+    y = np.array(["F", "G", "D"])[index]
+    mean, scale = X.mean(axis=0), X.std(axis=0)
+    z = (X - mean) / scale
+    terms = {"descriptors": names, "mean": mean.tolist(), "scale": scale.tolist()}
+    if classifier == "multinomial":
+        lr = LogisticRegression(max_iter=1000).fit(z, y)
+        spec = {**terms, "classes": list(lr.classes_), "coef": lr.coef_.tolist(),
+                "intercept": lr.intercept_.tolist()}
+        want = lr.predict_proba(z)[:, [list(lr.classes_).index(c) for c in "FGD"]]
+    else:
+        steps, above = [], []
+        for step in (1, 2):
+            if classifier == "ordinal logistic":
+                lr = LogisticRegression(max_iter=1000).fit(z, index >= step)
+                steps.append({"mean": mean.tolist(), "scale": scale.tolist(),
+                              "coef": lr.coef_[0].tolist(), "intercept": float(lr.intercept_[0])})
+                above.append(lr.predict_proba(z)[:, 1])
+            else:
+                clf = HistGradientBoostingClassifier(max_iter=30, max_leaf_nodes=4,
+                                                     random_state=0).fit(X, index >= step)
+                baseline, trees = exported_trees(clf)
+                steps.append({"baseline": baseline, "trees": trees})
+                above.append(clf.predict_proba(X)[:, 1])
+        spec = {"descriptors": names, "kind": "ordinal", "steps": steps}
+        a, g = above
+        want = np.column_stack([1 - a, np.clip(a - g, 0, None), g])
+        want /= want.sum(axis=1, keepdims=True)
+    model = _tissue.ClassModel(spec)
+    np.testing.assert_allclose(model.probabilities(rows), want, rtol=0, atol=1e-12)
+    tissue_model = _tissue.TissueModel({**_tissue.shipped_tissue_model().spec, "tissue": spec})
+    got = tissue_model.class_probabilities(rows[0])
+    assert list(got) == ["F", "G", "D"]
+    np.testing.assert_allclose(list(got.values()), want[0], rtol=0, atol=1e-12)
+    with pytest.raises(ValueError, match="unknown descriptors"):
+        _tissue.ClassModel({**spec, "descriptors": ["nope"]})
+    with pytest.raises(ValueError, match="unknown kind"):
+        _tissue.ClassModel({**spec, "kind": "nope"})
+
+
+def test_class_is_the_shipped_class_model_of_the_breast_row(half, job):
+    """segment_tissue's class probabilities are the shipped class model's of
+    the breast's descriptor row (as the benchmark computes it: the working
+    probability map and the model's threshold, the full-resolution density)."""
+    tissue, _ = job
+    model = _tissue.shipped_tissue_model()
+    seg = mm.segment_breast(half, pool=mm.DEFAULT_POOL_SEGMENTS, keep_features=True)
+    work = _tissue._working(half / 255.0, seg)
+    _, vals = _tissue._standardised(work.features, work.breast)
+    row = _tissue._image_row(work, vals, tissue.probability, model.threshold)
+    row[0] = tissue.density / 100.0
+    want = model.tissue.probabilities(row[None])[0]
+    np.testing.assert_allclose([tissue.probabilities[c] for c in "FGD"], want, rtol=0,
+                               atol=1e-12)
