@@ -486,10 +486,12 @@ def _otsu(g):
     return float(threshold_otsu(g, nbins=256)) if g.max() > g.min() else float(g.max())
 
 
-def _image_row(work, vals, prob, threshold):
+def _image_row(work, vals, prob, threshold, needed=None):
     """:data:`IMAGE_DESCRIPTORS` of a breast from its working view, the raw
     breast features ``vals`` and the fibroglandular probability map ``prob``
-    on the crop (the mask is where it exceeds ``threshold``)."""
+    on the crop (the mask is where it exceeds ``threshold``): the first
+    ``needed`` of them at least (a class model reading only the first ones
+    need not pay for the whole-breast quantiles)."""
     b = work.breast
     g = work.grey[b]
     p = prob[b]
@@ -502,6 +504,8 @@ def _image_row(work, vals, prob, threshold):
     row = [float(f.mean()), contrast, *energy.mean(axis=0), *energy.std(axis=0),
            *np.sqrt((params.var(axis=0)).sum(axis=1))]
     row += _histogram_row(g)
+    if needed is not None and len(row) >= needed:
+        return np.array(row, float)
     row += [float(p.mean()), *(float(np.mean(p > t)) for t in _PROBABILITY_STEPS)]
     row += [*np.percentile(energy, _QUANTILES, axis=0).T.ravel()]
     row += [*np.percentile(params, _PARAM_QUANTILES, axis=0).transpose(1, 2, 0).ravel()]
@@ -525,7 +529,8 @@ def _describe_breast(grey, segmentation, model):
     prob = _probability(work, rows, model)
     if model.pixel is not None:
         prob = _pixel_probability(work, z, places, prob, model.pixel)
-    return work, rows, prob, _image_row(work, vals, prob, model.threshold)
+    needed = max(model.tissue.columns) + 1
+    return work, rows, prob, _image_row(work, vals, prob, model.threshold, needed)
 
 
 def _full_mask(small, segmentation, shape):
