@@ -16,9 +16,12 @@ pixels on the long side), by
 * model surprise: a grey CAR model fitted on the ring predicts the
   candidate (:func:`_surprise`): how much worse than the ring itself, and
   how much brighter than predicted;
-* host: contrast against the rest of the candidate's segment.
+* host: contrast against the rest of the candidate's segment;
+* breast: its CAR features against its own breast (z-scores against the
+  breast's distribution) and the ranks of its CAR contrasts and surprise
+  among the image's candidates.
 
-The score is a logistic model of those descriptors whose coefficients ship
+The score is a logistic model or boosted trees of those descriptors, shipped
 in ``roi_model.json`` (fitted by ``benchmarks/bench_froc.py``); plain NumPy.
 """
 
