@@ -2,7 +2,7 @@
 
     PYTHONPATH=. nice -n 5 python benchmarks/bench_froc.py [--data cbis,mias]
         [--jobs 2] [--prepare-only] [--cache DIR] [--png docs/froc_mammography.png]
-        [--write-model] [--limit N] [--boot 1000] [--skip-optional]
+        [--write-model] [--limit N] [--boot 1000] [--skip-optional] [--wide-scorers]
 
 (``CAR_NAPARI_MAMMOGRAMS``: the data folder, when the checkout is not next to
 ``shared/``.)
@@ -124,6 +124,14 @@ SCORERS = {
     "logistic": ("logistic", {"C": 1.0}),
     "trees": ("trees", {"max_iter": 150, "learning_rate": 0.05, "max_leaf_nodes": 15,
                         "min_samples_leaf": 40, "l2_regularization": 1.0}),
+}
+# ``--wide-scorers`` adds these to the choice (session 39: declared, withdrawn
+# for time, then run as a second look at the outer folds after the first
+# run's figures were seen; reported as such, not shipped by that run)
+WIDE_SCORERS = {
+    "logistic C=0.1": ("logistic", {"C": 0.1}),
+    "trees, larger": ("trees", {"max_iter": 300, "learning_rate": 0.05, "max_leaf_nodes": 31,
+                                "min_samples_leaf": 40, "l2_regularization": 1.0}),
 }
 # how close to a finding's score a candidate joins it (``_merge``'s tie): the
 # package's 0.1, or never (the best candidate's own shape)
@@ -832,10 +840,14 @@ def main():
     ap.add_argument("--write-model", action="store_true")
     ap.add_argument("--boot", type=int, default=1000)
     ap.add_argument("--limit", type=int, default=None, help="development: first N images")
+    ap.add_argument("--wide-scorers", action="store_true",
+                    help=f"add {tuple(WIDE_SCORERS)} to the scorers a training part chooses")
     ap.add_argument("--skip-optional", action="store_true",
                     help=f"leave out the optional variants {OPTIONAL}")
     args = ap.parse_args()
     cache = Path(args.cache)
+    if args.wide_scorers:
+        SCORERS.update(WIDE_SCORERS)
     results, trained = {}, None
     for key in args.data.split(","):
         ds = DATASETS[key]()
