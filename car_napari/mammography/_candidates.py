@@ -16,9 +16,12 @@ pixels on the long side), by
 * model surprise: a grey CAR model fitted on the ring predicts the
   candidate (:func:`_surprise`): how much worse than the ring itself, and
   how much brighter than predicted;
-* host: contrast against the rest of the candidate's segment.
+* host: contrast against the rest of the candidate's segment;
+* breast: its CAR features against its own breast (z-scores against the
+  breast's distribution) and the ranks of its CAR contrasts and surprise
+  among the image's candidates.
 
-The score is a logistic model of those descriptors whose coefficients ship
+The score is a logistic model or boosted trees of those descriptors, shipped
 in ``roi_model.json`` (fitted by ``benchmarks/bench_froc.py``); plain NumPy.
 """
 
@@ -49,6 +52,10 @@ DESCRIPTORS = (
     "host_contrast", "host_contrast_z",
     # where in the breast: film edges and the pectoral corner are not masses
     "border_distance", "skin_distance", "chest_distance", "height", "corner",
+    # the candidate's CAR features against its own breast: z-scores against
+    # the breast's distribution, and ranks among the image's candidates
+    "param_breast_z", "energy_breast_z", "param_contrast_rank", "energy_contrast_rank",
+    "surprise_rank",
 )
 FAMILIES = {
     "grey": ("mean_grey", "grey_above_breast", "contrast", "contrast_z", "grey_std",
@@ -59,7 +66,11 @@ FAMILIES = {
     "surprise": ("surprise", "surprise_bias"),
     "host": ("host_contrast", "host_contrast_z"),
     "location": ("border_distance", "skin_distance", "chest_distance", "height", "corner"),
+    "breast": ("param_breast_z", "energy_breast_z", "param_contrast_rank",
+               "energy_contrast_rank", "surprise_rank"),
 }
+# descriptors that need the surprise fits (:func:`_surprise`)
+NEEDS_SURPRISE = frozenset(FAMILIES["surprise"] + ("surprise_rank",))
 # The CAR feature vector's layout per resolution level
 # (car_napari.segmentation.local_features with its defaults on a
 # pseudo-colour image): 4 PCA components of the local parameters, the log
@@ -210,6 +221,11 @@ def _describe(grey, labellings, breast, texture, cands, *, f, side, work=None, s
     med = float(np.median(grey[breast])) if breast.any() else 0.0
     if texture is not None:
         params, energy = _texture_indices(texture.shape[2])
+        # the breast's distribution of the CAR features (a mass is unusual
+        # for its own breast, whatever the film's scale)
+        in_breast = texture[breast] if breast.any() else texture.reshape(-1, texture.shape[2])
+        breast_mean = in_breast.mean(axis=0, dtype=np.float64)
+        breast_sd = in_breast.std(axis=0, dtype=np.float64) + 1e-6
     # per labelling: grey sum, sum of squares and count of every segment
     # (the host statistics are those less the candidate's own pixels)
     sums = []
@@ -248,17 +264,23 @@ def _describe(grey, labellings, breast, texture, cands, *, f, side, work=None, s
                      float(ti[:, params].std(axis=0).mean()),
                      float(mi[energy].mean()), float((mi[energy] - mr[energy]).mean()),
                      float(np.mean(seg[ring] != own))]
+            z = (mi - breast_mean) / breast_sd
+            breast_z = [float(np.sqrt(np.mean(z[params] ** 2))), float(z[energy].mean())]
         else:
             desc += [0.0] * len(FAMILIES["texture"])
+            breast_z = [0.0, 0.0]
         desc += _surprise(g, inside, ring) if surprise else [0.0, 0.0]
         desc += _host(g, inside, labellings[li][r0:r1, c0:c1], sums[li])
         desc += where(cr + r0, ccol + c0)
+        desc += breast_z + [0.0, 0.0, 0.0]  # the ranks, filled in below
         rows.append(desc)
         kept.append(Candidate((r0, r1, c0, c1), inside, (cr + r0, ccol + c0)))
     X = np.asarray(rows, float).reshape(len(rows), len(DESCRIPTORS))
     # the image's own scale: the rank of the contrast among its candidates
     # (a mass stands out in its own breast more than on an absolute scale)
-    for src, dst in (("contrast", "contrast_rank"), ("contrast_z", "contrast_z_rank")):
+    for src, dst in (("contrast", "contrast_rank"), ("contrast_z", "contrast_z_rank"),
+                     ("param_contrast", "param_contrast_rank"),
+                     ("energy_contrast", "energy_contrast_rank"), ("surprise", "surprise_rank")):
         col = X[:, DESCRIPTORS.index(src)]
         X[:, DESCRIPTORS.index(dst)] = _ranks(col)
     return kept, X
@@ -511,8 +533,13 @@ def _findings(cands, scores, grey, model):
     """The findings of scored candidates as ``model`` makes them (merged,
     visible part, bright core when the model asks for it) on the analysis
     grid ``grey``: ``(score, mask, box, best)``, best first."""
-    found = _visible(_merge(cands, scores, tie=model.tie), grey.shape,
-                     min_visible=model.min_visible)
+    return _refined(_merge(cands, scores, tie=model.tie), grey, model)
+
+
+def _refined(merged, grey, model):
+    """Merged findings (:func:`_merge`'s) cleaned as ``model`` asks: the
+    visible part, the bright core (:func:`_findings`)."""
+    found = _visible(merged, grey.shape, min_visible=model.min_visible)
     if model.core is not None:
         found = _cores(found, grey, model.core)
     return found

@@ -24,6 +24,7 @@ from ._breast import _iter_detect
 from ._candidates import (
     DESCRIPTORS,
     FAMILIES,
+    NEEDS_SURPRISE,
     _describe,
     _findings,
     _generate,
@@ -531,7 +532,8 @@ def _iter_rank(grey, segmentation, model, *, threshold, max_regions, min_area, s
     labs = [s[f // 2 :: f, f // 2 :: f][:h, :w] for s in labellings]
     breast = labs[0] > 0
     texture = None
-    uses_texture = bool(set(model.names) & set(FAMILIES["texture"]))
+    # the breast-relative family reads the CAR features too
+    uses_texture = bool(set(model.names) & set(FAMILIES["texture"] + FAMILIES["breast"]))
     if segmentation.features is not None and uses_texture:
         texture = _texture_grid(segmentation.features, segmentation.box, segmentation.factor, f,
                                 (h, w))
@@ -540,7 +542,7 @@ def _iter_rank(grey, segmentation, model, *, threshold, max_regions, min_area, s
     yield Progress("regions", 0.2, f"describing {len(cands)} candidates")
     kept, X = yield from _describe(small, labs, breast, texture, cands, f=f, side=max(H, W),
                                    work=(0.2, 0.6),
-                                   surprise=bool(set(model.names) & set(FAMILIES["surprise"])))
+                                   surprise=bool(set(model.names) & NEEDS_SURPRISE))
     scores = model.score(X) if kept else np.zeros(0)
     if band is not None:
         ok = np.abs(X[:, DESCRIPTORS.index("mean_grey")] - band[0]) <= band[1]

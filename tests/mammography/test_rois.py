@@ -501,6 +501,18 @@ def test_descriptors_of_a_disc_against_direct_measurements():
     diff = texture[inside][:, params].mean(0) - texture[ring][:, params].mean(0)
     assert row["param_contrast"] == pytest.approx(np.sqrt(np.mean(diff**2)), rel=1e-5)
     assert row["segment_edge"] == pytest.approx(1.0)  # the ring is all the other segment
+    # the breast-relative family: z-scores against the whole breast's features
+    energy = [m * 8 + 4 for m in range(3)]
+    t64 = texture.astype(np.float64)
+    z = (t64[inside].mean(0) - t64.reshape(-1, 24).mean(0)) / (t64.reshape(-1, 24).std(0) + 1e-6)
+    assert row["param_breast_z"] == pytest.approx(np.sqrt(np.mean(z[params] ** 2)), rel=1e-4)
+    assert row["energy_breast_z"] == pytest.approx(z[energy].mean(), rel=1e-4, abs=1e-6)
+    # and ranks among the image's candidates (1 for the largest, or a lone one)
+    for src in ("param_contrast", "energy_contrast", "surprise"):
+        col = X[:, DESCRIPTORS.index(src)]
+        want = (np.ones(1) if len(col) == 1 else
+                np.argsort(np.argsort(col, kind="stable"), kind="stable") / (len(col) - 1))
+        np.testing.assert_allclose(X[:, DESCRIPTORS.index(src + "_rank")], want)
 
 
 def test_texture_grid_takes_the_working_pixel_under_each_centre():
@@ -622,3 +634,58 @@ def test_cores_keep_the_bright_connected_part_of_each_finding():
     np.testing.assert_array_equal(core, seen)
     rr, cc = np.nonzero(core)
     assert 8 <= rr.mean() + 2 <= 18 and 28 <= cc.mean() + 2 <= 38
+
+
+def test_ranks_among_an_images_candidates_against_scipy():
+    """``_ranks`` (the within-image rank descriptors): scipy's average ranks
+    scaled to [0, 1], ties sharing theirs."""
+    from scipy.stats import rankdata
+
+    from car_napari.mammography._candidates import _ranks
+
+    values = np.array([0.3, -1.0, 0.3, 2.0, 0.0, 0.3, 5.0])
+    np.testing.assert_allclose(_ranks(values), (rankdata(values) - 1) / (len(values) - 1))
+    np.testing.assert_array_equal(_ranks(np.array([4.0])), [1.0])
+
+
+def test_package_describes_candidates_as_the_froc_benchmark(shared_data, tmp_path, monkeypatch):
+    """The package's candidates and descriptors of a CBIS-DDSM film are
+    those ``benchmarks/bench_froc.py`` trains the shipped model on: the same
+    candidates, the same grey, shape, location and surprise descriptors,
+    and the CAR-feature ones up to the benchmark cache's float16 rounding."""
+    import importlib.util
+    from pathlib import Path
+
+    from car_napari.mammography import _rois
+    from car_napari.mammography._candidates import DESCRIPTORS, FAMILIES, shipped_model
+
+    monkeypatch.setenv("CAR_NAPARI_MAMMOGRAMS", str(shared_data / "mammograms"))
+    path = Path(__file__).resolve().parents[2] / "benchmarks" / "bench_froc.py"
+    spec = importlib.util.spec_from_file_location("bench_froc_under_test", path)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    ds, name = bench.cbis(), "00001_LEFT_CC"
+    (tmp_path / ds.key).mkdir()
+    kept_b, X_b, _f, _secs = bench.candidates(ds, name, tmp_path, "car")
+
+    seen = {}
+    describe = _rois._describe
+
+    def spy(*args, **kwargs):
+        seen["kept"], seen["X"] = yield from describe(*args, **kwargs)
+        return seen["kept"], seen["X"]
+
+    monkeypatch.setattr(_rois, "_describe", spy)
+    detect_mammogram_rois(ds.read(name), marks_per_image=None)
+    assert [c.box for c in seen["kept"]] == [c.box for c in kept_b]
+    used = set(shipped_model().names)
+    from_features = set(FAMILIES["texture"] + FAMILIES["breast"])
+    for j, d in enumerate(DESCRIPTORS):
+        if d not in used:
+            continue
+        if d in from_features:  # the benchmark caches the CAR features as float16
+            np.testing.assert_allclose(seen["X"][:, j], X_b[:, j], rtol=0.05, atol=0.05,
+                                       err_msg=d)
+        else:
+            np.testing.assert_allclose(seen["X"][:, j], X_b[:, j], rtol=1e-9, atol=1e-12,
+                                       err_msg=d)
