@@ -122,6 +122,7 @@ def measure(textures, repeats, fit_kwargs):
         times["fit"] += t
         ours, t = timed(lambda m=model: m.synthesize((512, 512), seed=0), repeats)
         times["synthesis"] += t
+        synthesis_times = t
         noise, t = timed(lambda img=img: random_phase_noise(img, seed=0), repeats)
         times["random phase"] += t
         old_model, t = timed(
@@ -131,7 +132,7 @@ def measure(textures, repeats, fit_kwargs):
         times["old synthesis"] += t
         row = {"name": name, "ratio": model.compression_ratio(img.shape),
                "old ratio": old_model.compression_ratio(img.shape),
-               "levels": model.levels, "orders": model.orders}
+               "levels": model.levels, "orders": model.orders, "synthesis": synthesis_times}
         for label, out in (("ours", ours), ("rpn", noise), ("old", old)):
             d = distances(img, out)
             d["spurious"] = spurious_share(img, out)
@@ -151,15 +152,16 @@ def report(rows, times, split):
           "distances to the input, lower is better\n")
     head = "| texture | " + " | ".join(
         f"{k} ours / RPN" for k in ("autocorr L1", "colour-hist L1", "LBP L1")) + \
-        " | spurious % ours / RPN | ours above RPN | compression |"
+        " | spurious % ours / RPN | ours above RPN | compression | s synthesis median / max |"
     print(head)
-    print("|" + "---|" * 7)
+    print("|" + "---|" * 8)
     for r in rows:
         o, p = r["ours"], r["rpn"]
         print(f"| {r['name']} | " + " | ".join(
             f"{o[k]:.4f} / {p[k]:.4f}" for k in ("autocorr", "colour hist", "LBP"))
             + f" | {100 * o['spurious']:.4f} / {100 * p['spurious']:.4f} | "
-            f"{'YES' if o['spurious'] > p['spurious'] else 'no'} | {r['ratio']:.0f}:1 |")
+            f"{'YES' if o['spurious'] > p['spurious'] else 'no'} | {r['ratio']:.0f}:1 | "
+            f"{np.median(r['synthesis']):.3f} / {np.max(r['synthesis']):.3f} |")
     mean = {label: {k: float(np.mean([r[label][k] for r in rows])) for k in KEYS}
             for label in ("ours", "rpn", "old")}
     print("| **mean** | " + " | ".join(
@@ -167,7 +169,7 @@ def report(rows, times, split):
                                                                   "LBP"))
           + f" | {100 * mean['ours']['spurious']:.4f} / {100 * mean['rpn']['spurious']:.4f} | "
           f"{sum(r['ours']['spurious'] > r['rpn']['spurious'] for r in rows)}/{n} | "
-          f"{np.mean([r['ratio'] for r in rows]):.0f}:1 |")
+          f"{np.mean([r['ratio'] for r in rows]):.0f}:1 | |")
     print("\n| method | autocorr L1 | colour-hist L1 | LBP L1 | spurious % (mean, worst) "
           "| compression (min) | s fit median [range] | s synthesis median [range] |")
     print("|---|---|---|---|---|---|---|---|")
@@ -191,7 +193,8 @@ def report(rows, times, split):
     print(f"\nautocorrelation: ours / RPN = {ratio:.2f} (must be <= 4); colour-hist "
           f"{'below' if mean['ours']['colour hist'] < mean['rpn']['colour hist'] else 'NOT below'}"
           f" RPN; LBP {'below' if mean['ours']['LBP'] < mean['rpn']['LBP'] else 'NOT below'} "
-          f"RPN; spurious colours above RPN's on {beaten}/{n} textures")
+          f"RPN; spurious colours above RPN's on {beaten}/{n} textures; synthesis median above "
+          f"0.1 s on {sum(np.median(r['synthesis']) > 0.1 for r in rows)}/{n} textures")
 
 
 def write_grid(rows, path, side=128):
