@@ -65,6 +65,24 @@ def test_segment_folder_and_glob(tmp_path, capsys):
     assert "no input images" in capsys.readouterr().err
 
 
+def test_segment_merge_regions(tmp_path, capsys):
+    """--merge-regions is segment's region_threshold: never more segments
+    than without it; with --segments it is refused before any work."""
+    a, b = skdata.brick()[:96, :48], skdata.grass()[:96, :48]
+    io.imsave(tmp_path / "one.png", np.concatenate([a, b], axis=1))
+    options = [str(tmp_path / "one.png"), "--levels", "2"]
+    assert main(["segment", *options, "-o", str(tmp_path / "plain.png")]) == 0
+    assert main(["segment", *options, "-o", str(tmp_path / "merged.png"),
+                 "--merge-regions", "0.1"]) == 0
+    plain, merged = (io.imread(tmp_path / f"{n}.png") for n in ("plain", "merged"))
+    assert 1 <= len(np.unique(merged[merged > 0])) <= len(np.unique(plain[plain > 0]))
+    capsys.readouterr()
+    assert main(["segment", *options, "-o", str(tmp_path / "x.png"), "--segments", "2",
+                 "--merge-regions", "0.1"]) == 2
+    assert "drop --segments or --merge-regions" in capsys.readouterr().err
+    assert not (tmp_path / "x.png").exists()
+
+
 def test_bad_order_is_a_usage_error(tmp_path, capsys):
     import pytest
 
