@@ -21,9 +21,14 @@ first merge costing more than 0.06 nats per feature dimension), the first
 step of issue 32 (``relative``: ... and more than 0.22 of the costliest
 merge) and the rule of the package (``after``: ``segment``'s own rule, on
 the same history) are scored on the same run (a fresh run also checks that
-segment chose that state). Printed: the rate of mosaics whose labels have
-exactly the true number of segments, with a bootstrap 95 % interval over
-mosaics, the mean K, CS and ARI, and the paired differences of exact K.
+segment chose that state). Then ``segment(..., region_threshold=0.1)``
+runs (``region``: the segments of ``after``'s state merged while their
+whole-segment CAR models predict each other within 0.1 nats per pixel and
+channel; 0.1 was chosen on the TUNING mosaics of seeds 1-3, the largest of
+0.05-0.2 that kept the 5-texture TUNING mosaics' CS) and is scored too.
+Printed: the rate of mosaics whose labels have exactly the true number of
+segments, with a bootstrap 95 % interval over mosaics, the mean K, CS and
+ARI, and the paired differences of exact K.
 
 ``--five`` also runs the 5-texture benchmark of bench_segmentation.py
 (512x512, 6 mosaics per set, its TUNING or REPORT sets and seeds) and prints
@@ -90,9 +95,31 @@ def old_rule(history, n_features, relative=0.0):
     return len(history) - 1
 
 
+REGION_THRESHOLD = 0.1  # segment's region_threshold of the ``region`` rule
+
+
 def run_mosaic(image, truth, cache_file=None):
-    """Segment once; per merge state: the mixture's summary and the scores of
-    its labels. Returns a record (dict), cached in ``cache_file``."""
+    """Segment once; per merge state: the mixture's summary and the scores
+    of its labels; then the scores with the region merging
+    (``record["region"]``). Returns a record (dict), cached in
+    ``cache_file`` (the region merging's part beside it)."""
+    record = _history_record(image, truth, cache_file)
+    region_file = cache_file and cache_file.with_name(cache_file.stem + "-region.pkl")
+    if region_file is not None and region_file.exists():
+        record["region"] = pickle.loads(region_file.read_bytes())
+        return record
+    from car_napari.segmentation import segment
+
+    result = segment(image, channel_axis=-1 if image.ndim == 3 else None,
+                     region_threshold=REGION_THRESHOLD)
+    record["region"] = dict(scores=all_scores(truth, result.labels))
+    if region_file is not None:
+        region_file.write_bytes(pickle.dumps(record["region"]))
+    return record
+
+
+def _history_record(image, truth, cache_file):
+    """The merge history's states and scores (segment's defaults)."""
     if cache_file is not None and cache_file.exists():
         return pickle.loads(cache_file.read_bytes())
     from car_napari.segmentation import segment
@@ -138,13 +165,18 @@ def new_rule(record):
 
 def rules():
     """The rules compared: before (the stop before issue 32), relative (its
-    first step, the relative stop alone) and after (the package's rule, as
-    segment applies it)."""
-    return {"before": lambda rec: old_rule([_State(s) for s in rec["states"]],
-                                           rec["n_features"]),
-            "relative": lambda rec: old_rule([_State(s) for s in rec["states"]],
-                                             rec["n_features"], OLD_RELATIVE),
-            "after": new_rule}
+    first step, the relative stop alone), after (the history's stop, as
+    segment applies it) and package (segment as shipped: the region test
+    after that state); each gives its state's scores."""
+    def history_rule(rule):
+        return lambda rec: rec["states"][rule(rec)]["scores"]
+
+    return {"before": history_rule(lambda rec: old_rule([_State(s) for s in rec["states"]],
+                                                        rec["n_features"])),
+            "relative": history_rule(lambda rec: old_rule([_State(s) for s in rec["states"]],
+                                                          rec["n_features"], OLD_RELATIVE)),
+            "after": history_rule(new_rule),
+            "region": lambda rec: rec["region"]["scores"]}
 
 
 def bootstrap(values, n=2000, seed=0):
@@ -165,21 +197,21 @@ def exact_k_table(title, records, groups):
                                                  for g, v in groups.items()]:
             if not recs:
                 continue
-            picked = [r["states"][rule(r)]["scores"] for r in recs]
+            picked = [rule(r) for r in recs]
             exact = [100.0 * (s["K"] == r["true_k"]) for s, r in zip(picked, recs, strict=True)]
             m, lo, hi = bootstrap(exact)
             print(f"| {name} | {group} | {len(recs)} | {m:.1f} ({lo:.1f}-{hi:.1f}) | "
                   f"{np.mean([s['K'] for s in picked]):.2f} | "
                   f"{np.mean([s['CS'] for s in picked]):.1f} | "
                   f"{np.mean([s['ARI'] for s in picked]):.3f} |", flush=True)
-    exact = {name: np.array([r["states"][rule(r)]["scores"]["K"] == r["true_k"]
-                             for r in records], float) for name, rule in rules().items()}
-    for old in ("before", "relative"):
-        m, lo, hi = bootstrap(100.0 * (exact["after"] - exact[old]))
-        print(f"\nexact K after - {old}, paired over the {len(records)} mosaics: "
+    exact = {name: np.array([rule(r)["K"] == r["true_k"] for r in records], float)
+             for name, rule in rules().items()}
+    for new, old in (("after", "before"), ("after", "relative"), ("region", "after")):
+        m, lo, hi = bootstrap(100.0 * (exact[new] - exact[old]))
+        print(f"\nexact K {new} - {old}, paired over the {len(records)} mosaics: "
               f"{m:+.1f} points (95 %: {lo:+.1f} to {hi:+.1f}; "
-              f"{int((exact['after'] > exact[old]).sum())} more, "
-              f"{int((exact['after'] < exact[old]).sum())} fewer)", flush=True)
+              f"{int((exact[new] > exact[old]).sum())} more, "
+              f"{int((exact[new] < exact[old]).sum())} fewer)", flush=True)
 
 
 def five_table(title, records):
@@ -189,13 +221,12 @@ def five_table(title, records):
     print("| rule | " + " | ".join(keys) + " |")
     print("|---" * (len(keys) + 1) + "|")
     for name, rule in rules().items():
-        picked = [r["states"][rule(r)]["scores"] for r in records]
+        picked = [rule(r) for r in records]
         print(f"| {name} | " + " | ".join(
             f"{np.mean([s[k] for s in picked]):.3f}" if k in ("ARI", "VI")
             else f"{np.mean([s[k] for s in picked]):.2f}" for k in keys) + " |", flush=True)
-    changed = sum(new_rule(r) != rules()["relative"](r) for r in records)
-    print(f"\nafter picks another state than relative on {changed} of {len(records)} mosaics",
-          flush=True)
+    changed = sum(rules()["region"](r) != rules()["after"](r) for r in records)
+    print(f"\nthe region merging changed {changed} of {len(records)} mosaics", flush=True)
 
 
 def run_simple(split, seeds, count, size, cache):
