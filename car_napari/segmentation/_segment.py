@@ -723,7 +723,9 @@ def _iter_region_merges(result, final, image, limit, em, label, em_steps, at):
     every state labelled and stored as before (re-cuts stay look-ups).
     Returns the index of the new final state."""
     history = result.history
-    labels = result._cut(final, writable=False)
+    labels = result._cut(final, writable=result.mask is not None)
+    if result.mask is not None:  # the stored labels cover the whole image
+        labels[~result.mask] = 0
     ids = [int(i) for i in history[final].ids if (labels == i).any()]
     if len(ids) < 2:
         return final

@@ -161,3 +161,22 @@ def test_segment_result_is_the_states_labelling():
     assert result.n_segments <= plain.n_segments
     _history_is_consistent(result)
     np.testing.assert_array_equal(result.labels, result.labels_at(result.n_segments))
+
+
+def test_region_merging_reads_only_the_masked_pixels():
+    """With a mask, the region models see only its pixels: an image that
+    differs outside it (same features) gives the same segmentation."""
+    from skimage import data as skdata
+
+    image = np.concatenate([skdata.brick()[:96, :48], skdata.grass()[:96, :48]],
+                           axis=1) / 255.0
+    mask = np.zeros(image.shape, bool)
+    mask[:, 8:88] = True
+    features = segment(image, levels=2, n_init=8).features
+    other = image.copy()
+    other[~mask] = np.random.default_rng(0).random((~mask).sum())
+    results = [segment(im, features=features, n_init=8, mask=mask, region_threshold=0.1)
+               for im in (image, other)]
+    np.testing.assert_array_equal(results[0].labels, results[1].labels)
+    assert [m.k for m in results[0].history] == [m.k for m in results[1].history]
+    assert (results[0].labels[~mask] == 0).all()
