@@ -41,6 +41,25 @@ def test_live_merging_then_instant_recut(widget, qtbot):
     assert len(np.unique(after[after > 0])) <= target
 
 
+def test_merge_similar_regions_refines_the_automatic_k_only(widget, qtbot):
+    """The folded "merge similar regions" box is segment's region_threshold
+    (0 = off): on one texture, which the automatic K splits, a large value
+    merges the segments into one; a given number of segments ignores it."""
+    viewer, w = widget
+    w._image.value = viewer.add_image(skdata.grass()[:128, :128] / 255.0, name="mosaic")
+    w._levels.value, w._n_init.value = 2, 8
+    assert w._merge_regions.value == 0.0 and "0 = off" in w._merge_regions.tooltip
+    w._merge_regions.value = 10.0
+    job = w.start()
+    qtbot.waitUntil(lambda: job.done, timeout=120000)
+    assert w.result.n_segments == 1
+    assert viewer.layers["mosaic segments"].data.max() == 1
+    w._segments.value = 2
+    job = w.start()
+    qtbot.waitUntil(lambda: job.done, timeout=120000)
+    assert w.result.n_segments == 2
+
+
 def test_cancel_mid_run_leaves_layer_list_as_it_was(widget, qtbot):
     viewer, w = widget
     layer = viewer.add_image(_two_textures(), name="mosaic")
