@@ -23,6 +23,29 @@ and what the tissue figures would be without it (issue 35, session 40).
    192) that lie on label 255. Decision rule (the brief's): under +0.03 of
    mean Dice from the oracle, the pectoral detection is not worth changing
    for the tissue figures.
+3. ``--variants``, **the pectoral rule's constants, nested** (declared
+   before any variant was measured; the grid was drawn after looking at
+   step 1's table and at five films by eye, A_0003, A_0016, A_0051, A_0128,
+   A_0279, where the cut stops well above the muscle's lower end: the
+   candidate level catches only the muscle's bright top). Variants
+   (``VARIANTS``): the candidate level ``level`` (``m + level (s - m)``,
+   shipped 0.5) in 0.5, 0.4, 0.3, 0.2 crossed with the largest muscle share
+   of the breast ``max_share`` (shipped 0.35) in 0.35, 0.5; nothing else
+   changes. For each outer fold (``bench_tissue.fold_of``), the variant of
+   best mean pectoral Jaccard (working-resolution cut upsampled, against
+   label 255 at full resolution) on the other four folds' films is chosen
+   and reported on the held-out fold (Jaccard, share of label 255 kept in
+   the breast, films where the cut fires). Each variant's per-fold Jaccard
+   is printed too (a look at every fold, for the record; the choice uses
+   the training folds only).
+4. ``--tissue VARIANT_CACHE``: the 60 films segmented again with the
+   variant chosen in step 3 (if every fold chose the same one; else each
+   film with its own outer fold's choice, said in the output) into
+   ``VARIANT_CACHE``, and ``bench_tissue``'s ddsm-tissue evaluation (its
+   ``evaluate_ddsm``: every model and threshold chosen inside the folds, as
+   shipped) run on them: Dice and density error of the shipped variant
+   against step 2's run on the shipped breast, paired, 95 % bootstrap
+   intervals. Nothing of the tissue model is refitted for shipping here.
 """
 
 from __future__ import annotations
@@ -36,10 +59,15 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_tissue as B  # noqa: E402
 
-from car_napari.mammography import detect_breast  # noqa: E402
-from car_napari.mammography._images import _grey01  # noqa: E402
+from car_napari.mammography import _breast, detect_breast  # noqa: E402
+from car_napari.mammography._images import _grey01, _upsample_mask  # noqa: E402
 
 PECTORAL_LABEL = 255
+VARIANTS = {  # declared before any was measured (docstring, step 3)
+    f"level {level}, max share {share}": {"level": level, "max_share": share}
+    for level in (0.5, 0.4, 0.3, 0.2) for share in (0.35, 0.5)
+}
+SHIPPED_VARIANT = "level 0.5, max share 0.35"
 
 
 def jaccard(a, b):
@@ -122,15 +150,135 @@ def oracle(cache, n_boot):
     return breasts, masks
 
 
+def variant_cuts(names):
+    """{variant: [(full-resolution pectoral cut, share of label 255 kept in
+    the breast) per film]} and the label-255 masks, from one breast
+    detection per film (the cut alone varies)."""
+    cuts = {v: [] for v in VARIANTS}
+    truths = []
+    for name in names:
+        grey = _grey01(B.read("ddsm", name))
+        truth = B.ddsm_labels(name) == PECTORAL_LABEL
+        factor, smooth, t = _breast._background(grey)
+        mask, side = _breast._breast_with_muscle(smooth, t)
+        for v, options in VARIANTS.items():
+            pect = _breast._chest_wall_left(_breast._pectoral, smooth, mask, side, **options)
+            breast = _upsample_mask(_breast._largest_component(mask & ~pect), grey.shape,
+                                    factor)
+            cuts[v].append((_upsample_mask(pect, grey.shape, factor),
+                            (breast & truth).sum() / max(truth.sum(), 1)))
+        truths.append(truth)
+    return cuts, truths
+
+
+def nested_variants(names, n_boot):
+    """Step 3: the variant of best training-fold Jaccard per outer fold,
+    reported on the held-out fold. Returns {name: chosen variant}."""
+    cuts, truths = variant_cuts(names)
+    folds = np.array([B.fold_of(n) for n in names])
+    jac = {v: np.array([jaccard(c, t) for (c, _), t in zip(cuts[v], truths, strict=True)])
+           for v in VARIANTS}
+    print("\npectoral Jaccard per variant and fold (mean over the fold's films)")
+    print("| variant | " + " | ".join(f"fold {k}" for k in range(B.FOLDS)) + " |")
+    print("|---|" + "---|" * B.FOLDS)
+    for v in VARIANTS:
+        print(f"| {v} | " + " | ".join(f"{jac[v][folds == k].mean():.3f}"
+                                       for k in range(B.FOLDS)) + " |")
+    chosen, out = {}, {"jaccard": np.zeros(len(names)), "kept": np.zeros(len(names)),
+                       "fires": np.zeros(len(names), bool)}
+    for k in range(B.FOLDS):
+        best = max(VARIANTS, key=lambda v: jac[v][folds != k].mean())
+        for i in np.flatnonzero(folds == k):
+            chosen[names[i]] = best
+            cut, out["kept"][i] = cuts[best][i]
+            out["jaccard"][i] = jac[best][i]
+            out["fires"][i] = cut.any()
+        held = folds == k
+        print(f"fold {k}: chose {best} (training Jaccard {jac[best][~held].mean():.3f}); "
+              f"held out: Jaccard {jac[best][held].mean():.3f} (shipped rule "
+              f"{jac[SHIPPED_VARIANT][held].mean():.3f}), label 255 kept "
+              f"{out['kept'][held].mean():.3f} (shipped rule "
+              f"{np.mean([cuts[SHIPPED_VARIANT][i][1] for i in np.flatnonzero(held)]):.3f})")
+    ship = jac[SHIPPED_VARIANT]
+    diff = lambda a, c: np.mean(a - c)  # noqa: E731
+    print(f"nested choice, held-out folds: Jaccard {out['jaccard'].mean():.3f} "
+          f"{B.iv(B.bootstrap(out['jaccard'], n_boot))}, shipped rule {ship.mean():.3f} "
+          f"{B.iv(B.bootstrap(ship, n_boot))}, difference "
+          f"{out['jaccard'].mean() - ship.mean():+.3f} "
+          f"{B.iv(B.bootstrap((out['jaccard'], ship), n_boot, stat=diff))}; cut fires on "
+          f"{out['fires'].sum()} films (shipped rule "
+          f"{sum(c.any() for c, _ in cuts[SHIPPED_VARIANT])}); label 255 kept: mean "
+          f"{out['kept'].mean():.3f} (shipped rule "
+          f"{np.mean([k for _, k in cuts[SHIPPED_VARIANT]]):.3f})")
+    return chosen
+
+
+def _segment_with(job):
+    """A film segmented by the package's pipeline with the pectoral rule of
+    ``variant`` (in a worker process: the module's ``_pectoral`` replaced)."""
+    import functools
+
+    name, variant, cache = job
+    _breast._pectoral = functools.partial(_breast._pectoral, **VARIANTS[variant])
+    B.segmentation("ddsm", name, cache)
+    return name
+
+
+def tissue(chosen, cache, shipped_cache, n_boot, jobs=2):
+    """Step 4: the tissue evaluation on the films segmented with the chosen
+    variants, against the shipped breast's, paired."""
+    import multiprocessing as mp
+
+    names = sorted(chosen)
+    todo = [(n, chosen[n], cache) for n in names
+            if not (cache / "ddsm" / f"{n}.npz").exists()]
+    print(f"\nsegmenting {len(todo)} films with variants "
+          f"{sorted(set(chosen.values()))}", file=sys.stderr)
+    if todo:
+        with mp.get_context("spawn").Pool(jobs, initializer=B._single_threaded,
+                                          maxtasksperchild=1) as pool:
+            for i, _ in enumerate(pool.imap_unordered(_segment_with, todo)):
+                print(f"\rsegmented {i + 1}/{len(todo)}", end="", file=sys.stderr, flush=True)
+    runs = {}
+    for label, c in (("shipped breast", shipped_cache), ("chosen pectoral rule", cache)):
+        breasts = B.load("ddsm", names, c)
+        out, masks, res = B.evaluate_ddsm(breasts, n_boot)
+        runs[label] = (res, breasts, masks)
+    diff = lambda a, c: np.mean(a - c)  # noqa: E731
+    truth = np.array([b.true_density for b in runs["shipped breast"][1]])
+    print("\nddsm-tissue, 5-fold CV by file, the pectoral rule chosen in the folds")
+    print("| variant | breast | mean Dice [95 % CI] | density MAE [95 % CI] |")
+    print("|---|---|---|---|")
+    for v in (B.NESTED, "CAR", "Otsu (control)"):
+        for label, (res, _, _) in runs.items():
+            d = res[v]["dice"]
+            e = np.abs(res[v]["density"] - truth)
+            print(f"| {v} | {label} | {d.mean():.3f} {B.iv(B.bootstrap(d, n_boot))} | "
+                  f"{e.mean():.1f} {B.iv(B.bootstrap(e, n_boot))} |")
+        new, old = runs["chosen pectoral rule"][0][v], runs["shipped breast"][0][v]
+        en, eo = np.abs(new["density"] - truth), np.abs(old["density"] - truth)
+        print(f"| {v} | chosen - shipped | {new['dice'].mean() - old['dice'].mean():+.3f} "
+              f"{B.iv(B.bootstrap((new['dice'], old['dice']), n_boot, stat=diff))} | "
+              f"{en.mean() - eo.mean():+.1f} {B.iv(B.bootstrap((en, eo), n_boot, stat=diff))} |")
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cache", default="/tmp/tissue")
     ap.add_argument("--boot", type=int, default=1000)
     ap.add_argument("--oracle", action="store_true")
+    ap.add_argument("--variants", action="store_true")
+    ap.add_argument("--tissue", default=None, metavar="VARIANT_CACHE")
+    ap.add_argument("--jobs", type=int, default=2)
     a = ap.parse_args()
-    report_kept(muscle_kept(B.ddsm_names()))
+    if not a.variants:
+        report_kept(muscle_kept(B.ddsm_names()))
     if a.oracle:
         oracle(Path(a.cache), a.boot)
+    if a.variants:
+        chosen = nested_variants(B.ddsm_names(), a.boot)
+        if a.tissue:
+            tissue(chosen, Path(a.tissue), Path(a.cache), a.boot, a.jobs)
 
 
 if __name__ == "__main__":
