@@ -118,11 +118,18 @@ def _pectoral(grey, breast, *, level=PECTORAL_LEVEL, max_share=PECTORAL_MAX_SHAR
        slopes inwards (``b < -0.1``), the muscle is brighter than the breast
        band just right of the line, and it covers 1 % to ``max_share`` of
        the breast.
+
+    ``level`` may be a sequence of levels: of their accepted cuts, the one
+    whose edge has the largest step (:func:`_edge_step`) is kept.
     """
     from scipy import ndimage
 
     h, w = grey.shape
     none = np.zeros_like(breast)
+    if np.ndim(level):
+        cuts = [_pectoral(grey, breast, level=v, max_share=max_share) for v in level]
+        cuts = [c for c in cuts if c.any()]
+        return max(cuts, key=lambda c: _edge_step(grey, breast, c)) if cuts else none
     rows = np.flatnonzero(breast.any(axis=1))
     if rows.size < 16:
         return none
@@ -181,6 +188,23 @@ def _pectoral(grey, breast, *, level=PECTORAL_LEVEL, max_share=PECTORAL_MAX_SHAR
     if band.sum() < 10 or grey[pect].mean() <= grey[band].mean():
         return none
     return pect
+
+
+def _edge_step(grey, breast, pect, width=3):
+    """Mean grey of the muscle's pixels within ``width`` pixels left of its
+    inner edge minus that of the breast's pixels within ``width`` pixels right
+    of it (rows: the muscle's edge runs down and inwards from the top)."""
+    inside = np.zeros_like(pect)
+    outside = np.zeros_like(pect)
+    rest = breast & ~pect
+    for k in range(1, width + 1):
+        outside[:, k:] |= pect[:, :-k]
+        inside[:, :-k] |= rest[:, k:]
+    inside &= pect
+    outside &= rest
+    if not (inside.any() and outside.any()):
+        return -np.inf
+    return float(grey[inside].mean() - grey[outside].mean())
 
 
 def _background(grey):
