@@ -56,6 +56,11 @@ and what the tissue figures would be without it (issue 35, session 40).
    in the folds): the upper bound of what a perfect pectoral cut could
    bring, paired against the shipped breast.
 
+**Results** (session 40; docs/mammography.md, "The pectoral muscle on
+ddsm-tissue"): both oracles stay under +0.03 of Dice (after the fact
++0.002, re-segmented +0.013), so step 4 was not run and the default cut is
+unchanged; the edge-step cut is kept as an option of ``_pectoral``.
+
 **Round 2** (declared after step 3's first run was seen, which chose level
 0.3 in four folds and 0.4 in one, nested Jaccard 0.557 against 0.515, and
 after looking by eye at level 0.3 on the five films above: it cuts deeper
