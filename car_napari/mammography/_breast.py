@@ -20,6 +20,11 @@ _MIN_WORK_SIDE = 16  # a thinner strip has no breast shape to find
 # long side along every border is never breast (about 12 pixels of an
 # 800-pixel film; a mass there is cut off the film anyway).
 _BORDER = 0.015
+# The pectoral muscle (:func:`_pectoral`): its candidate pixels are brighter
+# than the breast median by this fraction of the seed's excess, and it covers
+# at most this share of the breast (written for mini-MIAS).
+PECTORAL_LEVEL = 0.5
+PECTORAL_MAX_SHARE = 0.35
 
 
 class BreastDetection(NamedTuple):
@@ -91,7 +96,7 @@ def _theil_sen(y, x):
     return b, np.median(y) - b * np.median(x)
 
 
-def _pectoral(grey, breast):
+def _pectoral(grey, breast, *, level=PECTORAL_LEVEL, max_share=PECTORAL_MAX_SHARE):
     """Pectoral muscle mask on a breast whose chest wall is on the LEFT.
 
     Heuristic (mini-MIAS MLO views): the muscle is a bright, roughly
@@ -102,8 +107,8 @@ def _pectoral(grey, breast):
        of the breast height), leftmost 15 % of the breast width, ignoring
        pixels darker than the breast median (the film edge). Breast level
        ``m``: median grey of the whole breast. No muscle unless ``s > m``.
-    2. Candidate: breast pixels brighter than ``m + 0.5 (s - m)``, connected
-       to the seed (after a small opening).
+    2. Candidate: breast pixels brighter than ``m + level (s - m)``,
+       connected to the seed (after a small opening).
     3. Each row's extent from the breast's left edge (skipping the dark film
        edge, up to 6 pixels) along the candidate is
        measured until the first row without one; a Theil-Sen line
@@ -111,12 +116,20 @@ def _pectoral(grey, breast):
        those extents, and the muscle is the breast left of the line.
     4. Rejected (no muscle: CC view or an invisible muscle) unless the line
        slopes inwards (``b < -0.1``), the muscle is brighter than the breast
-       band just right of the line, and it covers 1 % to 35 % of the breast.
+       band just right of the line, and it covers 1 % to ``max_share`` of
+       the breast.
+
+    ``level`` may be a sequence of levels: of their accepted cuts, the one
+    whose edge has the largest step (:func:`_edge_step`) is kept.
     """
     from scipy import ndimage
 
     h, w = grey.shape
     none = np.zeros_like(breast)
+    if np.ndim(level):
+        cuts = [_pectoral(grey, breast, level=v, max_share=max_share) for v in level]
+        cuts = [c for c in cuts if c.any()]
+        return max(cuts, key=lambda c: _edge_step(grey, breast, c)) if cuts else none
     rows = np.flatnonzero(breast.any(axis=1))
     if rows.size < 16:
         return none
@@ -138,7 +151,7 @@ def _pectoral(grey, breast):
     m = float(np.median(grey[breast]))
     if s <= m:
         return none
-    cand = breast & (grey > m + 0.5 * (s - m))
+    cand = breast & (grey > m + level * (s - m))
     cand = ndimage.binary_opening(cand, iterations=1)
     lab, _n = ndimage.label(cand)
     ids = np.unique(lab[seed & cand])
@@ -169,12 +182,29 @@ def _pectoral(grey, breast):
     R, C = np.mgrid[0:h, 0:w]
     pect = breast & (C < a + b * R)
     frac = pect.sum() / max(breast.sum(), 1)
-    if not 0.01 <= frac <= 0.35:
+    if not 0.01 <= frac <= max_share:
         return none
     band = breast & ~pect & (C < a + b * R + 0.1 * w)
     if band.sum() < 10 or grey[pect].mean() <= grey[band].mean():
         return none
     return pect
+
+
+def _edge_step(grey, breast, pect, width=3):
+    """Mean grey of the muscle's pixels within ``width`` pixels left of its
+    inner edge minus that of the breast's pixels within ``width`` pixels right
+    of it (rows: the muscle's edge runs down and inwards from the top)."""
+    inside = np.zeros_like(pect)
+    outside = np.zeros_like(pect)
+    rest = breast & ~pect
+    for k in range(1, width + 1):
+        outside[:, k:] |= pect[:, :-k]
+        inside[:, :-k] |= rest[:, k:]
+    inside &= pect
+    outside &= rest
+    if not (inside.any() and outside.any()):
+        return -np.inf
+    return float(grey[inside].mean() - grey[outside].mean())
 
 
 def _background(grey):
@@ -268,31 +298,13 @@ def detect_breast(image, *, pectoral=True, return_details=False, channel_axis=-1
 def _iter_detect(grey, *, pectoral=True, return_details=False):
     """:func:`detect_breast` of a grey image on [0, 1] (:func:`_grey01`), as a
     job: "breast" records between the steps that scan the full image."""
-    from scipy import ndimage
-
     H, W = grey.shape
     factor, smooth, t = _background(grey)
     yield Progress("breast", 0.4, "background level")
-    mask = smooth > t
-    band = max(1, round(_BORDER * max(mask.shape)))
-    mask[:band], mask[-band:], mask[:, :band], mask[:, -band:] = False, False, False, False
-    mask = ndimage.binary_opening(mask, iterations=3)
-    mask = _largest_component(mask)
-    mask = ndimage.binary_fill_holes(mask)
-    if mask.sum() < 0.01 * mask.size:
-        raise ValueError(
-            "no breast found: the bright area is under 1 % of the image. "
-            "Pass a mammogram (bright = dense tissue)."
-        )
-    side = chest_wall_side(mask)
+    mask, side = _breast_with_muscle(smooth, t)
     pect = np.zeros_like(mask)
     if pectoral:
-        flip = side == "right"
-        g = smooth[:, ::-1] if flip else smooth
-        m = mask[:, ::-1] if flip else mask
-        pect = _pectoral(g, m)
-        if flip:
-            pect = pect[:, ::-1]
+        pect = _chest_wall_left(_pectoral, smooth, mask, side)
         mask = mask & ~pect
         mask = _largest_component(mask)
     full = _upsample_mask(mask, (H, W), factor)
@@ -304,3 +316,31 @@ def _iter_detect(grey, *, pectoral=True, return_details=False):
         "pectoral": _upsample_mask(pect, (H, W), factor),
         "threshold": float(t),
     })
+
+
+def _chest_wall_left(find, smooth, mask, side, **options):
+    """``find(grey, breast, **options)``, a mask finder for a chest wall on
+    the left, on a breast whose chest wall is on ``side``: mirrored there
+    and back."""
+    if side != "right":
+        return find(smooth, mask, **options)
+    return find(smooth[:, ::-1], mask[:, ::-1], **options)[:, ::-1]
+
+
+def _breast_with_muscle(smooth, t):
+    """The breast mask at the working resolution before the pectoral muscle
+    is removed (steps 3-4 of :func:`detect_breast`) and its chest-wall side."""
+    from scipy import ndimage
+
+    mask = smooth > t
+    band = max(1, round(_BORDER * max(mask.shape)))
+    mask[:band], mask[-band:], mask[:, :band], mask[:, -band:] = False, False, False, False
+    mask = ndimage.binary_opening(mask, iterations=3)
+    mask = _largest_component(mask)
+    mask = ndimage.binary_fill_holes(mask)
+    if mask.sum() < 0.01 * mask.size:
+        raise ValueError(
+            "no breast found: the bright area is under 1 % of the image. "
+            "Pass a mammogram (bright = dense tissue)."
+        )
+    return mask, chest_wall_side(mask)
