@@ -24,6 +24,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._progress import Progress, drain, stage
+
 # causal neighbours of the region models (row, column offsets): the
 # half-plane of order 2 with the second lags along rows and columns
 _OFFSETS = ((0, -1), (-1, -1), (-1, 0), (-1, 1), (0, -2), (-2, 0))
@@ -37,14 +39,15 @@ _BAND_PIXELS = 1 << 17
 # segments with fewer interior pixels get no model of their own: their
 # losses are not taken (noise of a few dozen pixels)
 _MIN_PIXELS = 50
-# floor of the residual covariance, relative to the image's variance (a
-# flat segment predicts itself perfectly)
+# floor of the residual covariance, relative to the variance of the
+# modelled pixels (a flat segment predicts itself perfectly)
 _RESIDUAL_FLOOR = 1e-4
 _RIDGE = 1e-6
 
 
 def region_moments(image, labels, ids):
-    """Moment matrices of each segment's interior pixels.
+    """Moment matrices of each segment's interior pixels
+    (:func:`iter_region_moments` run to its end).
 
     Parameters
     ----------
@@ -73,6 +76,12 @@ def region_moments(image, labels, ids):
     >>> moments.shape, int(counts[0])  # 2 rows, 2 + 1 columns lack neighbours
     ((1, 8, 8), 30)
     """
+    return drain(iter_region_moments(image, labels, ids))
+
+
+def iter_region_moments(image, labels, ids):
+    """:func:`region_moments` as a job: a record after every band of rows
+    (about ``_BAND_PIXELS`` pixels), the moments returned."""
     h, w, c = image.shape
     ids = np.asarray(ids)
     lookup = np.full(int(max(labels.max(initial=0), ids.max(initial=0))) + 1, -1)
@@ -102,6 +111,7 @@ def region_moments(image, labels, ids):
             part = zs[bounds[a]:bounds[a + 1]]
             moments[a] += part.T @ part
             counts[a] += part.shape[0]
+        yield Progress("region models", r1 / h, f"rows {r1}/{h}")
     return moments, counts
 
 
@@ -198,26 +208,44 @@ def region_merge_order(image, labels, ids):
     >>> [(a, b) for _, a, b in region_merge_order(image, labels, [1, 2, 3])][0]
     (1, 2)
     """
+    return drain(iter_region_merge_order(image, labels, ids))
+
+
+def iter_region_merge_order(image, labels, ids):
+    """:func:`region_merge_order` as a job: records while the moments are
+    summed (in bands of rows) and after every merge; the merges returned."""
     ids = [int(i) for i in ids]
     channels = image.shape[2]
-    floor = _RESIDUAL_FLOOR * max(float(np.var(image, axis=(0, 1)).mean()), 1e-12)
-    moments, counts = region_moments(image, labels, ids)
-    groups = {i: ([i], moments[a], int(counts[a])) for a, i in enumerate(ids)}
+    moments, counts = yield from stage(iter_region_moments(image, labels, ids), 0.0, 0.9)
+    # the channels' mean variance over all the modelled pixels, from their moments
+    total, n = moments.sum(axis=0), max(int(counts.sum()), 1)
+    mean = total[:channels, -1] / n
+    variance = float(np.mean(np.diag(total[:channels, :channels]) / n - mean**2))
+    floor = _RESIDUAL_FLOOR * max(variance, 1e-12)
+    groups = {i: (moments[a], int(counts[a])) for a, i in enumerate(ids)}
+
+    def loss(key_a, key_b):
+        (m_a, n_a), (m_b, n_b) = groups[key_a], groups[key_b]
+        if min(n_a, n_b) < _MIN_PIXELS:
+            return np.inf
+        return cross_prediction_loss(m_a, n_a, m_b, n_b, channels, floor)
+
+    # every pair's loss once; after a merge only the new group's pairs change
+    losses = {(a, b): loss(a, b) for x, a in enumerate(ids) for b in ids[x + 1:]}
     merges = []
     while len(groups) > 1:
-        best = None
-        keys = list(groups)
-        for x, key_a in enumerate(keys):
-            for key_b in keys[x + 1:]:
-                _, m_a, n_a = groups[key_a]
-                _, m_b, n_b = groups[key_b]
-                loss = (np.inf if min(n_a, n_b) < _MIN_PIXELS
-                        else cross_prediction_loss(m_a, n_a, m_b, n_b, channels, floor))
-                if best is None or loss < best[0]:
-                    best = (loss, key_a, key_b)
-        loss, key_a, key_b = best
-        members_b, m_b, n_b = groups.pop(key_b)
-        members_a, m_a, n_a = groups[key_a]
-        groups[key_a] = (members_a + members_b, m_a + m_b, n_a + n_b)
-        merges.append((float(loss), key_a, key_b))
+        pair = min(losses, key=lambda key: (losses[key], ids.index(key[0]),
+                                            ids.index(key[1])))
+        key_a, key_b = pair
+        merges.append((float(losses[pair]), key_a, key_b))
+        (m_a, n_a), (m_b, n_b) = groups[key_a], groups.pop(key_b)
+        groups[key_a] = (m_a + m_b, n_a + n_b)
+        losses = {key: value for key, value in losses.items()
+                  if key_b not in key and key_a not in key}
+        for other in groups:
+            if other != key_a:
+                key = (key_a, other) if ids.index(key_a) < ids.index(other) else (other, key_a)
+                losses[key] = loss(*key)
+        yield Progress("region models", 0.9 + 0.1 * len(merges) / (len(ids) - 1),
+                       f"{len(groups)} regions")
     return merges

@@ -57,7 +57,7 @@ from ._mixture import (
     _merge_closest,
     _stops,
 )
-from ._regions import region_merge_order
+from ._regions import iter_region_merge_order
 
 __all__ = ["SegmentationResult", "iter_segment", "segment"]
 
@@ -729,8 +729,8 @@ def _iter_region_merges(result, final, image, limit, em, label, em_steps, at):
     ids = [int(i) for i in history[final].ids if (labels == i).any()]
     if len(ids) < 2:
         return final
-    yield Progress("merging", at(), f"K = {history[final].k}: region models")
-    order = region_merge_order(image, labels, ids)
+    order = yield from stage(iter_region_merge_order(image, labels, ids), at(), at(),
+                             name="merging", prefix=f"K = {history[final].k}: ")
     accepted = next((n for n, (loss, _, _) in enumerate(order) if loss > limit),
                     len(order))
     if accepted == 0:

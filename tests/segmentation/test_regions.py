@@ -180,3 +180,25 @@ def test_region_merging_reads_only_the_masked_pixels():
     np.testing.assert_array_equal(results[0].labels, results[1].labels)
     assert [m.k for m in results[0].history] == [m.k for m in results[1].history]
     assert (results[0].labels[~mask] == 0).all()
+
+
+def test_the_region_jobs_yield_in_bands_and_return_the_plain_results(monkeypatch):
+    """Cancel needs records often: the moments come in bands of rows (here
+    of 64 pixels: 3 rows), every merge yields too; the results are the
+    plain functions'."""
+    from car_napari import Progress
+    from car_napari._progress import drain
+    from car_napari.segmentation import _regions
+
+    image, labels = _image_and_labels(3, seed=2)
+    expected = region_merge_order(image, labels, [1, 2, 3])
+    monkeypatch.setattr(_regions, "_BAND_PIXELS", 64)
+    records = []
+    order = drain(_regions.iter_region_merge_order(image, labels, [1, 2, 3]), records.append)
+    # the same merges; the losses up to the bands' summation order
+    assert [m[1:] for m in order] == [m[1:] for m in expected]
+    np.testing.assert_allclose([m[0] for m in order], [m[0] for m in expected], rtol=1e-10)
+    assert all(isinstance(r, Progress) for r in records)
+    assert len(records) >= 18 // 3 + 2  # 18 modelled rows in bands of 3, then 2 merges
+    fractions = [r.fraction for r in records]
+    assert fractions == sorted(fractions) and fractions[-1] == 1.0
