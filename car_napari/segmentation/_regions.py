@@ -25,6 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._progress import Progress, drain, stage
+from .._validation import as_channel_last_float
 
 # causal neighbours of the region models (row, column offsets): the
 # half-plane of order 2 with the second lags along rows and columns
@@ -35,7 +36,7 @@ _TOP = -min(dr for dr, _ in _OFFSETS)
 _LEFT = -min(dc for _, dc in _OFFSETS)
 _RIGHT = max(dc for _, dc in _OFFSETS)
 # rows of the design built at once (a band of z vectors, float64)
-_BAND_PIXELS = 1 << 17
+_BAND_PIXELS = 1 << 15
 # segments with fewer interior pixels get no model of their own: their
 # losses are not taken (noise of a few dozen pixels)
 _MIN_PIXELS = 50
@@ -51,8 +52,9 @@ def region_moments(image, labels, ids):
 
     Parameters
     ----------
-    image : (H, W, C) ndarray of float
-        The image, channels last.
+    image : (H, W, C) ndarray
+        The image, channels last, any numeric dtype (integers are scaled
+        to [0, 1]; a view is read band by band, never copied whole).
     labels : (H, W) ndarray of int
         Segment ids (0: none).
     ids : sequence of int
@@ -92,14 +94,17 @@ def iter_region_moments(image, labels, ids):
     rows = max(1, _BAND_PIXELS // w)
     for r0 in range(_TOP, h, rows):
         r1 = min(h, r0 + rows)
+        # the band's rows and those its neighbours reach, as floats (like
+        # the features: integers scaled to [0, 1]); no whole-image copy
+        block = as_channel_last_float(image[r0 - _TOP:r1], copy=False)
         band = labels[r0:r1, _LEFT:w - _RIGHT]
         same = np.ones(band.shape, bool)
         z = np.empty(band.shape + (d,))
-        z[..., :c] = image[r0:r1, _LEFT:w - _RIGHT]
+        z[..., :c] = block[_TOP:, _LEFT:w - _RIGHT]
         for n, (dr, dc) in enumerate(_OFFSETS, 1):
             rs, cs = slice(r0 + dr, r1 + dr), slice(_LEFT + dc, w - _RIGHT + dc)
             same &= labels[rs, cs] == band
-            z[..., n * c:(n + 1) * c] = image[rs, cs]
+            z[..., n * c:(n + 1) * c] = block[_TOP + dr:_TOP + dr + r1 - r0, cs]
         z[..., -1] = 1.0
         which = lookup[band]
         which[~same] = -1
@@ -185,8 +190,8 @@ def region_merge_order(image, labels, ids):
 
     Parameters
     ----------
-    image : (H, W, C) ndarray of float
-        The image, channels last.
+    image : (H, W, C) ndarray
+        The image, channels last (as :func:`region_moments` reads it).
     labels : (H, W) ndarray of int
         The segments' ids (0: none).
     ids : sequence of int

@@ -38,6 +38,7 @@ from .._progress import Progress, drain, stage
 from .._validation import (
     as_channel_last_float,
     channel_last_shape,
+    channel_last_view,
     check_channel_axis,
     check_forgetting,
     check_mask,
@@ -597,9 +598,9 @@ def iter_segment(
             "var_floor", "merge_em_steps", "prior", "prior_iterations", "seed"))
     arr = np.asarray(image) if image is not None else None
     region_threshold = options["region_threshold"]
-    # the region merging reads the image (float32, channels last)
+    # the region merging reads the image, a band at a time (a view: no copy)
     region_image = (None if region_threshold is None else
-                    as_channel_last_float(image, channel_axis=channel_axis).astype(np.float32))
+                    channel_last_view(image, channel_axis=channel_axis))
     if (arr is not None and arr.ndim == 2 or channel_axis is None) and grey == "pseudo_colour":
         data = as_channel_last_float(image, channel_axis=None)
         check_not_constant(data)
