@@ -4,6 +4,7 @@ Run by hand (not under ``nice``: it measures pauses):
 
     xvfb-run -a -s "-screen 0 1280x1024x24" .venv/bin/python benchmarks/bench_gui.py \
         [--size 4000] [--only NAME[,NAME]] [--cancel-after 3[,20]] [--complete]
+        [--merge-regions NATS]
 
 Each widget runs in a fresh Python process with its own ``napari.Viewer(show=True)``
 and the widget docked, so that its memory peak is its own. In that process:
@@ -358,6 +359,9 @@ def _choose_mask(widget, layer):
             return
 
 
+MERGE_REGIONS = [0.0]  # the segmentation widget's box (--merge-regions)
+
+
 def setup(case, viewer, widget, inputs, small=None):
     """Open the case's layers and set the widget's controls; returns
     ``(entry point, input pixels)``. ``small`` crops every input to that size."""
@@ -380,6 +384,7 @@ def setup(case, viewer, widget, inputs, small=None):
             w._mode.value = w._mode.choices[0]  # a single texture
             return w.start_fit, pixels
         if key == "segmentation":
+            w._merge_regions.value = MERGE_REGIONS[0]  # --merge-regions (0: off)
             return w.start, pixels
         for k in range(len(GALLERY_TEXTURES)):
             viewer.add_image(load(f"gallery{k}"), name=f"gallery {k}", rgb=True)
@@ -663,6 +668,7 @@ def run_child(case, args, inputs, cancel_after):
                "--warmup-size", str(args.warmup_size),
                "--warmup-timeout", str(args.warmup_timeout)]
     command += ["--complete"] * args.complete + ["--no-warmup"] * args.no_warmup
+    command += ["--merge-regions", str(args.merge_regions)]
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     with tempfile.TemporaryFile("w+") as stdout, tempfile.TemporaryFile("w+") as stderr:
         proc = subprocess.Popen(command, stdout=stdout, stderr=stderr, env=env, cwd=ROOT)
@@ -754,9 +760,12 @@ def main(argv=None):
     parser.add_argument("--no-warmup", action="store_true")
     parser.add_argument("--cache", default=str(Path(tempfile.gettempdir()) / "car_bench_gui"))
     parser.add_argument("--json", default=None, help="also write the rows to this file")
+    parser.add_argument("--merge-regions", type=float, default=0.0,
+                        help="the segmentation widget's 'merge similar regions' (0: off)")
     parser.add_argument("--child", default=None, help=argparse.SUPPRESS)
     parser.add_argument("--inputs", default=None, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
+    MERGE_REGIONS[0] = args.merge_regions
     if args.child == "floor":
         return floor_child(args)
     if args.child:
