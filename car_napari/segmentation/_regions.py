@@ -228,6 +228,10 @@ def iter_region_merge_order(image, labels, ids):
     variance = float(np.mean(np.diag(total[:channels, :channels]) / n - mean**2))
     floor = _RESIDUAL_FLOOR * max(variance, 1e-12)
     groups = {i: (moments[a], int(counts[a])) for a, i in enumerate(ids)}
+    rank = {i: a for a, i in enumerate(ids)}  # pairs are (earlier, later) in ids
+
+    def ordered(a, b):
+        return (a, b) if rank[a] < rank[b] else (b, a)
 
     def loss(key_a, key_b):
         (m_a, n_a), (m_b, n_b) = groups[key_a], groups[key_b]
@@ -239,8 +243,7 @@ def iter_region_merge_order(image, labels, ids):
     losses = {(a, b): loss(a, b) for x, a in enumerate(ids) for b in ids[x + 1:]}
     merges = []
     while len(groups) > 1:
-        pair = min(losses, key=lambda key: (losses[key], ids.index(key[0]),
-                                            ids.index(key[1])))
+        pair = min(losses, key=lambda key: (losses[key], rank[key[0]], rank[key[1]]))
         key_a, key_b = pair
         merges.append((float(losses[pair]), key_a, key_b))
         (m_a, n_a), (m_b, n_b) = groups[key_a], groups.pop(key_b)
@@ -249,7 +252,7 @@ def iter_region_merge_order(image, labels, ids):
                   if key_b not in key and key_a not in key}
         for other in groups:
             if other != key_a:
-                key = (key_a, other) if ids.index(key_a) < ids.index(other) else (other, key_a)
+                key = ordered(key_a, other)
                 losses[key] = loss(*key)
         yield Progress("region models", 0.9 + 0.1 * len(merges) / (len(ids) - 1),
                        f"{len(groups)} regions")

@@ -727,7 +727,8 @@ def _iter_region_merges(result, final, image, limit, em, label, em_steps, at):
     labels = result._cut(final, writable=result.mask is not None)
     if result.mask is not None:  # the stored labels cover the whole image
         labels[~result.mask] = 0
-    ids = [int(i) for i in history[final].ids if (labels == i).any()]
+    present = np.unique(labels)  # one pass, not one per component
+    ids = [int(i) for i in history[final].ids if i in present]
     if len(ids) < 2:
         return final
     order = yield from stage(iter_region_merge_order(image, labels, ids), at(), at(),
