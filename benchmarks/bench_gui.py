@@ -32,7 +32,17 @@ and the widget docked, so that its memory peak is its own. In that process:
 With ``--complete`` the job runs to its end instead (default size 1024) and
 the table gives its seconds; the segmentation's "show K" / "min probability"
 sliders, the restoration's kappa slider and the mammogram's "marks per image"
-are then moved a few times and the longest pause of those re-cuts is reported.
+are then moved a few times (0.3 s apart) and the longest pause of those
+re-cuts is reported. The segmentation's sliders are then dragged as a hand
+does: "show K" through every value of the history and back, then "min
+probability" 0.05 to 0.5 and back to 0, one value every 40 ms (``DRAG_MS``);
+"drag" reports the longest pause of the drag, the longest single layer
+assignment in it ("of which napari": ``RunRecord.put``, the viewer's own
+cost of new layer data), the seconds from the last move until the re-cuts
+have settled (its own work included), and whether the layer then shows
+``result.labels_at`` at the sliders' last values. A ``PYTHONPATH`` given
+comes first in the children's path: ``PYTHONPATH=../main`` measures that
+checkout's car_napari with this script (a baseline).
 
 Columns: longest pause, the main thread's CPU time within it ("its CPU": about
 what the pause would be on an idle machine; the wall-clock pause grows with
@@ -470,6 +480,36 @@ def recut(case, widget):
     return moves
 
 
+DRAG_MS = 40  # a hand dragging a slider: one value every 40 ms
+
+
+def drag(case, widget):
+    """Moves of a quick drag of the segmentation's sliders (see the module's
+    docstring); empty for the other widgets."""
+    if case.key != "segmentation" or getattr(widget, "result", None) is None:
+        return []
+    cut, threshold = widget._cut, widget._threshold
+    ks = list(range(cut.max, cut.min - 1, -1)) + [widget.result.n_segments]
+    moves = [lambda k=k: setattr(cut, "value", k) for k in ks]
+    return moves + [lambda t=t: setattr(threshold, "value", t)
+                    for t in (0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.3, 0.0)]
+
+
+def _timed_puts(record, longest):
+    """Wrap ``record.put`` to keep its longest call (ms) in ``longest[0]``."""
+    put = record.put
+
+    def timed(*args, **kwargs):
+        t0 = time.perf_counter()
+        try:
+            return put(*args, **kwargs)
+        finally:
+            longest[0] = max(longest[0], 1000 * (time.perf_counter() - t0))
+
+    record.put = timed
+    return put
+
+
 def _wait_job(job, timeout):
     return run_until(lambda: job is None or job.done, timeout)
 
@@ -554,6 +594,35 @@ def child(args):
                     run_until(lambda: False, 0.3)
                 recuts.stop()
                 out["recut_longest_ms"] = round(recuts.longest_ms(), 1)
+            moves = drag(case, widget)
+            if moves:
+                run_until(lambda: widget._recut_job is None, 120)
+                run_until(lambda: False, 0.3)
+                put_ms = [0.0]
+                plain_put = _timed_puts(widget.record, put_ms)
+                dragged = EventLoopMonitor()
+                dragged.start()
+                fired = []  # when each move ran (a blocked event loop delays them)
+
+                def played(move):
+                    start = time.perf_counter()
+                    move()
+                    fired.append(start)
+
+                for i, move in enumerate(moves):
+                    QTimer.singleShot(DRAG_MS * i, lambda move=move: played(move))
+                run_until(lambda: len(fired) == len(moves), 120)
+                run_until(lambda: widget._recut_job is None, 120)
+                out["drag_settle_s"] = round(time.perf_counter() - fired[-1], 2)
+                run_until(lambda: False, 0.3)
+                dragged.stop()
+                widget.record.put = plain_put
+                out["drag_longest_ms"] = round(dragged.longest_ms(), 1)
+                out["drag_put_longest_ms"] = round(put_ms[0], 1)
+                expected = widget.result.labels_at(int(widget._cut.value),
+                                                   threshold=float(widget._threshold.value))
+                shown = np.asarray(widget._layer.data)
+                out["drag_shows_last"] = bool(np.array_equal(shown, expected))
         else:
             widget.cancel()
             _wait_job(job, args.cancel_timeout)
@@ -669,7 +738,8 @@ def run_child(case, args, inputs, cancel_after):
                "--warmup-timeout", str(args.warmup_timeout)]
     command += ["--complete"] * args.complete + ["--no-warmup"] * args.no_warmup
     command += ["--merge-regions", str(args.merge_regions)]
-    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    # a PYTHONPATH given first (another checkout's car_napari: a baseline)
+    env = dict(os.environ, PYTHONPATH=os.environ.get("PYTHONPATH", "") + os.pathsep + str(ROOT))
     with tempfile.TemporaryFile("w+") as stdout, tempfile.TemporaryFile("w+") as stderr:
         proc = subprocess.Popen(command, stdout=stdout, stderr=stderr, env=env, cwd=ROOT)
         ps = psutil.Process(proc.pid)
@@ -707,8 +777,10 @@ def _fmt(value, digits=1, none="-"):
 def table(results, args):
     if args.complete:
         lines = ["| widget | seconds | longest pause (ms) | in | its CPU (ms) | p99 (ms) "
-                 "| peak memory (GB) | B/px | re-cut longest pause (ms) | load |",
-                 "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+                 "| peak memory (GB) | B/px | re-cut longest pause (ms) "
+                 "| drag: longest pause, of which napari (ms), settled (s), last shown "
+                 "| load |",
+                 "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     else:
         lines = ["| widget | longest pause (ms) | in | its CPU (ms) | p99 (ms) "
                  "| cancel latency (s) | Run back (s) | peak memory (GB) | B/px "
@@ -726,8 +798,11 @@ def table(results, args):
         memory = [_fmt(r["peak_gb"], 2), _fmt(r["bytes_per_pixel"], 0)]
         if args.complete:
             seconds = _fmt(r.get("seconds"), 1, none=f"> {args.timeout:g}")
+            dragged = "-" if "drag_longest_ms" not in r else (
+                f"{r['drag_longest_ms']:.1f}, {r['drag_put_longest_ms']:.1f}, "
+                f"{r['drag_settle_s']:.2f}, {'yes' if r['drag_shows_last'] else 'NO'}")
             cells = [r["title"], seconds, *common, *memory, _fmt(r.get("recut_longest_ms")),
-                     _fmt(r.get("load"))]
+                     dragged, _fmt(r.get("load"))]
         else:
             if "finished_before_cancel_s" in r:
                 cancel = f"finished in {r['finished_before_cancel_s']:.2f} s"

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 from magicgui.widgets import FloatSlider, FloatSpinBox, Slider, SpinBox
 
+from .._progress import Progress
 from ..segmentation import iter_segment
 from ._base import JobWidget
 
@@ -14,16 +15,17 @@ class SegmentationWidget(JobWidget):
     docs/segmentation.md): the labels layer shows the mixture merging live,
     then the merge history can be re-cut without recomputing.
 
-    Re-cuts ("show K", "min probability") are look-ups of the stored merge
-    states; one that needs the pixels labelled again (a threshold on a state
-    whose probabilities are not kept) runs in a worker, the latest slider
-    value winning.
+    Re-cuts ("show K", "min probability") run in a worker, the latest slider
+    value winning (a stale one is never shown): most are look-ups of the
+    stored merge states, yet still passes over every pixel (tens of ms on
+    4000x4000); one that needs the pixels labelled again (a threshold on a
+    state whose probabilities are not kept) takes longer.
 
     Its only parameter, ``napari_viewer``, is documented by
     :class:`~car_napari._widgets._base.JobWidget`.
     """
 
-    recuts_interrupt = True  # a stale re-cut labels every pixel again: not worth the wait
+    recuts_interrupt = True  # a stale re-cut is not worth the wait: the latest starts at once
     control_labels = {"n_segments": "segments", "levels": "resolutions",
                       "neighbourhood": "order", "n_init": "initial K",
                       "threshold": "min probability",
@@ -113,23 +115,31 @@ class SegmentationWidget(JobWidget):
     # --- re-cuts ----------------------------------------------------------------------
 
     def _recut(self, *_):
-        """Show the stored history cut at the sliders' values: at once when it
-        is a look-up, else in a worker (a newer value cancels it)."""
+        """Show the stored history cut at the sliders' values, computed in a
+        worker (a newer value cancels it); here only the layer is set."""
         if self.result is None or self._layer not in self._viewer.layers:
             return
         k, threshold = int(self._cut.value), float(self._threshold.value)
         result = self.result
-        labels = result.cached_labels_at(k, threshold=threshold)
-        if labels is not None:
-            self.recut(lambda: self._show_cut(result, labels, k))
-            return
         self._status.value = f"re-cutting: K = {k}"
-        self.recut(lambda labels: self._show_cut(result, labels, k),
-                   result.iter_labels_at(k, threshold=threshold))
+        self.recut(lambda cut: self._show_cut(result, *cut, k),
+                   _recut_labels(result, k, threshold))
 
-    def _show_cut(self, result, labels, k):
+    def _show_cut(self, result, labels, n, k):
         if result is not self.result or self._layer not in self._viewer.layers:
             return  # a newer run took over, or its layer was removed
         self.record.put(self._layer.name, labels, self._add_labels)  # the result's own layer
-        n = int(labels.max(initial=0))
         self._status.value = f"{n} segments shown (K = {k})"
+
+
+def _recut_labels(result, k, threshold):
+    """A re-cut as a worker's job: the labels of ``result`` at ``k`` and
+    ``threshold`` and their number of segments (every pass over the pixels
+    here, none in the main thread).
+
+    Even a look-up decompresses, thresholds and renumbers every pixel (tens
+    of ms on 4000x4000), so it runs here too. Its first record comes before any
+    work: a newer slider value cancels a re-cut that has not begun."""
+    yield Progress("re-cutting", 0.0, f"K = {k}")
+    labels = yield from result.iter_labels_at(k, threshold=threshold)
+    return labels, int(labels.max(initial=0))

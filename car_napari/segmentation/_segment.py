@@ -47,7 +47,7 @@ from .._validation import (
 )
 from ..model.neighbourhood import as_offsets
 from ._features import iter_local_features, local_features, pseudo_colour
-from ._labelling import _iter_label, _renumber
+from ._labelling import _cut_labels, _iter_label
 from ._mixture import (
     _block_grid,
     _choose_k,
@@ -255,8 +255,7 @@ class SegmentationResult:
         """
         threshold = self._threshold(threshold)
         i = self._index(k)
-        labels, prob = self._cut(i, writable=threshold > 0 or self.mask is not None), \
-            self._probs.get(i)
+        labels, prob = self._cut(i, writable=False), self._probs.get(i)
         if labels is None or (threshold > 0 and prob is None):
             mix = self.history[i]
             labels, prob = yield from stage(self._iter_labelling(mix), 0.0, 1.0,
@@ -269,8 +268,10 @@ class SegmentationResult:
 
         Every state's labels are stored; the probabilities (needed for a
         threshold) are kept for the final state and the latest other state
-        labelled again. A viewer re-cuts at once when this gives labels, and
-        runs :meth:`iter_labels_at` in a worker when it gives None.
+        labelled again. A look-up still passes over every pixel (the state's
+        labels decompressed, thresholded and renumbered: tens of ms on a
+        4000x4000 image), so a viewer runs it, as :meth:`iter_labels_at`, in
+        a worker.
 
         Parameters
         ----------
@@ -300,8 +301,7 @@ class SegmentationResult:
         prob = self._probs.get(i)  # one look-up: another thread may drop it later
         if i not in self._cuts or (threshold > 0 and prob is None):
             return None
-        return self._finish(self._cut(i, writable=threshold > 0 or self.mask is not None),
-                            prob, threshold)
+        return self._finish(self._cut(i, writable=False), prob, threshold)
 
     def _threshold(self, threshold):
         """A re-cut's threshold: the segmentation's, or this one checked."""
@@ -338,13 +338,9 @@ class SegmentationResult:
             self._probs[i] = prob
 
     def _finish(self, labels, prob, threshold):
-        """Threshold, mask and renumber state labels (modified in place):
-        a new (H, W) int32 array."""
-        if threshold > 0:
-            labels[prob < threshold] = 0
-        if self.mask is not None:
-            labels[~self.mask] = 0
-        return _renumber(labels, dtype=np.int32)
+        """Threshold, mask and renumber state labels (not changed): a new
+        (H, W) int32 array."""
+        return _cut_labels(labels, prob if threshold > 0 else None, threshold, self.mask)
 
 
 # bounds of the options that set the work: beyond them a call would run for
@@ -703,7 +699,7 @@ def iter_segment(
     if region_image is not None:
         final = yield from _iter_region_merges(result, final, region_image, region_threshold,
                                                em, label, merge_em_steps, at)
-    labels, prob = result._cut(final), result._probs.get(final)
+    labels, prob = result._cut(final, writable=False), result._probs.get(final)
     result._final = final
     if prob is None:  # not kept (_is_final was wrong, or n_segments missing): label again
         labels, prob = yield from label(history[final], at(), at(), "merging")

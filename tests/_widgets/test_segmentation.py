@@ -31,14 +31,16 @@ def test_live_merging_then_instant_recut(widget, qtbot):
     labels = viewer.layers["mosaic segments"].data
     assert labels.shape == image.shape and labels.max() >= 1
     np.testing.assert_array_equal(layer.data, image)
-    # re-cut the merge history: no new worker, labels change
+    # re-cut the merge history: a re-cut in a worker, no run; labels change
     ks = [m.k for m in result.history]
     before = viewer.layers["mosaic segments"].data.copy()
     target = max(ks) if result.n_segments != max(ks) else min(ks)
     w._cut.value = target
+    qtbot.waitUntil(lambda: w._recut_job is None, timeout=60000)
     after = viewer.layers["mosaic segments"].data
     assert w._job is job and not np.array_equal(before, after)
     assert len(np.unique(after[after > 0])) <= target
+    np.testing.assert_array_equal(after, result.labels_at(target, threshold=0.0))
 
 
 def test_merge_similar_regions_refines_the_automatic_k_only(widget, qtbot):
@@ -163,7 +165,16 @@ def merging_only(widget, monkeypatch):
     return viewer, w
 
 
-def test_slider_moves_are_lookups_or_run_in_a_worker(merging_only, qtbot, event_loop_monitor):
+def _moved(w, control, value, qtbot):
+    """Set a slider as a user does; a changed value starts a re-cut in a
+    worker (even a look-up: it passes over every pixel). Waits until shown."""
+    changed = control.value != value
+    control.value = value
+    assert (w._recut_job is not None) == changed
+    qtbot.waitUntil(lambda: w._recut_job is None, timeout=60000)
+
+
+def test_slider_moves_run_in_a_worker(merging_only, qtbot, event_loop_monitor):
     viewer, w = merging_only
     job = w.start()
     qtbot.waitUntil(lambda: job.done, timeout=300000)
@@ -171,20 +182,17 @@ def test_slider_moves_are_lookups_or_run_in_a_worker(merging_only, qtbot, event_
     ks = sorted({m.k for m in result.history})
     qtbot.wait(300)  # the viewer draws the labels
     # "show K" over the whole history and "min probability" on the final K: look-ups,
-    # the layer changes at once and the viewer does not stall (bound for a loaded CI
-    # machine; the figures are the GUI benchmark's)
+    # in a worker; the viewer does not stall (bound for a loaded CI machine; the
+    # figures are the GUI benchmark's)
     with event_loop_monitor:
         for k in [*ks, result.n_segments]:
-            w._cut.value = k
-            assert w._recut_job is None
+            _moved(w, w._cut, k, qtbot)
             np.testing.assert_array_equal(layer.data, result.labels_at(k, threshold=0.0))
-            qtbot.wait(20)
+            assert w._status.value.endswith(f"(K = {k})")
         for threshold in (0.3, 0.6, 0.9):
-            w._threshold.value = threshold
-            assert w._recut_job is None
+            _moved(w, w._threshold, threshold, qtbot)
             np.testing.assert_array_equal(
                 layer.data, result.labels_at(result.n_segments, threshold=threshold))
-            qtbot.wait(20)
     assert event_loop_monitor.longest_ms < 500, event_loop_monitor.summary()
     assert (layer.data == 0).any()
     # another K under a threshold needs that state's probabilities: a worker
@@ -202,6 +210,40 @@ def test_slider_moves_are_lookups_or_run_in_a_worker(merging_only, qtbot, event_
     np.testing.assert_array_equal(layer.data, result.labels_at(others[0], threshold=0.9))
     assert w._status.value.endswith(f"(K = {others[0]})")
     assert w._job is job  # re-cuts are not runs: nothing to undo, no Run button change
+
+
+def test_a_quick_drag_shows_the_last_value_only(merging_only, qtbot, event_loop_monitor):
+    """The sliders dragged faster than the re-cuts run (no event-loop turn
+    between the values): each value cancels the re-cut before it, none of
+    those is shown, and the layer ends showing the last values' labels."""
+    viewer, w = merging_only
+    job = w.start()
+    qtbot.waitUntil(lambda: job.done, timeout=300000)
+    result, layer = w.result, viewer.layers["big segments"]
+    ks = sorted({m.k for m in result.history})
+    qtbot.wait(300)
+    shown = []
+    show = w._show_cut
+    w._show_cut = lambda result_, labels, n, k: (shown.append((k, w._threshold.value)),
+                                                 show(result_, labels, n, k))
+    with event_loop_monitor:
+        jobs = []
+        for k in [*(k for k in ks[::-1] if k != result.n_segments), result.n_segments]:
+            w._cut.value = k  # each value differs from the one before
+            jobs.append(w._recut_job)
+        for threshold in (0.2, 0.5, 0.3):
+            w._threshold.value = threshold
+            jobs.append(w._recut_job)
+        assert all(j is not None for j in jobs) and len(set(map(id, jobs))) == len(jobs)
+        assert all(j.cancelled for j in jobs[:-1]) and not jobs[-1].cancelled
+        qtbot.waitUntil(lambda: w._recut_job is None, timeout=60000)
+        qtbot.wait(200)  # a cancelled worker that was mid-way hands nothing over
+    assert event_loop_monitor.longest_ms < 500, event_loop_monitor.summary()
+    assert shown == [(result.n_segments, 0.3)]
+    np.testing.assert_array_equal(layer.data, result.labels_at(result.n_segments, threshold=0.3))
+    assert w._status.value == (f"{int(layer.data.max())} segments shown "
+                               f"(K = {result.n_segments})")
+    assert w._job is job
 
 
 def test_cancel_during_the_merging_is_prompt(merging_only, qtbot, cancel_latency):

@@ -426,6 +426,65 @@ def test_recuts_are_lookups_of_the_stored_states():
                                   result.cached_labels_at(final, threshold=0.9))
 
 
+def _plain_cut(labels, prob, threshold, mask):
+    """A re-cut in plain NumPy: zero the dropped pixels, then rank the
+    remaining values (0 kept) with np.unique."""
+    out = labels.astype(np.int64)
+    if prob is not None:
+        out[prob < threshold] = 0
+    if mask is not None:
+        out[~mask] = 0
+    values = np.unique(out)
+    values = values[values > 0]
+    ranks = np.searchsorted(values, out) + 1
+    return np.where(out > 0, ranks, 0)
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.int32, np.int64])
+@pytest.mark.parametrize("threshold", [None, 0.3, 0.7])
+@pytest.mark.parametrize("masked", [False, True])
+def test_a_recut_is_a_plain_threshold_mask_and_renumbering(dtype, threshold, masked):
+    from car_napari.segmentation._labelling import _cut_labels
+
+    rng = np.random.default_rng([np.dtype(dtype).itemsize, int(10 * (threshold or 0)), int(masked)])
+    for shape, values in (((37, 53), [0, 2, 5, 9, 11]), ((20, 30), [3, 4, 200]),
+                          ((16, 16), [7]), ((0, 5), [1])):
+        labels = rng.choice(values, size=shape).astype(dtype)
+        labels.flags.writeable = False  # stored states are read-only buffers
+        prob = rng.random(shape, dtype=np.float32) if threshold is not None else None
+        mask = rng.random(shape) < 0.8 if masked else None
+        cut = _cut_labels(labels, prob, threshold or 0.0, mask)
+        assert cut.dtype == np.int32 and cut.shape == shape
+        np.testing.assert_array_equal(cut, _plain_cut(labels, prob, threshold, mask))
+
+
+def test_a_recut_threshold_compares_in_the_probabilities_dtype():
+    from car_napari.segmentation._labelling import _cut_labels
+
+    # float32(0.7) < 0.7: a pixel at exactly float32(0.7) is kept, as NumPy keeps it
+    prob = np.full((2, 2), 0.7, np.float32)
+    labels = np.array([[1, 2], [2, 1]], np.uint8)
+    np.testing.assert_array_equal(_cut_labels(labels, prob, 0.7),
+                                  _plain_cut(labels, prob, 0.7, None))
+    assert _cut_labels(labels, prob, 0.7).all()
+
+
+def test_recuts_with_a_mask_match_a_plain_computation():
+    image, _ = _two_textures()
+    mask = np.ones(image.shape, bool)
+    mask[:20] = False
+    result = segment(image, levels=2, n_init=8, mask=mask)
+    for mix in result.history[::2]:
+        for threshold in (0.0, 0.8):
+            labels = result.labels_at(mix.k, threshold=threshold)
+            i = result._index(mix.k)
+            prob = result._probs[i] if threshold > 0 else None
+            expected = _plain_cut(result._cut(i), prob, threshold, mask)
+            np.testing.assert_array_equal(labels, expected)
+            np.testing.assert_array_equal(result.cached_labels_at(mix.k, threshold=threshold),
+                                          labels)
+
+
 def _mirror(features, rows, cols):
     block = np.concatenate([features, features[::-1]], axis=0)
     block = np.concatenate([block, block[:, ::-1]], axis=1)
