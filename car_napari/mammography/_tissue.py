@@ -87,8 +87,15 @@ SEGMENT_DESCRIPTORS = GREY_SEGMENT_DESCRIPTORS + PLACE_SEGMENT_DESCRIPTORS + CAR
 CONTEXT_SIGMAS = (2, 6, 18)
 GREY_PLACE_PIXEL_DESCRIPTORS = (("grey_flat", "skin", "chest", "height")
                                 + tuple(f"grey_flat_mean_{s}" for s in CONTEXT_SIGMAS))
-CAR_PIXEL_DESCRIPTORS = CAR_SEGMENT_DESCRIPTORS + ("segment_probability",)
-PIXEL_DESCRIPTORS = GREY_PLACE_PIXEL_DESCRIPTORS + CAR_PIXEL_DESCRIPTORS
+# Its grey level against the whole breast's (its rank, z score, distance
+# above Otsu's threshold, place between the 10th and 90th percentiles): the
+# flattened grey level hides a dense breast, whose median is fibroglandular
+# at every distance from the skin; these let the trees read each film's own
+# grey scale (stop 41).
+BREAST_GREY_PIXEL_DESCRIPTORS = ("grey_breast_rank", "grey_breast_z", "grey_above_otsu",
+                                 "grey_in_p10_p90")
+PIXEL_DESCRIPTORS = (GREY_PLACE_PIXEL_DESCRIPTORS + CAR_SEGMENT_DESCRIPTORS
+                     + BREAST_GREY_PIXEL_DESCRIPTORS + ("segment_probability",))
 # A breast's descriptors: the CAR ones (the density and the texture of the
 # whole breast: prediction-error energy and parameter spread per level, the
 # fibroglandular-fat grey contrast) and the grey-level histogram ones (the
@@ -459,8 +466,18 @@ def _pixel_rows(work, z, places, segment_probability):
     b = work.breast
     flat = _flattened(work.grey[b], places[0])
     context = [_breast_mean(flat, b, s)[b] for s in CONTEXT_SIGMAS]
-    return np.column_stack([flat, *places, *context, z, segment_probability[b]]).astype(
-        np.float32)
+    return np.column_stack([flat, *places, *context, z, *_breast_grey(work.grey[b]),
+                            segment_probability[b]]).astype(np.float32)
+
+
+def _breast_grey(g):
+    """:data:`BREAST_GREY_PIXEL_DESCRIPTORS` of the breast's grey levels ``g``
+    (n,): four (n,) float64 columns."""
+    g = np.asarray(g, np.float64)
+    sd = max(float(g.std()), 1e-6)
+    p10, p90 = np.percentile(g, [10, 90])
+    rank = np.searchsorted(np.sort(g), g) / g.size  # the share of the breast darker
+    return [rank, (g - g.mean()) / sd, (g - _otsu(g)) / sd, (g - p10) / max(p90 - p10, 1e-6)]
 
 
 def _pixel_probability(work, z, places, segment_probability, pixel):

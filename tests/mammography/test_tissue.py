@@ -6,6 +6,7 @@ import json
 import numpy as np
 import pytest
 from skimage import io
+from skimage.filters import threshold_otsu
 
 import car_napari as car
 from car_napari import Progress
@@ -204,6 +205,17 @@ def test_pixel_rows_against_direct_computations(half):
     car_cols = [names.index(n) for n in mm._tissue.CAR_SEGMENT_DESCRIPTORS]
     np.testing.assert_allclose(rows[:, car_cols], z, rtol=1e-5, atol=1e-5)
     np.testing.assert_array_equal(rows[:, -1], seg_prob[b])
+    # the grey level against the whole breast's, pixel by pixel
+    g = work.grey[b].astype(np.float64)
+    sd = g.std()
+    otsu = threshold_otsu(g, nbins=256)
+    p10, p90 = np.percentile(g, 10), np.percentile(g, 90)
+    picks = np.random.default_rng(7).choice(g.size, 200, replace=False)
+    for i in picks:
+        want = [np.count_nonzero(g < g[i]) / g.size, (g[i] - g.mean()) / sd,
+                (g[i] - otsu) / sd, (g[i] - p10) / (p90 - p10)]
+        got = [rows[i, names.index(n)] for n in mm._tissue.BREAST_GREY_PIXEL_DESCRIPTORS]
+        np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5)
     # context means away from the image's edge (scipy's kernel: radius 4 sigma)
     flat_map = np.zeros(b.shape)
     flat_map[b] = flat
