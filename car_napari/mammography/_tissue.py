@@ -10,7 +10,8 @@ local parameters and prediction-error energy against the breast's) and by its
 grey level relative to the breast; a logistic model gives the probability
 that it is fibroglandular; a pixel's probability is the mean over the pooled
 labellings. Boosted trees of each working pixel's descriptors (its grey
-level, place and surroundings and its CAR features) then decide the mask
+level, against its surroundings and the whole breast's, its place and its
+CAR features) then decide the mask
 pixel by pixel (the segments are coarser than the tissue). The percent
 density is the fibroglandular area over the breast area (the pectoral
 muscle, removed by :func:`detect_breast`, is not breast);
@@ -717,9 +718,10 @@ def segment_tissue(image, *, breast=None, levels=3, neighbourhood=2, n_init=16, 
     3. The shipped boosted trees (fitted on the same films) give each
        working pixel's fibroglandular probability from its grey level less
        the breast's median at its distance from the skin, its place, that
-       grey level's Gaussian means over the breast around it and its CAR
-       features; smoothed over the breast, the mask is where it exceeds the
-       model's threshold.
+       grey level's Gaussian means over the breast around it, its grey level
+       against the whole breast's (rank, z score, above Otsu's threshold,
+       between the 10th and 90th percentiles) and its CAR features; smoothed
+       over the breast, the mask is where it exceeds the model's threshold.
     4. Percent density: the mask's area over the breast's, in percent.
     5. Tissue class: a multinomial logistic model (fitted on mini-MIAS) of
        the density and the whole breast's CAR texture (prediction-error
