@@ -485,8 +485,8 @@ def _cut_labels(labels, prob=None, threshold=0.0, mask=None):
     """A state's labels thresholded, masked and renumbered, as one re-cut.
 
     The pixels less probable than ``threshold`` (when ``prob`` is given) and
-    those outside ``mask`` become 0, then the labels are renumbered as
-    :func:`_renumber` does (1..n in the order of the old values, 0 kept).
+    those outside ``mask`` become 0, then the labels are renumbered 1..n in
+    the order of the old values, 0 kept.
     Two passes of ``nogil`` Numba kernels over the pixels and no temporary
     of the image's size besides the result (in NumPy the threshold, the mask
     and the renumbering made several, two of them of 8 bytes a pixel): about
@@ -560,12 +560,3 @@ def _relabel(labels, prob, threshold, mask, use_prob, use_mask, new, out):
                 out[y, x] = 0
             else:
                 out[y, x] = new[labels[y, x]]
-
-
-def _renumber(labels, dtype=None):
-    """Labels 1..K (in order of the old values), 0 kept; non-negative labels
-    of any integer dtype; the result has ``dtype`` (default: the labels')."""
-    present = np.bincount(labels.ravel()) > 0
-    # the rank of each present value, from 0 when 0 is present, else from 1
-    new = (np.cumsum(present) - (1 if present[0] else 0)).astype(dtype or labels.dtype)
-    return np.take(new, labels)

@@ -394,8 +394,6 @@ def test_small_blobs_take_the_nearest_large_segment_as_expand_labels(small_bands
 
 
 def test_recuts_are_lookups_of_the_stored_states():
-    from car_napari.segmentation._labelling import _renumber
-
     image, _ = _two_textures()
     result = segment(image, levels=2, n_init=8)
     assert result.probability.dtype == np.float32 and result.features.dtype == np.float32
@@ -589,7 +587,7 @@ def test_large_images_are_labelled_from_every_second_pixel():
     big[::7, ::5] = 1.0
     result = segment(big, features=features, n_init=4)
     assert result.label_step == 2
-    from car_napari.segmentation._labelling import _iter_label, _renumber
+    from car_napari.segmentation._labelling import _iter_label
 
     for mix in result.history:
         expected, _ = drain(_iter_label(features, mix, smoothing=2.0,
@@ -643,13 +641,12 @@ def test_no_prior_is_the_plain_neighbourhood_weighted_posterior():
         expected, _ = _reference_labelling(result.features, mix, result.smoothing,
                                            result.min_area)
         np.testing.assert_array_equal(result.cached_labels_at(mix.k),
-                                      _renumber_labels(expected))
+                                      _renumber(expected))
 
 
-def _renumber_labels(labels):
-    from car_napari.segmentation._labelling import _renumber
-
-    return _renumber(labels, dtype=np.int32)
+def _renumber(labels):
+    """Labels 1..K in the order of their values, 0 kept (plain NumPy)."""
+    return _plain_cut(labels, None, None, None)
 
 
 # --- every option checked up front (issue 15) -------------------------------------------
