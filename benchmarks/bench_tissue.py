@@ -392,8 +392,10 @@ TREE_OPTIONS = dict(max_iter=200, learning_rate=0.1, max_leaf_nodes=15, random_s
 
 def pixel_matrix(b, seg_model):
     """All :data:`T.PIXEL_DESCRIPTORS` of a breast's working pixels, the
-    segment probability from ``seg_model``."""
-    seg = T._probability(b.work, b.rows, seg_model)[b.work.breast]
+    segment probability from ``seg_model`` (None: 0, for variants that do
+    not read it)."""
+    seg = (np.zeros(len(b.pixels)) if seg_model is None
+           else T._probability(b.work, b.rows, seg_model)[b.work.breast])
     return np.column_stack([b.pixels, seg]).astype(np.float32)
 
 
@@ -887,23 +889,21 @@ def evaluate_holdout(breasts, n_boot):
     folds = np.array([fold_of(b.name) for b in breasts])
     tuning = [b for b, f in zip(breasts, folds, strict=True) if f in HOLDOUT_TUNING]
     held = [b for b, f in zip(breasts, folds, strict=True) if f not in HOLDOUT_TUNING]
-    no_segment = SegmentModel({"descriptors": [], "mean": [], "scale": [], "coef": [],
-                               "intercept": 0.0, "threshold": 0.5})  # not read by these
     out = {}
     for v in HOLDOUT_VARIANTS:
         scores = np.zeros(len(PIXEL_THRESHOLDS))
         for k in HOLDOUT_TUNING:
             model = fit_pixels([b for b in tuning if fold_of(b.name) != k], PIXEL_VARIANTS[v],
-                               no_segment)
+                               None)
             for b in tuning:
                 if fold_of(b.name) == k:
-                    prob = pixel_probability(b, model, no_segment)[b.work.breast]
+                    prob = pixel_probability(b, model, None)[b.work.breast]
                     scores += [dice(prob > t, b.small_truth) for t in PIXEL_THRESHOLDS]
         threshold = float(PIXEL_THRESHOLDS[scores.argmax()])
-        model = fit_pixels(tuning, PIXEL_VARIANTS[v], no_segment)
+        model = fit_pixels(tuning, PIXEL_VARIANTS[v], None)
         d, e = [], []
         for b in held:
-            m = pixel_probability(b, model, no_segment)[b.work.breast] > threshold
+            m = pixel_probability(b, model, None)[b.work.breast] > threshold
             d.append(dice(m, b.small_truth))
             e.append(abs(100.0 * (m.mean() - b.small_truth.mean())))
         out[v] = np.array(d), np.array(e), threshold
