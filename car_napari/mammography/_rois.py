@@ -643,7 +643,9 @@ def select_marks(rois, marks_per_image=DEFAULT_MARKS_PER_IMAGE, *, threshold=Non
     labels, table = rois
     m = int(np.sum(np.asarray(table["score"]) >= threshold))
     cut = {k: np.asarray(v)[:m] for k, v in table.items()}
-    return MammogramROIs(np.where(labels <= m, labels, 0).astype(labels.dtype), cut)
+    kept = labels.copy()  # one copy, zeroed in place: no temporaries of the image's size
+    kept[kept > m] = 0  # (a viewer re-cuts this on its main thread)
+    return MammogramROIs(kept, cut)
 
 
 def score_threshold(marks_per_image=DEFAULT_MARKS_PER_IMAGE):

@@ -689,3 +689,25 @@ def test_package_describes_candidates_as_the_froc_benchmark(shared_data, tmp_pat
         else:
             np.testing.assert_allclose(seen["X"][:, j], X_b[:, j], rtol=1e-9, atol=1e-12,
                                        err_msg=d)
+
+
+def test_select_marks_keeps_the_best_regions_pixel_by_pixel():
+    """The marked labels against a plain comparison: regions 1..m (those
+    scoring at least the threshold; the table is sorted by score) kept,
+    the others 0; the input, even read-only, is not changed."""
+    rng = np.random.default_rng(5)
+    for dtype in (np.uint8, np.uint16, np.int32):
+        labels = rng.integers(0, 13, (40, 60)).astype(dtype)
+        labels.flags.writeable = False
+        scores = np.sort(rng.random(12))[::-1]
+        table = {"label": np.arange(1, 13), "score": scores}
+        before = labels.copy()
+        for threshold in (2.0, scores[4], scores[0], -1.0):
+            m = int(np.sum(scores >= threshold))
+            cut_labels, cut = mm.select_marks(mm.MammogramROIs(labels, table),
+                                              threshold=threshold)
+            want = np.array([[v if v <= m else 0 for v in row] for row in labels.tolist()])
+            assert cut_labels.dtype == dtype
+            np.testing.assert_array_equal(cut_labels, want)
+            np.testing.assert_array_equal(cut["label"], np.arange(1, m + 1))
+        np.testing.assert_array_equal(labels, before)
