@@ -97,6 +97,12 @@ BREAST_GREY_PIXEL_DESCRIPTORS = ("grey_breast_rank", "grey_breast_z", "grey_abov
                                  "grey_in_p10_p90")
 PIXEL_DESCRIPTORS = (GREY_PLACE_PIXEL_DESCRIPTORS + CAR_SEGMENT_DESCRIPTORS
                      + BREAST_GREY_PIXEL_DESCRIPTORS + ("segment_probability",))
+# The spatial model's input maps (stop 42): the working crop's grey level
+# against the breast's, flattened, the pixel's place, its grey level against
+# the whole breast's (``grey_breast_z`` twice: the network was trained so),
+# and the breast mask; each at half the working resolution.
+SPATIAL_CHANNELS = (("grey_breast_z", "grey_flat", "skin", "chest", "height")
+                    + BREAST_GREY_PIXEL_DESCRIPTORS + ("breast",))
 # A breast's descriptors: the CAR ones (the density and the texture of the
 # whole breast: prediction-error energy and parameter spread per level, the
 # fibroglandular-fat grey contrast) and the grey-level histogram ones (the
@@ -231,6 +237,10 @@ class TissueModel:
         self.pixel = None if pix is None else PixelModel(pix)
         if self.pixel is not None:  # the mask is the pixel model's
             self.threshold = self.pixel.threshold
+        spatial = spec.get("spatial")
+        self.spatial = None if spatial is None else SpatialModel(spatial)
+        if self.spatial is not None:  # unless there is a spatial model
+            self.threshold = self.spatial.threshold
         self.tissue = ClassModel(spec["tissue"])
 
     def segment_probability(self, X):
@@ -324,6 +334,64 @@ class PixelModel:
         len(PIXEL_DESCRIPTORS))."""
         raw = self.trees.log_odds(np.asarray(X)[:, self.columns])
         return 1.0 / (1.0 + np.exp(-raw))
+
+
+class SpatialModel:
+    """Fibroglandular probability of a whole working crop by a small U-Net
+    of its :data:`SPATIAL_CHANNELS` (the ``spatial`` part of
+    :class:`TissueModel`'s spec: the ``weights`` file beside the model file,
+    the ``channels``, the ``threshold``)."""
+
+    def __init__(self, spec, folder=None):
+        self.spec = spec
+        if tuple(spec["channels"]) != SPATIAL_CHANNELS:
+            raise ValueError("tissue model: its spatial channels are not this code's.")
+        self.threshold = float(spec["threshold"])
+        path = Path(folder or _MODEL_FILE.parent) / spec["weights"]
+        with np.load(path) as weights:
+            self.weights = {k: weights[k].astype(np.float32) for k in weights.files}
+
+    def probability(self, work):
+        """The fibroglandular probability (h, w) of the working crop ``work``
+        (0 off the breast)."""
+        from ._unet import bilinear2, unet_logits
+
+        b = work.breast
+        h, w = b.shape
+        logits = unet_logits(_spatial_input(work), self.weights)
+        p = bilinear2(1.0 / (1.0 + np.exp(-logits)))[:h, :w]
+        p[~b] = 0.0
+        return p
+
+
+# The network was trained on crops padded with zeros to 240x128 (at least 8
+# rows and 24 columns of zeros): its border pixels expect zeros beyond.
+_SPATIAL_MARGIN = 16
+
+
+def _spatial_input(work):
+    """The U-Net's input: :data:`SPATIAL_CHANNELS` of the working crop, each
+    the mean of 2x2 blocks (an odd side padded with zeros), then padded with
+    zeros at the bottom and right by at least :data:`_SPATIAL_MARGIN`, to
+    multiples of 8: (C, H, W) float32."""
+    from ._unet import MULTIPLE
+
+    b = work.breast
+    g = work.grey[b]
+    places = _places(b)
+    columns = [(g - g.mean()) / max(float(g.std()), 1e-6), _flattened(g, places[0]),
+               *places, *_breast_grey(g)]
+    h, w = b.shape
+    maps = np.zeros((len(columns) + 1, h + h % 2, w + w % 2), np.float32)
+    for k, values in enumerate(columns):
+        maps[k, :h, :w][b] = values
+    maps[-1, :h, :w] = b
+    c, h2, w2 = maps.shape
+    half = maps.reshape(c, h2 // 2, 2, w2 // 2, 2).mean(axis=(2, 4))
+    side = [-(-(n // 2 + _SPATIAL_MARGIN) // MULTIPLE) * MULTIPLE for n in (h2, w2)]
+    out = np.zeros((c, *side), np.float32)
+    out[:, : h2 // 2, : w2 // 2] = half
+    return out
 
 
 @lru_cache(maxsize=1)
@@ -544,9 +612,12 @@ def _describe_breast(grey, segmentation, model):
     z, vals = _standardised(work.features, work.breast)
     places = _places(work.breast)
     rows = _segment_rows(work, z, places)
-    prob = _probability(work, rows, model)
-    if model.pixel is not None:
-        prob = _pixel_probability(work, z, places, prob, model.pixel)
+    if model.spatial is not None:
+        prob = model.spatial.probability(work)
+    else:
+        prob = _probability(work, rows, model)
+        if model.pixel is not None:
+            prob = _pixel_probability(work, z, places, prob, model.pixel)
     needed = max(model.tissue.columns) + 1
     return work, rows, prob, _image_row(work, vals, prob, model.threshold, needed)
 
