@@ -574,9 +574,12 @@ def dice(a, b):
 
 def predict(b, model, pixel=None):
     """Full-resolution fibroglandular mask, percent density and image row
-    (the mask by the ``pixel`` model when given, ``model`` its segment model)."""
+    (the mask by the ``pixel`` model when given, a ``T.PixelModel`` or the
+    shipped ``T.SpatialModel``; ``model`` the segment model)."""
     prob = T._probability(b.work, b.rows, model)
-    if pixel is not None:
+    if isinstance(pixel, T.SpatialModel):
+        prob, model = pixel.probability(b.work), pixel
+    elif pixel is not None:
         prob = T._breast_mean(pixel.probability(np.column_stack([b.pixels, prob[b.work.breast]])),
                               b.work.breast, pixel.smoothing * max(b.work.breast.shape))
         model = pixel
@@ -1059,7 +1062,8 @@ def shipped_class_spec(mias_rows, y, mias):
             "intercept": lr.intercept_.tolist()}
 
 
-def write_model(ddsm_breasts, mias_rows, y, ddsm, mias, command, seg_model, pixel=None):
+def write_model(ddsm_breasts, mias_rows, y, ddsm, mias, command, seg_model, pixel=None,
+                spatial=None):
     tissue = shipped_class_spec(mias_rows, y, mias)
     spec = {
         "what": "breast tissue of a mammogram (car_napari.mammography.segment_tissue): "
@@ -1086,6 +1090,7 @@ def write_model(ddsm_breasts, mias_rows, y, ddsm, mias, command, seg_model, pixe
                    "trees fitted on folds 1-4, then refitted on all 60 films"),
         "segment": seg_model.spec,
         **({} if pixel is None else {"pixel": pixel.spec}),
+        **({} if spatial is None else {"spatial": spatial.spec}),
         "tissue": tissue,
         "cross_validation": {"ddsm_tissue": _jsonable(ddsm), "mini_mias": _jsonable(mias)},
     }
@@ -1165,12 +1170,13 @@ def main():
         return evaluate_holdout(load("ddsm", ddsm_names(), cache), a.boot)
     if a.mask_rules:
         return evaluate_mask_rules(load("ddsm", ddsm_names(), cache), a.boot)
-    if a.classes_only:  # the shipped segment and pixel models: no mini-MIAS image fitted them
+    if a.classes_only:  # the shipped mask models: no mini-MIAS image fitted them
         shipped = T.shipped_tissue_model()
         classes = mias_names()
         mias, rows, y = evaluate_mias(load("mias", sorted(classes), cache), classes, shipped,
-                                      a.boot, shipped.pixel)
-        report({}, mias, "shipped pixel model's masks")
+                                      a.boot, shipped.spatial or shipped.pixel)
+        report({}, mias, "shipped spatial model's masks" if shipped.spatial else
+               "shipped pixel model's masks")
         if a.write_model:
             write_class_model(shipped.spec, rows, y, mias,
                               "PYTHONPATH=. nice -n 10 python " + " ".join(sys.argv))
@@ -1186,6 +1192,9 @@ def main():
         pixel.spec["variant"] = BREAST_GREY
         print(f"shipping {BREAST_GREY} (inner Dice {inner}; the old nested choice: {best}), "
               f"threshold {pixel.threshold}", file=sys.stderr)
+    # the shipped spatial model (train_tissue_unet.py --write) makes the mask when there is
+    # one: the class model is fitted on its masks and the model file keeps it
+    spatial = T.shipped_tissue_model().spatial
     mias = rows = y = None
     if not a.no_mias:
         classes = mias_names()
@@ -1193,14 +1202,16 @@ def main():
         if pixel is not None:  # the segment model's masks, for comparison
             report({}, evaluate_mias(mias_breasts, classes, seg_model, a.boot,
                                      nested=False)[0], "segment model's masks")
-        mias, rows, y = evaluate_mias(mias_breasts, classes, seg_model, a.boot, pixel)
-    report(ddsm, mias or {}, "pixel model's masks" if pixel is not None else
-           "segment model's masks")
+        mias, rows, y = evaluate_mias(mias_breasts, classes, seg_model, a.boot,
+                                      spatial or pixel)
+    report(ddsm, mias or {}, "spatial model's masks" if spatial is not None else
+           "pixel model's masks" if pixel is not None else "segment model's masks")
     if a.png:
         plot(ddsm_breasts, masks, a.png)
     if a.write_model and mias is not None:
         write_model(ddsm_breasts, rows, y, ddsm, mias,
-                    "PYTHONPATH=. nice -n 5 python " + " ".join(sys.argv), seg_model, pixel)
+                    "PYTHONPATH=. nice -n 5 python " + " ".join(sys.argv), seg_model, pixel,
+                    spatial)
     if a.speed:
         times = speed()
         print(f"segment_tissue 1024x1024 (mdb001): {', '.join(f'{t:.2f}' for t in times)} s")

@@ -133,6 +133,7 @@ def test_wheel_ships_manifest_and_resources(wheel):
         assert f"car_napari/_resources/{name}" in names
     assert "car_napari/mammography/roi_model.json" in names  # read on import
     assert "car_napari/mammography/tissue_model.json" in names
+    assert "car_napari/mammography/tissue_unet.npz" in names  # the tissue U-Net's weights
     packages = {n.split("/")[0] for n in names if ".dist-info/" not in n}
     assert packages == {"car_napari"}  # no tests/, benchmarks/ or top-level modules
     modules = {n for n in names if n.endswith(".py")}

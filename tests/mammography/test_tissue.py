@@ -147,10 +147,15 @@ def test_shipped_model_has_its_provenance():
     assert sorted(spec["tissue"]["classes"]) == sorted(mm.TISSUE_CLASSES)
     cv = spec["cross_validation"]
     assert {"ddsm_tissue", "mini_mias"} <= set(cv)
-    # the pixel model, when shipped, makes the mask and says how it was chosen
+    # the spatial model, when shipped, makes the mask; else the pixel model, when shipped;
+    # each says how it was chosen
+    threshold = _tissue.shipped_tissue_model().threshold
+    if "spatial" in spec:
+        assert threshold == spec["spatial"]["threshold"]
+        assert "train_tissue_unet.py" in spec["spatial"]["made_by"]
     if "pixel" in spec:
         assert set(spec["pixel"]["descriptors"]) <= set(mm._tissue.PIXEL_DESCRIPTORS)
-        assert _tissue.shipped_tissue_model().threshold == spec["pixel"]["threshold"]
+        assert "spatial" in spec or threshold == spec["pixel"]["threshold"]
         assert "pixel trees, nested choice (CAR)" in cv["ddsm_tissue"]
 
 

@@ -123,6 +123,9 @@ def test_shipped_spatial_model_loads_and_is_a_probability():
     if model.spatial is None:
         pytest.skip("the shipped tissue model has no spatial part")
     assert model.threshold == model.spatial.threshold
+    spec = model.spatial.spec  # with its provenance
+    assert "train_tissue_unet.py --write" in spec["made_by"] and spec["date"] and spec["fit"]
+    assert tuple(spec["channels"]) == _tissue.SPATIAL_CHANNELS
     rng = np.random.default_rng(5)
     breast = np.zeros((60, 40), bool)
     breast[5:55, :30] = True
