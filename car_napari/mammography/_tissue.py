@@ -11,14 +11,19 @@ grey level relative to the breast; a logistic model gives the probability
 that it is fibroglandular; a pixel's probability is the mean over the pooled
 labellings. Boosted trees of each working pixel's descriptors (its grey
 level, against its surroundings and the whole breast's, its place and its
-CAR features) then decide the mask
-pixel by pixel (the segments are coarser than the tissue). The percent
+CAR features) refine it pixel by pixel (the segments are coarser than the
+tissue). The shipped model decides the mask by neither: a small U-Net of
+the working crop's grey and place maps (``_unet.py``, run in NumPy; stop
+42) won on films it was not tuned on, and with the CAR features as more
+input maps it did worse; the segment and pixel models remain for models
+without one. The percent
 density is the fibroglandular area over the breast area (the pectoral
 muscle, removed by :func:`detect_breast`, is not breast);
 the tissue class (F fatty, G fatty-glandular, D dense-glandular) comes from
-the density and the texture of the whole breast by a multinomial logistic
-model. The models are shipped in ``tissue_model.json`` with their
-provenance (``benchmarks/bench_tissue.py --write-model``).
+the density, the CAR texture and the grey histogram of the whole breast by
+a multinomial logistic model. The models are shipped in ``tissue_model.json`` with their
+provenance (``benchmarks/bench_tissue.py --write-model``; the U-Net's weights
+in ``tissue_unet.npz``, ``benchmarks/train_tissue_unet.py --write``).
 """
 
 from __future__ import annotations
@@ -679,7 +684,9 @@ neighbourhood : int or (eta, 2) array_like, optional
 n_init : int, optional
     Components of the segmentation's initial block division.
 work_side : int, optional
-    Working resolution of the segmentation (long side, pixels).
+    Working resolution of the segmentation (long side, pixels). The tissue
+    models were fitted at the default, 512: at another the U-Net sees its
+    textures at another scale.
 seed : int, optional
     Seed of the segmentation's random subsamples.
 """
