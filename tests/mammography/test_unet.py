@@ -1,6 +1,8 @@
 """The tissue model's U-Net forward pass in NumPy (car_napari.mammography._unet),
 each operation against an independent computation."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from scipy import ndimage
@@ -91,6 +93,21 @@ def test_unet_against_plain_composition():
         [up(block("d3", np.concatenate([up(e4), e3]))), e2]))), e1]))
     want = np.tensordot(w["head.weight"][0, :, 0, 0], d, axes=1) + w["head.bias"][0]
     np.testing.assert_allclose(_unet.unet_logits(x, w), want, rtol=1e-4, atol=1e-4)
+
+
+def test_unet_against_pytorch():
+    """A small network (3 input maps, 2 channels at the first resolution)
+    with random weights and batch norms of random statistics, run once by
+    PyTorch 2.13 (``benchmarks/train_tissue_unet.py``'s ``unet`` in
+    evaluation mode, its weights folded by ``folded_weights``): its logits
+    and its bilinearly upsampled probability, stored beside this file."""
+    with np.load(Path(__file__).with_name("unet_reference.npz")) as ref:
+        weights = {k[2:]: ref[k] for k in ref.files if k.startswith("w:")}
+        x, logits, probability = ref["input"], ref["logits"], ref["probability"]
+    mine = _unet.unet_logits(x, weights)
+    np.testing.assert_allclose(mine, logits, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(_unet.bilinear2(1 / (1 + np.exp(-mine))), probability,
+                               rtol=1e-5, atol=1e-5)
 
 
 def test_spatial_input_against_block_means():
