@@ -100,6 +100,8 @@ def film_tensors(b):
 
 
 def unet(cin, base):
+    """The PyTorch network that ``_unet.unet_logits`` runs: ``cin`` input
+    maps, ``base`` channels at the first resolution."""
     import torch
     import torch.nn as nn
     import torch.nn.functional as F
