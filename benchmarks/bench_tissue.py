@@ -576,10 +576,11 @@ def predict(b, model, pixel=None):
     """Full-resolution fibroglandular mask, percent density and image row
     (the mask by the ``pixel`` model when given, a ``T.PixelModel`` or the
     shipped ``T.SpatialModel``; ``model`` the segment model)."""
-    prob = T._probability(b.work, b.rows, model)
     if isinstance(pixel, T.SpatialModel):
         prob, model = pixel.probability(b.work), pixel
-    elif pixel is not None:
+    else:
+        prob = T._probability(b.work, b.rows, model)
+    if isinstance(pixel, T.PixelModel):
         prob = T._breast_mean(pixel.probability(np.column_stack([b.pixels, prob[b.work.breast]])),
                               b.work.breast, pixel.smoothing * max(b.work.breast.shape))
         model = pixel

@@ -356,14 +356,15 @@ class SpatialModel:
         with np.load(path) as weights:
             self.weights = {k: weights[k].astype(np.float32) for k in weights.files}
 
-    def probability(self, work):
+    def probability(self, work, places=None):
         """The fibroglandular probability (h, w) of the working crop ``work``
-        (0 off the breast)."""
+        (0 off the breast); ``places``: its breast's :func:`_places`, when
+        already computed."""
         from ._unet import bilinear2, unet_logits
 
         b = work.breast
         h, w = b.shape
-        logits = unet_logits(_spatial_input(work), self.weights)
+        logits = unet_logits(_spatial_input(work, places), self.weights)
         p = bilinear2(1.0 / (1.0 + np.exp(-logits)))[:h, :w]
         p[~b] = 0.0
         return p
@@ -374,7 +375,7 @@ class SpatialModel:
 _SPATIAL_MARGIN = 16
 
 
-def _spatial_input(work):
+def _spatial_input(work, places=None):
     """The U-Net's input: :data:`SPATIAL_CHANNELS` of the working crop, each
     the mean of 2x2 blocks (an odd side padded with zeros), then padded with
     zeros at the bottom and right by at least :data:`_SPATIAL_MARGIN`, to
@@ -383,7 +384,7 @@ def _spatial_input(work):
 
     b = work.breast
     g = work.grey[b]
-    places = _places(b)
+    places = _places(b) if places is None else places
     columns = [(g - g.mean()) / max(float(g.std()), 1e-6), _flattened(g, places[0]),
                *places, *_breast_grey(g)]
     h, w = b.shape
@@ -610,21 +611,20 @@ def _image_row(work, vals, prob, threshold, needed=None):
 
 def _describe_breast(grey, segmentation, model):
     """Everything the tissue models see of one segmented breast:
-    (working view, segment rows, probability map, image row)."""
+    (working view, probability map, image row)."""
     work = _working(grey, segmentation)
     if not work.breast.any():
         raise ValueError("the segmentation has no breast pixel at its working resolution.")
     z, vals = _standardised(work.features, work.breast)
     places = _places(work.breast)
-    rows = _segment_rows(work, z, places)
-    if model.spatial is not None:
-        prob = model.spatial.probability(work)
+    if model.spatial is not None:  # the segment rows are not read
+        prob = model.spatial.probability(work, places)
     else:
-        prob = _probability(work, rows, model)
+        prob = _probability(work, _segment_rows(work, z, places), model)
         if model.pixel is not None:
             prob = _pixel_probability(work, z, places, prob, model.pixel)
     needed = max(model.tissue.columns) + 1
-    return work, rows, prob, _image_row(work, vals, prob, model.threshold, needed)
+    return work, prob, _image_row(work, vals, prob, model.threshold, needed)
 
 
 def _full_mask(small, segmentation, shape):
@@ -648,7 +648,7 @@ def _full_mask(small, segmentation, shape):
 
 def _tissue_of(grey, segmentation, model):
     """:class:`TissueResult` of a segmented breast."""
-    work, _, prob, row = _describe_breast(grey, segmentation, model)
+    work, prob, row = _describe_breast(grey, segmentation, model)
     fg = _full_mask(prob > model.threshold, segmentation, grey.shape)
     breast = segmentation.breast
     density = 100.0 * float(fg.sum()) / float(breast.sum())
