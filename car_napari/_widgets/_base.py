@@ -14,7 +14,7 @@ from napari.utils.notifications import show_error
 from qtpy.QtCore import QEvent, QObject
 from qtpy.QtWidgets import QFrame, QSizePolicy
 
-from ._jobs import Job, LatestWins
+from ._jobs import Job, LatestWins, NextTurn
 from ._layers import RunRecord, layer_array
 
 
@@ -119,7 +119,9 @@ class JobWidget(Container):
         scroll.setMinimumHeight(self.min_lines * scroll.fontMetrics().height())
         _FitWidth(scroll)
         self._viewer = napari_viewer
-        self.record = RunRecord(napari_viewer)
+        # undone one change per event-loop turn: napari's own 0.1-0.2 s per layer,
+        # not the sum of them, is the longest pause a Cancel brings
+        self.record = RunRecord(napari_viewer, later=NextTurn())
         self._job = None
         self._recuts = LatestWins(interrupt=self.recuts_interrupt)
         self._actions = []  # (button, when): enabled when idle and when()
@@ -319,6 +321,7 @@ class JobWidget(Container):
             What ``begin()`` returns (the running job), or None when it
             raised (the error notification shown).
         """
+        self.record.settle()  # the input is read from the viewer as the last undo left it
         try:
             return begin()
         except (ValueError, OSError) as exc:

@@ -319,6 +319,38 @@ def _ignore(*_):
     """A callback with nothing to do (a re-cut shows no progress)."""
 
 
+class NextTurn:
+    """``next_turn(function)`` calls ``function()`` on a later turn of the
+    event loop, one call per turn, in order.
+
+    A zero-interval timer, as the job's result steps: a call posted with
+    ``QTimer.singleShot(0, ...)`` would run before the viewer has drawn or
+    taken the input waiting, so two long calls would pause it as one.
+
+    Examples
+    --------
+    >>> NextTurn.__name__  # a timer needs a running Qt application; see the tests
+    'NextTurn'
+    """
+
+    def __init__(self):
+        self._calls = []
+        self._timer = QTimer()
+        self._timer.setSingleShot(True)
+        self._timer.setInterval(0)
+        self._timer.timeout.connect(self._next)
+
+    def __call__(self, function):
+        self._calls.append(function)
+        self._timer.start()
+
+    def _next(self):
+        if self._calls:
+            self._calls.pop(0)()
+        if self._calls:
+            self._timer.start()
+
+
 class LatestWins:
     """Jobs asked for faster than they run (a slider dragged), the latest
     request winning: one runs at a time, and a request made while it runs

@@ -222,6 +222,15 @@ def compact_labels(labels):
     return labels
 
 
+def _identity(layer):
+    """The layer's identity, the same through any proxy of it.
+
+    napari hands a plugin its viewer behind a proxy that wraps each layer it
+    returns anew, so two look-ups of one layer are different objects.
+    """
+    return id(getattr(layer, "__wrapped__", layer))
+
+
 class RunRecord:
     """What one run adds to or changes in the viewer, to undo it.
 
@@ -235,6 +244,12 @@ class RunRecord:
     ----------
     viewer : napari.Viewer
         The viewer the run writes into.
+    later : callable, optional
+        ``later(callback)`` calls ``callback()`` on a later turn of the event
+        loop. With it, :meth:`undo` takes one change per turn: napari takes
+        0.1-0.2 s to remove or insert a layer, so undoing three layers at
+        once would pause the viewer three times as long. Any other use of
+        the record first finishes an undo under way.
 
     Examples
     --------
@@ -243,10 +258,18 @@ class RunRecord:
     >>> record.commit()
     """
 
-    def __init__(self, viewer):
+    def __init__(self, viewer, *, later=None):
         self._viewer = viewer
+        self._later = later
         self._undo = []  # closures, oldest first
         self._saved = {}  # id -> layer whose data is backed up (or that this run created)
+        self._undoing = False
+        self._undos = 0  # undos started, to number their turns
+
+    @property
+    def undoing(self):
+        """An undo is under way, one change per event-loop turn."""
+        return self._undoing
 
     def _layers(self):
         return self._viewer.layers
@@ -269,13 +292,14 @@ class RunRecord:
         napari.layers.Layer
             The layer written.
         """
+        self.settle()
         read = read or (lambda layer: layer.data)
         write = write or (lambda layer, value: setattr(layer, "data", value))
         layers = self._layers()
         if name in layers:
             layer = layers[name]
-            if id(layer) not in self._saved:
-                self._saved[id(layer)] = layer
+            if _identity(layer) not in self._saved:
+                self._saved[_identity(layer)] = layer
                 old = read(layer)
                 self._undo.append(lambda: write(layer, old))
             write(layer, data)
@@ -295,6 +319,7 @@ class RunRecord:
         napari.layers.Layer
             The new layer.
         """
+        self.settle()
         self.remove(name)
         return self.add(name, data, add)
 
@@ -317,8 +342,9 @@ class RunRecord:
         napari.layers.Layer
             The new layer.
         """
+        self.settle()
         layer = add(data, name)
-        self._saved[id(layer)] = layer
+        self._saved[_identity(layer)] = layer
         self._undo.append(lambda: self._drop(layer))
         return layer
 
@@ -330,6 +356,7 @@ class RunRecord:
         name : str
             The layer's name.
         """
+        self.settle()
         layers = self._layers()
         if name not in layers:
             return
@@ -348,6 +375,7 @@ class RunRecord:
         value : int
             Its new step.
         """
+        self.settle()
         dims = self._viewer.dims
         old = dims.current_step[axis]
         self._undo.append(lambda: dims.set_current_step(axis, old))
@@ -358,11 +386,45 @@ class RunRecord:
             self._layers().remove(layer)
 
     def undo(self):
-        """Put the viewer back as it was before the run, newest change first."""
-        while self._undo:
-            self._undo.pop()()
-        self.commit()
+        """Put the viewer back as it was before the run, newest change first.
+
+        The newest change is undone now; with ``later``, each older one on
+        a later turn of the event loop (see :attr:`undoing`).
+        """
+        self.settle()
+        self._undoing = True
+        self._undos += 1  # a stale turn of an earlier undo finds another number
+        if self._later is None:
+            self.settle()
+        else:
+            self._undo_turn(self._undos)
+
+    def _undo_turn(self, number):
+        if not self._undoing or number != self._undos:
+            return  # finished meanwhile
+        if self._undo:
+            try:
+                self._undo.pop()()
+            except Exception:
+                self._forget()  # as a failed undo in one go: the rest is dropped
+                raise
+        if self._undo:
+            self._later(lambda: self._undo_turn(number))
+        else:
+            self._forget()
+
+    def settle(self):
+        """Finish an undo under way, at once."""
+        if self._undoing:
+            while self._undo:
+                self._undo.pop()()
+            self._forget()
 
     def commit(self):
         """The run is complete: forget its changes."""
+        self.settle()
+        self._forget()
+
+    def _forget(self):
+        self._undoing = False
         self._undo, self._saved = [], {}

@@ -321,6 +321,9 @@ def test_run_record_puts_a_layer_s_own_content_back(make_napari_viewer_proxy):
     record.put(layer.name, ([square + 1], {"score": [0.7]}), None,
                read=_outlines_of, write=_set_outlines)
     assert len(layer.data) == 1 and list(layer.features["score"]) == [0.7]
+    record.put(layer.name, ([square + 2], {"score": [0.6]}), None,
+               read=_outlines_of, write=_set_outlines)
+    assert len(record._undo) == 1  # one backup: the proxy's look-ups are one layer
     record.undo()
     assert len(layer.data) == 2 and list(layer.features["score"]) == [0.9, 0.5]
     np.testing.assert_array_equal(layer.data[1], square + 4)
@@ -378,6 +381,7 @@ class ShownInStepsWidget(JobWidget):
         self.at = []  # the turn of each step
         self.hold = False  # the second step waits (a turn at a time) while set
         self.fail = False
+        self.hold_after = 0  # the part after which ``hold`` holds the showing
         self.closed = False
         self._run = self.action("Run", self.start)
         self.arrange([self._run])
@@ -405,7 +409,7 @@ class ShownInStepsWidget(JobWidget):
                 if k == 1 and self.fail:
                     raise ValueError("showing failed")
                 yield
-                while k == 0 and self.hold:
+                while k == self.hold_after and self.hold:
                     yield
             self._status.value = "three parts"
         finally:
@@ -452,10 +456,44 @@ def test_a_failing_step_undoes_and_says_why(shown_in_steps, qtbot, last_notifica
     viewer, w = shown_in_steps
     w.fail = True
     job = w.start()
-    qtbot.waitUntil(lambda: job.done, timeout=30000)
+    qtbot.waitUntil(lambda: job.done and not w.record.undoing, timeout=30000)
     assert [lay.name for lay in viewer.layers] == ["img"]
     assert w._status.value == "failed" and w._run.enabled and not w._cancel.enabled
     assert "showing failed" in last_notification()
+
+
+def test_a_cancel_undoes_one_layer_per_turn(shown_in_steps, qtbot):
+    """napari takes 0.1-0.2 s to remove a layer: three removed in one turn
+    would pause the viewer three times as long."""
+    viewer, w = shown_in_steps
+    w.hold, w.hold_after = True, 2
+    job = w.start()
+    qtbot.waitUntil(lambda: "part 2" in viewer.layers, timeout=30000)
+    removed_at = []
+    viewer.layers.events.removed.connect(lambda event: removed_at.append(w.turns))
+    w._cancel.native.click()
+    assert job.cancelled and w.record.undoing and len(removed_at) == 1  # the newest at once
+    assert w._status.value == "cancelled" and w._run.enabled and not w._cancel.enabled
+    qtbot.waitUntil(lambda: not w.record.undoing, timeout=30000)
+    assert [lay.name for lay in viewer.layers] == ["img"]
+    # the others on later turns (the click here is the test's, outside the event
+    # loop, so the first turn may count as the click's)
+    assert len(removed_at) == 3 and removed_at[1] < removed_at[2], removed_at
+
+
+def test_a_new_run_finishes_the_undo_under_way_first(shown_in_steps, qtbot):
+    viewer, w = shown_in_steps
+    w.hold, w.hold_after = True, 2
+    w.start()
+    qtbot.waitUntil(lambda: "part 2" in viewer.layers, timeout=30000)
+    w._cancel.native.click()
+    assert w.record.undoing and "part 0" in viewer.layers
+    w.hold = False
+    job = w.start()  # the first run's parts go at once, before the new run writes
+    assert not w.record.undoing and [lay.name for lay in viewer.layers] == ["img"]
+    qtbot.waitUntil(lambda: job.done, timeout=30000)
+    qtbot.wait(50)  # a stale turn of the first undo, if any, finds nothing to do
+    assert [lay.name for lay in viewer.layers] == ["img", "part 0", "part 1", "part 2"]
 
 
 @pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.int8, np.int16, np.int32, np.uint32,
