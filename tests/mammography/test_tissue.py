@@ -356,3 +356,47 @@ def test_class_is_the_shipped_class_model_of_the_breast_row(half, job):
     want = model.tissue.probabilities(row[None])[0]
     np.testing.assert_allclose([tissue.probabilities[c] for c in "FGD"], want, rtol=0,
                                atol=1e-12)
+
+
+def _density_benchmark():
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[2] / "benchmarks" / "bench_density_cbis.py"
+    spec = importlib.util.spec_from_file_location("bench_density_cbis_under_test", path)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    return bench
+
+
+def test_cbis_density_labels_name_the_shared_films(shared_data):
+    """benchmarks/data/cbis_ddsm_density.csv: one BI-RADS density (1-4) for
+    each film of cbis-ddsm-masses, and one per patient (the two breasts and
+    views of a woman share it in CBIS-DDSM)."""
+    import csv
+    from pathlib import Path
+
+    labels = Path(__file__).resolve().parents[2] / "benchmarks" / "data" / "cbis_ddsm_density.csv"
+    with open(labels) as fh:
+        rows = list(csv.DictReader(fh))
+    films = sorted(p.name for p in (shared_data / "mammograms" / "cbis-ddsm-masses").glob("*.jpg"))
+    assert sorted(r["file"] for r in rows) == films and len(films) == 1231
+    assert {r["breast_density"] for r in rows} == {"1", "2", "3", "4"}
+    per_patient = {}
+    for r in rows:
+        per_patient.setdefault(r["file"].split("_")[0], set()).add(r["breast_density"])
+    assert all(len(d) == 1 for d in per_patient.values())
+
+
+def test_density_benchmark_describes_films_as_segment_tissue(shared_data, monkeypatch):
+    """The rows bench_density_cbis.py evaluates are segment_tissue's: its
+    density, and the shipped class model's probabilities of the row."""
+    monkeypatch.setenv("CAR_NAPARI_MAMMOGRAMS", str(shared_data / "mammograms"))
+    bench = _density_benchmark()
+    path = shared_data / "mammograms" / "cbis-ddsm-masses" / "00001_LEFT_CC.jpg"
+    row = bench.image_row(path)
+    tissue = mm.segment_tissue(io.imread(path))
+    assert row[0] * 100.0 == pytest.approx(tissue.density, abs=1e-9)
+    probabilities = _tissue.shipped_tissue_model().class_probabilities(row)
+    for c in _tissue.TISSUE_CLASSES:
+        assert probabilities[c] == pytest.approx(tissue.probabilities[c], abs=1e-12)
