@@ -998,21 +998,29 @@ def _report_mias(mias, masks):
             print(f"classifiers chosen in the folds, {v}: {r['chosen']}")
 
 
-def plot(breasts, masks, png, n=4):
+def plot_picks(breasts, n=4):
+    """The indices of the films :func:`plot` shows: ``n`` evenly spaced by name."""
+    return [int(i) for i in np.linspace(0, len(breasts) - 1, n)]
+
+
+def plot(breasts, masks, png, n=4, shown=None,
+         title="ddsm-tissue, cross-validated fibroglandular masks (orange)"):
+    """Overlays of the films :func:`plot_picks` chooses: a row per
+    ``shown`` (mask key in ``masks``, or "truth"; its label)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    picks = [breasts[i] for i in np.linspace(0, len(breasts) - 1, n).astype(int)]
-    idx = [breasts.index(b) for b in picks]
-    shown = [("truth", "labels"), ("CAR", "CAR segments"), ("Otsu (control)", "Otsu")]
-    if BREAST_GREY in masks:
-        shown.insert(2, (BREAST_GREY, "CAR pixels"))
+    idx = plot_picks(breasts, n)
+    if shown is None:
+        shown = [("truth", "labels"), ("CAR", "CAR segments"), ("Otsu (control)", "Otsu")]
+        if BREAST_GREY in masks:
+            shown.insert(2, (BREAST_GREY, "CAR pixels"))
     fig, axes = plt.subplots(len(shown), n, figsize=(2.4 * n, 4.3 * len(shown)))
     for j, i in enumerate(idx):
         b = breasts[i]
-        for r, (v, title) in enumerate(shown):
+        for r, (v, label) in enumerate(shown):
             ax = axes[r, j]
             ax.imshow(b.grey, cmap="gray")
             m = b.truth if v == "truth" else masks[v][i]
@@ -1021,11 +1029,11 @@ def plot(breasts, masks, png, n=4):
             ax.imshow(over)
             d = dice(m, b.truth)
             dens = 100.0 * m.sum() / (b.seg.breast.sum() if v != "truth" else 1)
-            txt = (f"{title}: {b.true_density:.0f} %" if v == "truth"
-                   else f"{title}: Dice {d:.2f}, {dens:.0f} %")
+            txt = (f"{label}: {b.true_density:.0f} %" if v == "truth"
+                   else f"{label}: Dice {d:.2f}, {dens:.0f} %")
             ax.set_title(txt, fontsize=8)
             ax.axis("off")
-    fig.suptitle("ddsm-tissue, cross-validated fibroglandular masks (orange)", fontsize=9)
+    fig.suptitle(title, fontsize=9)
     fig.tight_layout()
     fig.savefig(png, dpi=80)
     print(f"wrote {png}")

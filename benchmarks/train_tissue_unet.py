@@ -2,7 +2,8 @@
 
     pip install torch==2.13.0          # training only: the package runs the network in NumPy
     PYTHONPATH=. nice -n 5 python benchmarks/train_tissue_unet.py --tuning-cv | --holdout | --write
-        | --cv [--jobs 2] | --mias-png docs/tissue_unet_mias.png [--cache /tmp/tissue] [--boot 1000]
+        | --cv [--jobs 2] [--png docs/tissue_overlays.png]
+        | --mias-png docs/tissue_unet_mias.png [--cache /tmp/tissue] [--boot 1000]
 
 Inputs: each ddsm-tissue film's working crop (the package's breast
 segmentation, cached as ``bench_tissue.py`` caches it) as the package feeds
@@ -39,6 +40,8 @@ Modes (stop 42; the rule was written before the held-out films were seen):
     5-fold CV by file on all 60 films (``bench_tissue``'s folds), as its
     table: full-resolution Dice and density error; ``--jobs`` folds at a
     time. Its outer folds include the tuning films, so it is optimistic.
+    ``--png``: four films' out-of-fold masks beside their labels and Otsu's
+    (the films ``bench_tissue --png`` draws).
 ``--mias-png PATH``
     The shipped model's masks on six mini-MIAS images (the first two of
     each class F, G, D by name), a scanner it was never trained on and
@@ -244,21 +247,35 @@ def full_resolution(b, model):
 
 
 def _cv_fold(job):
-    films, k, command = job
+    """(Dice, density) of each film of fold ``k`` by a network trained on
+    the others, and the full-resolution masks of the films to draw."""
+    films, k, command, drawn = job
     folds = [B.fold_of(b.name) for b in films]
     with tempfile.TemporaryDirectory() as tmp:
         model = package_model(train([b for b, f in zip(films, folds, strict=True) if f != k]),
                               command, films, tmp)
-        return {b.name: full_resolution(b, model)
-                for b, f in zip(films, folds, strict=True) if f == k}
+        test = [b for b, f in zip(films, folds, strict=True) if f == k]
+        masks = {b.name: T._full_mask(model.probability(b.work) > model.threshold, b.seg,
+                                      b.shape) for b in test if b.name in drawn}
+        return {b.name: full_resolution(b, model) for b in test}, masks
 
 
-def cross_validate(films, jobs, command, n_boot):
+def cross_validate(films, jobs, command, n_boot, png=None):
     import multiprocessing as mp
 
+    drawn = {films[i].name for i in B.plot_picks(films)} if png else set()
     with mp.get_context("spawn").Pool(jobs, initializer=B._single_threaded) as pool:
-        parts = pool.map(_cv_fold, [(films, k, command) for k in range(B.FOLDS)], chunksize=1)
-    got = {n: v for part in parts for n, v in part.items()}
+        parts = pool.map(_cv_fold, [(films, k, command, drawn) for k in range(B.FOLDS)],
+                         chunksize=1)
+    got = {n: v for part, _ in parts for n, v in part.items()}
+    if png:
+        masks = {n: m for _, part in parts for n, m in part.items()}
+        B.plot(films, {"U-Net": [masks.get(b.name) for b in films],
+                       "Otsu (control)": [b.otsu for b in films]}, png,
+               shown=[("truth", "labels"), ("U-Net", "U-Net, out of fold"),
+                      ("Otsu (control)", "Otsu")],
+               title="ddsm-tissue: the U-Net's fibroglandular masks (orange), each by a "
+                     "network trained on the other folds; Otsu in the breast for comparison")
     d = np.array([got[b.name][0] for b in films])
     dens = np.array([got[b.name][1] for b in films])
     truth = np.array([b.true_density for b in films])
@@ -308,6 +325,7 @@ def main():
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--cache", default="/tmp/tissue")
     ap.add_argument("--boot", type=int, default=1000)
+    ap.add_argument("--png", default=None, help="--cv: draw out-of-fold overlays here")
     a = ap.parse_args()
     if a.mias_png:
         return mias_overlays(a.mias_png)
@@ -319,7 +337,7 @@ def main():
     held = [b for b, f in zip(films, folds, strict=True) if f not in B.HOLDOUT_TUNING]
     command = "PYTHONPATH=. nice -n 5 python " + " ".join(sys.argv)
     if a.cv:
-        return cross_validate(films, a.jobs, command, a.boot)
+        return cross_validate(films, a.jobs, command, a.boot, a.png)
     with tempfile.TemporaryDirectory() as tmp:
         if a.tuning_cv:
             d, e = np.zeros(len(tuning)), np.zeros(len(tuning))
