@@ -235,15 +235,20 @@ def evaluate_transfer(mias, cbis, n_boot):
         print(f"  {variant:22s} {_summary(ym, p, n_boot)}")
 
 
+def _resampled(units, n_boot, seed=0):
+    """Bootstrap samples over ``units`` (a woman, an image): each the
+    indices of the units drawn with replacement, with all their items."""
+    groups = [np.flatnonzero(units == u) for u in np.unique(units)]
+    rng = np.random.default_rng(seed)
+    for _ in range(n_boot):
+        yield np.concatenate([groups[i] for i in rng.integers(0, len(groups), len(groups))])
+
+
 def _by_patient_interval(right, other, patients, n_boot, seed=0):
     """95 % interval of the mean of ``right`` (minus ``other``'s, paired)
     over patients resampled with their films."""
-    groups = [np.flatnonzero(patients == p) for p in np.unique(patients)]
-    rng = np.random.default_rng(seed)
-    stats = []
-    for _ in range(n_boot):
-        idx = np.concatenate([groups[i] for i in rng.integers(0, len(groups), len(groups))])
-        stats.append(right[idx].mean() - (0.0 if other is None else other[idx].mean()))
+    stats = [right[idx].mean() - (0.0 if other is None else other[idx].mean())
+             for idx in _resampled(patients, n_boot, seed)]
     return np.percentile(stats, [2.5, 97.5])
 
 
@@ -289,11 +294,8 @@ def evaluate_density(mias, cbis, n_boot, seed=0):
             ("mini-MIAS, F/G/D", mias[1][:, 0] * 100,
              np.array([order[c] for c in mias[2]]), np.array(mias[0])))
     for name, density, grade, unit in sets:
-        groups = [np.flatnonzero(unit == u) for u in np.unique(unit)]
-        rng = np.random.default_rng(seed)
         means, rhos = [], []
-        for _ in range(n_boot):
-            idx = np.concatenate([groups[i] for i in rng.integers(0, len(groups), len(groups))])
+        for idx in _resampled(unit, n_boot, seed):
             means.append([density[idx][grade[idx] == g].mean() for g in np.unique(grade)])
             rhos.append(spearmanr(density[idx], grade[idx])[0])
         lo, hi = np.percentile(means, [2.5, 97.5], axis=0)

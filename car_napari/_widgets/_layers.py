@@ -319,8 +319,7 @@ class RunRecord:
         napari.layers.Layer
             The new layer.
         """
-        self.settle()
-        self.remove(name)
+        self.remove(name)  # each finishes an undo under way first
         return self.add(name, data, add)
 
     def add(self, name, data, add):
