@@ -4,7 +4,7 @@ Run by hand (not under ``nice``: it measures pauses):
 
     xvfb-run -a -s "-screen 0 1280x1024x24" .venv/bin/python benchmarks/bench_gui.py \
         [--size 4000] [--only NAME[,NAME]] [--cancel-after 3[,20]] [--complete]
-        [--merge-regions NATS]
+        [--merge-regions NATS] [--stacks]
 
 Each widget runs in a fresh Python process with its own ``napari.Viewer(show=True)``
 and the widget docked, so that its memory peak is its own. In that process:
@@ -89,6 +89,10 @@ input's size), and when it is removed (napari 0.9 runs a full
 ``gc.collect()`` on every removal). Any
 widget that shows a result in a new layer, or undoes one on Cancel, meets
 these pauses; they are printed below the table.
+
+With ``--stacks`` a background thread samples the main thread's Python stack
+every 2 ms while the viewer is paused, and each row's longest pause is
+printed below the table with the stacks seen in it (where the time went).
 
 A child that exceeds ``--mem-limit`` GB is killed (the row says so); one whose
 worker is still running ``--cancel-timeout`` s after the click reports
@@ -291,6 +295,55 @@ class EventLoopMonitor:
             return None
         i = int(np.argmax(self.gaps))
         return self.times[i] - self.gaps[i], self.times[i]
+
+
+class StackSampler:
+    """What the main thread was doing in a pause: a background thread looks at
+    the main thread's Python stack every ``period`` s and keeps the samples
+    taken while the event-loop monitor has not ticked for ``stale`` s (inside
+    a pause). A sample is the innermost frames, innermost last. The sampler
+    needs the GIL, so a long C call that holds it shows as the frame that
+    made it."""
+
+    def __init__(self, monitor, period=0.002, stale=0.02, depth=14):
+        import threading
+
+        self.monitor, self.period, self.stale, self.depth = monitor, period, stale, depth
+        self.samples = []  # (perf_counter, frames)
+        self._main = threading.main_thread().ident
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def start(self):
+        self._thread.start()
+
+    def stop(self):
+        self._stop.set()
+        self._thread.join(1.0)
+
+    def _run(self):
+        import traceback
+
+        while not self._stop.wait(self.period):
+            last = self.monitor._last
+            now = time.perf_counter()
+            if last is None or now - last < self.stale:
+                continue
+            frame = sys._current_frames().get(self._main)
+            if frame is None:
+                continue
+            stack = traceback.extract_stack(frame, limit=self.depth)
+            self.samples.append((now, [f"{Path(f.filename).name}:{f.lineno} {f.name}"
+                                       for f in stack]))
+
+    def summary(self, start, end, top=6):
+        """The most frequent stacks sampled between ``start`` and ``end``, as text
+        lines: the count and the frames, outermost first."""
+        from collections import Counter
+
+        counts = Counter(" > ".join(frames) for t, frames in self.samples
+                         if start <= t <= end)
+        return [f"{n} x {stack}" for stack, n in counts.most_common(top)]
 
 
 def run_until(condition, timeout):
@@ -554,6 +607,9 @@ def child(args):
     maxrss_before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
     monitor = EventLoopMonitor()
     monitor.start()
+    sampler = StackSampler(monitor) if args.stacks else None
+    if sampler:
+        sampler.start()
     run_until(lambda: False, 0.2)
     marks = {}
     holder = {}
@@ -663,6 +719,10 @@ def child(args):
         out["viewer_as_before"] = [layer.name for layer in viewer.layers] == before
     monitor.stop()
     at = monitor.longest_at()
+    if sampler:
+        sampler.stop()
+        if at is not None:
+            out["stacks"] = sampler.summary(*at)
     if at is not None and "start" in marks:
         out["longest_from_s"] = round(at[0] - marks["start"], 2)
         if at[0] <= marks["start"] <= at[1]:
@@ -755,7 +815,7 @@ def run_child(case, args, inputs, cancel_after):
                "--warmup-size", str(args.warmup_size),
                "--warmup-timeout", str(args.warmup_timeout)]
     command += ["--complete"] * args.complete + ["--no-warmup"] * args.no_warmup
-    command += ["--merge-regions", str(args.merge_regions)]
+    command += ["--merge-regions", str(args.merge_regions)] + ["--stacks"] * args.stacks
     # a PYTHONPATH given first (another checkout's car_napari: a baseline)
     env = dict(os.environ, PYTHONPATH=os.environ.get("PYTHONPATH", "") + os.pathsep + str(ROOT))
     with tempfile.TemporaryFile("w+") as stdout, tempfile.TemporaryFile("w+") as stderr:
@@ -856,6 +916,9 @@ def main(argv=None):
     parser.add_argument("--json", default=None, help="also write the rows to this file")
     parser.add_argument("--merge-regions", type=float, default=0.0,
                         help="the segmentation widget's 'merge similar regions' (0: off)")
+    parser.add_argument("--stacks", action="store_true",
+                        help="sample the main thread's stack in pauses; print what it did "
+                             "in each row's longest pause")
     parser.add_argument("--child", default=None, help=argparse.SUPPRESS)
     parser.add_argument("--inputs", default=None, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
@@ -903,6 +966,11 @@ def main(argv=None):
               f"pause adding a 1000x1000 RGB float32 layer {span('add_ms')}, a 16x16 image "
               f"{span('add_tiny_ms')}, a {size}x{size} Labels layer {span('add_labels_ms')}; "
               f"removing one {span('remove_ms')}.")
+    for r in results:
+        if r.get("stacks"):
+            print(f"\n{r['title']}, its longest pause ({r['longest_ms']:.0f} ms), the main "
+                  "thread's stacks sampled every 2 ms (count x frames, outermost first):")
+            print("\n".join("  " + line for line in r["stacks"]))
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=1))
     return 0
