@@ -26,6 +26,7 @@ from ..mammography import (
     select_marks,
 )
 from ._base import JobWidget
+from ._layers import compact_labels
 
 # The dock's table: (header, table column, format, header tooltip). Short
 # headers and numbers so that it fits the dock without scrolling sideways;
@@ -71,10 +72,8 @@ def _with_outlines(job):
     converting them)."""
     (labels, table), tissue = yield from stage(job, 0.0, 0.97)
     yield Progress("outlines", 0.97, "outlines of the regions")
-    n = int(labels.max(initial=0))
-    small = labels.astype(np.uint8 if n < 2**8 else np.uint16 if n < 2**16 else labels.dtype)
-    return (MammogramROIs(small, table), region_outlines(labels, tolerance=OUTLINE_TOLERANCE),
-            tissue)
+    outlines = region_outlines(labels, tolerance=OUTLINE_TOLERANCE)
+    return MammogramROIs(compact_labels(labels), table), outlines, tissue
 
 
 def _outlines_of(layer):

@@ -29,6 +29,7 @@ def test_detect_gives_labels_outlines_and_table(widget, qtbot, small_mammogram):
     qtbot.waitUntil(lambda: job.done, timeout=180000)
     labels = viewer.layers["mdb001 ROI labels"].data
     assert labels.shape == small_mammogram.shape
+    assert labels.dtype == np.uint8  # napari shows it as it is: no hashing in the viewer
     n = len(w.table["label"])
     assert n >= 1 and labels.max() == n
     outlines = viewer.layers["mdb001 ROI outlines"]

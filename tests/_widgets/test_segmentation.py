@@ -24,12 +24,20 @@ def test_live_merging_then_instant_recut(widget, qtbot):
     layer = viewer.add_image(image, name="mosaic")
     w._image.value = layer
     w._levels.value, w._n_init.value = 2, 8
+    shown = []  # the dtype of every labels array the layer is given
+    plain_put = w.record.put
+    w.record.put = lambda name, data, add: shown.append(data.dtype) or plain_put(name, data, add)
     job = w.start()
     qtbot.waitUntil(lambda: job.done, timeout=120000)
     assert w.updates >= 2
     result = w.result
     labels = viewer.layers["mosaic segments"].data
     assert labels.shape == image.shape and labels.max() >= 1
+    # napari shows uint8 labels as they are (int32 it hashes in the viewer's thread);
+    # the result keeps the core's int32 labels, the same values
+    assert set(shown) == {np.dtype(np.uint8)} and len(shown) == w.updates + 1
+    assert result.labels.dtype == np.int32
+    np.testing.assert_array_equal(labels, result.labels)
     np.testing.assert_array_equal(layer.data, image)
     # re-cut the merge history: a re-cut in a worker, no run; labels change
     ks = [m.k for m in result.history]
@@ -38,6 +46,7 @@ def test_live_merging_then_instant_recut(widget, qtbot):
     w._cut.value = target
     qtbot.waitUntil(lambda: w._recut_job is None, timeout=60000)
     after = viewer.layers["mosaic segments"].data
+    assert after.dtype == np.uint8
     assert w._job is job and not np.array_equal(before, after)
     assert len(np.unique(after[after > 0])) <= target
     np.testing.assert_array_equal(after, result.labels_at(target, threshold=0.0))
