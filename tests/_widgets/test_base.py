@@ -201,6 +201,41 @@ def test_the_status_names_the_stage_and_the_bar_follows(widget, qtbot):
     assert w._status.value == "done" and w._progress.value == 100
 
 
+def test_the_bar_is_painted_with_the_window_not_at_once(widget, qtbot):
+    """QProgressBar.setValue paints the bar at once, and a paint composes the
+    whole window with napari's canvas; the base's progress waits for the
+    window's next paint (and is then painted, with its new value)."""
+    from qtpy.QtCore import QEvent, QObject
+
+    viewer, w = widget
+    viewer.window.show()
+    bar = w._progress.native
+    qtbot.waitExposed(bar.window(), timeout=5000)
+    qtbot.waitUntil(bar.isVisible, timeout=5000)
+    qtbot.wait(200)
+    paints = []
+
+    class PaintCounter(QObject):
+        def eventFilter(self, watched, event):
+            if event.type() == QEvent.Type.Paint:
+                paints.append(bar.value())
+            return False
+
+    counter = PaintCounter()
+    bar.installEventFilter(counter)
+    try:
+        w._progress.value = 20  # the premise: a plain set paints in the call
+        assert paints == [20]
+        for percent in (45, 100, 0):
+            paints.clear()
+            w._set_progress(percent)
+            assert paints == [] and w._progress.value == percent
+            qtbot.waitUntil(lambda: bool(paints), timeout=5000)
+            assert paints[-1] == percent
+    finally:
+        bar.removeEventFilter(counter)
+
+
 def test_cancel_undoes_what_the_run_added_and_changed(widget, qtbot):
     viewer, w = widget
     layer = viewer.add_image(np.full((12, 8), 0.5), name="img")
