@@ -136,9 +136,10 @@ class SegmentationWidget(JobWidget):
 def _compact(job):
     """The segmentation job with every labels array it shows (previews, then
     the result's) in the smallest integer type that holds it, converted in
-    the worker: napari would hash int32 labels pixel by pixel in the viewer
-    (twice per new layer, about 0.2 s on 4000x4000). Returns (result, its
-    labels as shown); the result keeps its int32 labels."""
+    the worker: napari would remap int32 labels pixel by pixel in the viewer
+    (twice per new layer and once per data change; on 4000x4000, measured
+    in stop 44, 70-80 ms at the first preview and 43-64 ms per change).
+    Returns (result, its labels as shown); the result keeps its int32 labels."""
     result = yield from map_previews(job, compact_labels)
     return result, compact_labels(result.labels)
 
