@@ -45,7 +45,9 @@ def _fourier_resize(n_in, n_out):
 
 def _apply(mats, image):
     rows, cols = mats
-    return np.einsum("ai,ijc,bj->abc", rows, image, cols)
+    # optimize: two matrix products, not one loop over all four indices
+    # (seconds instead of 40 s at 300x257)
+    return np.einsum("ai,ijc,bj->abc", rows, image, cols, optimize=True)
 
 
 @pytest.mark.parametrize("shape", [(16, 16), (15, 22), (9, 7), (2, 3), (1, 5)])
