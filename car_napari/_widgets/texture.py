@@ -61,13 +61,14 @@ def ask_open_path(parent, start):
     return ask_model_path(parent, start, save=False)
 
 
-def _with_limits(job):
-    """``job``'s synthesis and its (min, max), taken in the worker: without
-    contrast limits napari scans a large image on the main thread (0.43 s
-    for a 4000x4000 RGB synthesis)."""
+def _for_display(job):
+    """``job``'s synthesis as float32 and its (min, max), both taken in the
+    worker: napari converts float64 to float32 on the main thread before
+    drawing it, and without contrast limits it scans a large image there
+    (0.43 s for a 4000x4000 RGB synthesis)."""
     synthesis = yield from job
     lo, hi = float(np.nanmin(synthesis)), float(np.nanmax(synthesis))
-    return synthesis, (lo, hi if hi > lo else lo + 1.0)
+    return synthesis.astype(np.float32), (lo, hi if hi > lo else lo + 1.0)
 
 
 def _fallback_notes(model):
@@ -204,7 +205,7 @@ class TextureSynthesisWidget(ModelWidget):
         else:
             job = model.iter_synthesize(shape, seed=seed, tileable=bool(self._tileable.value))
         self._target = f"{self._source_name} synthesis", not isinstance(model, TextureModel)
-        return self.run(_with_limits(job), done=self._show)
+        return self.run(_for_display(job), done=self._show)
 
     def _show(self, result):
         """Show the synthesis (a generator: the job runs it a step per event-loop turn)."""

@@ -29,6 +29,7 @@ def test_fit_synthesize_save_and_load(widget, qtbot, tmp_path, last_notification
     qtbot.waitUntil(lambda: job.done, timeout=120000)
     out = viewer.layers["grass synthesis"].data
     assert out.shape == (150, 333, 3) and np.isfinite(out).all()
+    assert out.dtype == np.float32  # converted in the worker: napari draws it as it is
     # the display range was taken in the worker: the data's own
     np.testing.assert_allclose(viewer.layers["grass synthesis"].contrast_limits,
                                [out.min(), out.max()], rtol=1e-6)
@@ -200,8 +201,9 @@ def test_cancelled_fit_keeps_the_model_and_name_of_the_previous_one(widget, qtbo
     job = w.start_synthesis()
     qtbot.waitUntil(lambda: job.done, timeout=60000)
     assert [layer.name for layer in viewer.layers] == ["A", "B", "A synthesis"]
+    # shown as float32, which napari draws without converting it
     np.testing.assert_array_equal(viewer.layers["A synthesis"].data,
-                                  model_a.synthesize((40, 50), seed=0))
+                                  model_a.synthesize((40, 50), seed=0).astype(np.float32))
 
 
 def test_cancel_of_a_large_fit_ends_the_worker_quickly(widget, qtbot, cancel_latency):
