@@ -74,6 +74,42 @@ def test_conditional_mean_matches_the_dense_gaussian_conditional(band_width, mon
         np.testing.assert_allclose(got, x.reshape(-1, C), rtol=1e-9, atol=1e-10)
 
 
+def test_superlu_solves_a_blob_in_the_pixel_graph_order(monkeypatch):
+    """A 2-D hole of colour pixels (one coupled group, solved by SuperLU in
+    the order of the pixels' graph) against the dense Gaussian conditional;
+    the order is a permutation keeping each pixel's unknowns together, and
+    the permuted matrix is the dense one permuted."""
+    from scipy import sparse
+
+    monkeypatch.setattr(_solver, "BAND_WIDTH", -1)
+    rng = np.random.default_rng(3)
+    H, W, C = 16, 15, 3
+    mean = np.array([0.5, -0.2, 0.1])
+    frame = rng.normal(size=(H, W, C))
+    unknown = np.zeros((H, W), bool)
+    unknown[3:13, 2:12] = True
+    unknown[5, 13] = True
+    models = [_random_model(rng, direction_offsets(causal_neighbourhood(2), d), C, mean)
+              for d in ("down", "up")]
+    got = conditional_mean(frame, unknown, models)
+    P = _dense_precision(models, H, W)
+    y, mu = frame.reshape(-1), np.tile(mean, H * W)
+    u = np.repeat(unknown.reshape(-1), C)
+    x = mu[u] - np.linalg.solve(P[np.ix_(u, u)], P[np.ix_(u, ~u)] @ (y[~u] - mu[~u]))
+    np.testing.assert_allclose(got, x.reshape(-1, C), rtol=1e-9, atol=1e-10)
+
+    Q = P[np.ix_(u, u)]
+    Q[np.abs(Q) < 1e-300] = 0.0
+    csc = sparse.csc_matrix(Q)
+    assert not (np.diff(csc.indptr) % C).any()  # whole blocks, as _batch_csc keeps them
+    pixels = _solver._pixel_order(csc, C)
+    assert sorted(pixels) == list(range(unknown.sum()))
+    order = _solver._unknowns_order(pixels, C)
+    np.testing.assert_array_equal(order.reshape(-1, C) // C, np.repeat(pixels[:, None], C, 1))
+    np.testing.assert_array_equal(_solver._symmetric_permuted(csc, order).toarray(),
+                                  Q[np.ix_(order, order)])
+
+
 def test_band_cholesky_solves_a_group_and_refuses_an_indefinite_one():
     """Two groups of a row of grey pixels, each a tridiagonal block: the
     second solved alone against a dense solve; a negative pivot refused."""
