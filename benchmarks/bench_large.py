@@ -157,7 +157,7 @@ def check_crop(work, side):
 
     image = open_array(work / "in.zarr")
     out = open_array(work / "out.zarr")
-    summary, noise = drain(_iter_statistics(image, None, True, 2048, (0.0, 1.0)))
+    summary, noise = drain(_iter_statistics(image, True, 2048, (0.0, 1.0)))
     halo = tile_halo(48, 1)
     c = (side // 2) // 16 * 16
     part = np.asarray(image[c - halo : c + 256 + halo, c - halo : c + 256 + halo])
