@@ -53,6 +53,17 @@ def _random_model(rng, offsets, C, mean):
                        mean[None, None], None, Sm[None, None])
 
 
+def _dense_conditional(frame, unknown, models, mean):
+    """The Gaussian conditional mean of the unknown pixels given the known,
+    by a dense solve: ((n, C) values, the precision over the unknowns)."""
+    H, W, C = frame.shape
+    P = _dense_precision(models, H, W)
+    y, mu = frame.reshape(-1), np.tile(mean, H * W)
+    u = np.repeat(unknown.reshape(-1), C)
+    x = mu[u] - np.linalg.solve(P[np.ix_(u, u)], P[np.ix_(u, ~u)] @ (y[~u] - mu[~u]))
+    return x.reshape(-1, C), P[np.ix_(u, u)]
+
+
 @pytest.mark.parametrize("band_width", [BAND_WIDTH, -1], ids=["band", "superlu"])
 def test_conditional_mean_matches_the_dense_gaussian_conditional(band_width, monkeypatch):
     monkeypatch.setattr(_solver, "BAND_WIDTH", band_width)
@@ -67,11 +78,8 @@ def test_conditional_mean_matches_the_dense_gaussian_conditional(band_width, mon
     for directions in (("down",), ("down", "up", "right", "left")):
         models = [_random_model(rng, direction_offsets(base, d), C, mean) for d in directions]
         got = conditional_mean(frame, unknown, models)
-        P = _dense_precision(models, H, W)
-        y, mu = frame.reshape(-1), np.tile(mean, H * W)
-        u = np.repeat(unknown.reshape(-1), C)
-        x = mu[u] - np.linalg.solve(P[np.ix_(u, u)], P[np.ix_(u, ~u)] @ (y[~u] - mu[~u]))
-        np.testing.assert_allclose(got, x.reshape(-1, C), rtol=1e-9, atol=1e-10)
+        x, _ = _dense_conditional(frame, unknown, models, mean)
+        np.testing.assert_allclose(got, x, rtol=1e-9, atol=1e-10)
 
 
 def test_superlu_solves_a_blob_in_the_pixel_graph_order(monkeypatch):
@@ -92,13 +100,9 @@ def test_superlu_solves_a_blob_in_the_pixel_graph_order(monkeypatch):
     models = [_random_model(rng, direction_offsets(causal_neighbourhood(2), d), C, mean)
               for d in ("down", "up")]
     got = conditional_mean(frame, unknown, models)
-    P = _dense_precision(models, H, W)
-    y, mu = frame.reshape(-1), np.tile(mean, H * W)
-    u = np.repeat(unknown.reshape(-1), C)
-    x = mu[u] - np.linalg.solve(P[np.ix_(u, u)], P[np.ix_(u, ~u)] @ (y[~u] - mu[~u]))
-    np.testing.assert_allclose(got, x.reshape(-1, C), rtol=1e-9, atol=1e-10)
+    x, Q = _dense_conditional(frame, unknown, models, mean)
+    np.testing.assert_allclose(got, x, rtol=1e-9, atol=1e-10)
 
-    Q = P[np.ix_(u, u)]
     Q[np.abs(Q) < 1e-300] = 0.0
     csc = sparse.csc_matrix(Q)
     assert not (np.diff(csc.indptr) % C).any()  # whole blocks, as _batch_csc keeps them
