@@ -184,7 +184,7 @@ def value_range(data):
 def compact_labels(labels):
     """``labels`` in the smallest unsigned dtype that holds its values.
 
-    napari draws uint8 and uint16 labels as they are, but hashes int32 and
+    napari draws uint8 and uint16 labels as they are, but remaps int32 and
     int64 labels into a texture dtype (a pass over the slice, on the main
     thread) when the layer is made and at every refresh; the values do not
     change (labels 0..255 become uint8, up to 65535 uint16). Call it where
