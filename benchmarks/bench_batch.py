@@ -22,7 +22,7 @@ process, the command's in-process path (``--workers 1``: no cluster) with
 ``CAR_NAPARI_JOB_THREADS=1``, and N workers are the command's LocalCluster
 of N single-threaded processes; the ratio is their throughput against it.
 ``--threaded`` adds the command's default in-process path as its own row
-("1, 2 job threads"), a different baseline: there the applications run
+("1 worker, 2 job threads"), a different baseline: there the applications run
 their kernels on two threads where they can (restoration strips, the
 scans, the moments; Numba ``nogil``), so one process already keeps more
 than one core busy part of the time. The "cores busy" column shows how
