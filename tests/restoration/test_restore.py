@@ -92,25 +92,32 @@ def _dense_windowed(image, offsets, corner, window, strength=1e-6):
     def regressors(i, j):
         return np.r_[[y[i + a, j + b, c] for a, b in taps for c in range(C)], 1.0]
 
+    def block_model(bi, bj):  # the least squares of the block's window
+        rows = [(a, b) for a in range(max(border, (bi - 1) * block),
+                                      min(H - border, (bi + 2) * block))
+                for b in range(max(border, (bj - 1) * block),
+                               min(W - border, (bj + 2) * block))]
+        X = np.array([regressors(a, b) for a, b in rows])
+        Y = np.array([y[a, b] for a, b in rows])
+        p = X.shape[1]
+        prior = np.full(p, strength * var)
+        prior[-1] = strength
+        Vxx = X.T @ X + np.diag(prior)
+        gamma = np.linalg.solve(Vxx, X.T @ Y)
+        lam = Y.T @ Y + strength * var * np.eye(C) - (X.T @ Y).T @ gamma
+        return rows, Vxx, gamma, lam
+
+    models = {}
     pred = np.full((H, W, C), np.nan)
     rel = np.full((H, W), np.nan)
     for i in range(H):
         for j in range(W):
             if not all(0 <= i + a < H and 0 <= j + b < W for a, b in taps):
                 continue
-            bi, bj = i // block, j // block
-            rows = [(a, b) for a in range(max(border, (bi - 1) * block),
-                                          min(H - border, (bi + 2) * block))
-                    for b in range(max(border, (bj - 1) * block),
-                                   min(W - border, (bj + 2) * block))]
-            X = np.array([regressors(a, b) for a, b in rows])
-            Y = np.array([y[a, b] for a, b in rows])
-            p = X.shape[1]
-            prior = np.full(p, strength * var)
-            prior[-1] = strength
-            Vxx = X.T @ X + np.diag(prior)
-            gamma = np.linalg.solve(Vxx, X.T @ Y)
-            lam = Y.T @ Y + strength * var * np.eye(C) - (X.T @ Y).T @ gamma
+            key = (i // block, j // block)
+            if key not in models:
+                models[key] = block_model(*key)
+            rows, Vxx, gamma, lam = models[key]
             z = regressors(i, j)
             e = y[i, j] - z @ gamma
             q = 1.0 + z @ np.linalg.solve(Vxx, z)
@@ -580,3 +587,129 @@ def test_restore_and_the_results_restored_are_identical(estimator, shape, kappa)
     assert result.weight is not None
     again = result.restored()
     np.testing.assert_array_equal(plain, again[..., 0] if plain.ndim == 2 else again)
+
+
+def _window_mean(values, radius):
+    """The mean of (H, W) or (H, W, C) ``values`` over the (2 radius + 1)^2
+    square round each pixel, the part inside the image, by plain loops."""
+    H, W = values.shape[:2]
+    out = np.empty(values.shape)
+    for i in range(H):
+        for j in range(W):
+            box = values[max(0, i - radius) : i + radius + 1, max(0, j - radius) : j + radius + 1]
+            out[i, j] = box.reshape(-1, *values.shape[2:]).mean(axis=0)
+    return out
+
+
+def _numpy_edge_weight(observed, prediction, spread, noise):
+    """The edge rule as docs/restoration.md states it: 1 where the 3 x 3 mean
+    of the directions' spread exceeds EDGE_SPREAD mean(noise^2), else
+    clip(1 - noise^2 / v, 0, 1) with v the 7 x 7 mean squared error."""
+    from car_napari.restoration._combine import EDGE_SPREAD, EDGE_WINDOW
+
+    v = _window_mean((observed - prediction) ** 2, EDGE_WINDOW // 2)
+    weight = np.clip(1.0 - noise**2 / np.maximum(v, 1e-30), 0.0, 1.0)
+    edge = _window_mean(spread, 1) > EDGE_SPREAD * np.mean(noise**2)
+    return np.where(edge[..., None], 1.0, weight)
+
+
+def test_edge_rule_is_the_windowed_noise_ratio_or_one_at_an_edge():
+    """The edge rule's kernel (running sums, in halves) against plain loops
+    over each pixel's 7 x 7 and 3 x 3 windows."""
+    from car_napari.restoration._combine import edge_rule
+
+    rng = np.random.default_rng(7)
+    H, W, C = 19, 23, 2
+    observed = rng.random((H, W, C))
+    prediction = observed + rng.normal(0, 0.15, (H, W, C))
+    noise = np.array([0.1, 0.2])
+    # spread 0 or 0.1: 3 x 3 means at least 5 % from the threshold (0.0175)
+    spread = np.where(rng.random((H, W)) < 0.15, 0.1, 0.0)
+    want = _numpy_edge_weight(observed, prediction, spread, noise)
+    assert 0 < np.mean(want == 1.0) < 1 and 0 < np.mean(want == 0.0) < 1  # all three cases
+    for halves in (False, True):
+        got = edge_rule(observed, prediction, spread, noise, halves=halves)
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
+        blended = edge_rule(observed, prediction, spread, noise, blend=True, halves=halves)
+        np.testing.assert_allclose(blended, prediction + want * (observed - prediction),
+                                   rtol=0, atol=1e-12)
+
+
+def _numpy_combination(observed, preds, rels):
+    """Directions combined by local precision in plain NumPy: each direction
+    weighted by (n / summed squared error)^DIRECTION_POWER over its predicted
+    pixels in the 3 x 3 square round the pixel, the pixel left out; returns
+    (prediction, probability, spread: the directions' variance averaged over
+    channels where two or more vote)."""
+    from car_napari.restoration._combine import DIRECTION_POWER
+
+    H, W, C = observed.shape
+    weights = []
+    for pred in preds:
+        ok = np.isfinite(pred[..., 0])
+        err2 = np.where(ok, np.sum((observed - np.nan_to_num(pred)) ** 2, axis=-1), 0.0)
+        weight = np.zeros((H, W))
+        for i in range(H):
+            for j in range(W):
+                rows, cols = slice(max(0, i - 1), i + 2), slice(max(0, j - 1), j + 2)
+                n = ok[rows, cols].sum() - ok[i, j]
+                total = err2[rows, cols].sum() - err2[i, j]
+                if ok[i, j] and n > 0:
+                    weight[i, j] = min(n / max(total, 1e-300), 1e30) ** DIRECTION_POWER
+        weights.append(weight)
+    weights = np.array(weights)
+    means = np.nan_to_num(np.array(preds))
+    total = weights.sum(axis=0)
+    votes = total > 0
+    safe = np.where(votes, total, 1.0)
+    prediction = np.where(votes[..., None],
+                          np.einsum("khw,khwc->hwc", weights, means) / safe[..., None],
+                          observed)
+    probability = np.where(votes, np.sum(weights * np.nan_to_num(np.array(rels)), axis=0)
+                           / safe, 1.0)
+    voting = weights > 0
+    count = voting.sum(axis=0)
+    n = np.maximum(count, 1)[..., None]
+    first = np.einsum("khw,khwc->hwc", voting, means) / n
+    second = np.einsum("khw,khwc->hwc", voting, means**2) / n
+    spread = np.where(count >= 2, (second - first**2).mean(axis=-1), 0.0)
+    return prediction, probability, spread
+
+
+def test_four_windowed_corners_combine_by_local_precision_as_in_numpy():
+    """restore's four corners: each corner's model by dense least squares,
+    their combination, probability and edge weights by plain NumPy."""
+    rng = np.random.default_rng(5)
+    image = ndimage.uniform_filter(rng.random((17, 19, 3)), (3, 3, 1))
+    image += 0.05 * rng.random(image.shape)
+    noise = np.array([0.03, 0.04, 0.05])  # edges at some pixels, not all
+    result = restore(image, window=9, noise=noise, return_result=True)
+    corners = ("up-left", "up-right", "down-left", "down-right")
+    dense = [_dense_windowed(image, causal_neighbourhood(1), c, 9) for c in corners]
+    pred, prob, spread = _numpy_combination(image, [p for p, _ in dense],
+                                            [r for _, r in dense])
+    np.testing.assert_allclose(result.prediction, pred, rtol=1e-8, atol=1e-11)
+    np.testing.assert_allclose(result.probability, prob, rtol=1e-6, atol=1e-12)
+    weight = _numpy_edge_weight(image, pred, spread, noise)
+    assert 0 < np.mean(weight == 1.0) < 1
+    np.testing.assert_allclose(result.weight, weight, rtol=1e-6, atol=1e-9)
+
+
+def test_recursive_scans_down_and_up_combine_by_local_precision_as_in_numpy():
+    """The recursive estimator's 'down' and 'up' scans (forgetting 1): each
+    by the dense regression on the pixels before it ('up' is 'down' on the
+    image upside down), combined by plain NumPy."""
+    rng = np.random.default_rng(3)
+    image = ndimage.uniform_filter(rng.random((14, 15)), 3) + 0.05 * rng.random((14, 15))
+    result = restore(image, channel_axis=None, estimator="recursive", neighbourhood=2,
+                     forgetting=1.0, directions=("down", "up"), noise=0.01,
+                     return_result=True)
+    offsets = causal_neighbourhood(2)
+    down, rel_down = _dense_one_step(image, offsets)
+    up, rel_up = (a[::-1] for a in _dense_one_step(image[::-1], offsets))
+    pred, prob, spread = _numpy_combination(image[..., None], [down[..., None], up[..., None]],
+                                            [rel_down, rel_up])
+    np.testing.assert_allclose(result.prediction, pred, rtol=1e-6, atol=1e-10)
+    np.testing.assert_allclose(result.probability, prob, rtol=1e-6, atol=1e-10)
+    weight = _numpy_edge_weight(image[..., None], pred, spread, np.array([0.01]))
+    np.testing.assert_allclose(result.weight, weight, rtol=1e-5, atol=1e-8)
