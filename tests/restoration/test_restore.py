@@ -713,3 +713,45 @@ def test_recursive_scans_down_and_up_combine_by_local_precision_as_in_numpy():
     np.testing.assert_allclose(result.probability, prob, rtol=1e-6, atol=1e-10)
     weight = _numpy_edge_weight(image[..., None], pred, spread, np.array([0.01]))
     np.testing.assert_allclose(result.weight, weight, rtol=1e-5, atol=1e-8)
+
+
+def test_psf_of_an_exact_convolution_is_its_kernel_unflipped():
+    """observed = scipy's convolution of restored with an asymmetric kernel
+    (wrapped, so that the means obey it too): estimate_psf gives the kernel
+    itself, for a shared colour PSF and for each window's own kernel."""
+    rng = np.random.default_rng(8)
+    sharp = rng.random((40, 44, 3))
+    kernel = rng.random((5, 5)) * np.add.outer(np.arange(5), 2 * np.arange(5))  # asymmetric
+    observed = np.stack([ndimage.convolve(sharp[..., c], kernel, mode="wrap")
+                         for c in range(3)], axis=-1)
+    np.testing.assert_allclose(estimate_psf(observed, sharp, size=5), kernel, rtol=1e-9,
+                               atol=1e-12)
+    # a larger support finds zeros round the kernel
+    wide = estimate_psf(observed, sharp, size=7)
+    np.testing.assert_allclose(wide[1:-1, 1:-1], kernel, rtol=1e-9, atol=1e-11)
+    assert np.abs(wide).sum() - np.abs(wide[1:-1, 1:-1]).sum() < 1e-10
+    # windows: each 24 x 24 tile blurred by its own kernel
+    grey = rng.random((48, 72))
+    kernels = rng.random((2, 3, 3, 3))
+    tiles = np.zeros_like(grey)
+    for a in range(2):
+        for b in range(3):
+            part = (slice(24 * a, 24 * a + 24), slice(24 * b, 24 * b + 24))
+            tiles[part] = ndimage.convolve(grey[part], kernels[a, b], mode="wrap")
+    local = estimate_psf(tiles, grey, size=3, window=24, channel_axis=None)
+    assert local.shape == (2, 3, 3, 3)
+    np.testing.assert_allclose(local, kernels, rtol=1e-9, atol=1e-12)
+
+
+def test_psf_width_is_the_root_mean_second_moment():
+    """psf_width of an asymmetric, partly negative PSF against the moments
+    written out: negative taps clipped, centroid, variance along rows and
+    columns averaged."""
+    psf = np.array([[0.0, 1.0, 2.0, 0.5], [-1.0, 3.0, 4.0, 1.0], [0.0, 0.5, 1.0, -0.2]])
+    w = np.clip(psf, 0, None)
+    rows = np.array([0, 1, 2])[:, None] * np.ones(4)
+    cols = np.ones(3)[:, None] * np.arange(4)
+    mr, mc = (w * rows).sum() / w.sum(), (w * cols).sum() / w.sum()
+    var_r = (w * (rows - mr) ** 2).sum() / w.sum()
+    var_c = (w * (cols - mc) ** 2).sum() / w.sum()
+    assert psf_width(psf) == pytest.approx(np.sqrt((var_r + var_c) / 2), rel=1e-12)
