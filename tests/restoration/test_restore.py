@@ -755,3 +755,62 @@ def test_psf_width_is_the_root_mean_second_moment():
     var_r = (w * (rows - mr) ** 2).sum() / w.sum()
     var_c = (w * (cols - mc) ** 2).sum() / w.sum()
     assert psf_width(psf) == pytest.approx(np.sqrt((var_r + var_c) / 2), rel=1e-12)
+
+
+def _dense_versions(stack, offsets, reference, strength=1e-6):
+    """The 2.5D model of section 14.6 by plain NumPy, one colour channel:
+    the reference version regressed on the causal neighbours in every
+    version, the other versions at r and 1, over the earlier pixels (raster
+    order; each version centred on its mean; V_0 as in the core); returns
+    the one-step prediction and the relative Student-t density."""
+    means = stack.mean(axis=(1, 2))
+    y = stack - means[:, None, None]
+    n, H, W = y.shape
+    var = y[reference].var()
+    taps = [(di, dj, v) for v in range(n) for di, dj in offsets]
+    taps += [(0, 0, v) for v in range(n) if v != reference]
+    p = len(taps) + 1
+    V = np.diag(np.r_[np.full(p - 1, strength * var), strength, strength * var])
+    count = 0
+    pred = np.full((H, W), np.nan)
+    rel = np.full((H, W), np.nan)
+    for i in range(H):
+        for j in range(W):
+            if not all(0 <= i - di < H and 0 <= j - dj < W for di, dj, _ in taps):
+                continue
+            x = np.r_[[y[v, i - di, j - dj] for di, dj, v in taps], 1.0]
+            gamma = np.linalg.solve(V[:p, :p], V[:p, p])
+            lam = V[p, p] - V[:p, p] @ gamma
+            q = 1.0 + x @ np.linalg.solve(V[:p, :p], x)
+            e = y[reference, i, j] - gamma @ x
+            pred[i, j] = gamma @ x + means[reference]
+            rel[i, j] = (1.0 + e * e / (q * lam)) ** (-(count + 2) / 2)  # nu = count + 1
+            z = np.r_[x, y[reference, i, j]]
+            V = V + np.outer(z, z)
+            count += 1
+    return pred, rel
+
+
+def test_multichannel_prediction_matches_the_dense_2_5d_regression():
+    """One scan direction, forgetting 1: the 2.5D model's prediction and
+    probability of a colour stack (one model per colour channel, the
+    probability averaged over them) against the dense regression."""
+    rng = np.random.default_rng(9)
+    scene = ndimage.uniform_filter(rng.random((13, 14, 2)), (3, 3, 1))
+    stack = scene + rng.normal(0, 0.03, (3, 13, 14, 2))
+    stack[2] = 0.5 * stack[2] + 0.2  # versions of other gains and offsets
+    result = restore_multichannel(stack, reference=1, directions=("down",), forgetting=1.0,
+                                  keep_edges=False, reference_prediction=False,
+                                  return_result=True)
+    assert result.reference == 1
+    offsets = causal_neighbourhood(1)
+    dense = [_dense_versions(stack[..., c], offsets, 1) for c in range(2)]
+    pred = np.stack([p for p, _ in dense], axis=-1)
+    have = np.isfinite(pred[..., 0])
+    np.testing.assert_allclose(result.prediction[have], pred[have], rtol=1e-6, atol=1e-12)
+    # unpredicted pixels keep their value ((x - mean) + mean: one rounding)
+    np.testing.assert_allclose(result.prediction[~have], stack[1][~have], rtol=0,
+                               atol=1e-15)
+    prob = np.mean([r for _, r in dense], axis=0)
+    np.testing.assert_allclose(result.probability[have], prob[have], rtol=1e-6, atol=1e-12)
+    assert np.all(result.probability[~have] == 1.0)
