@@ -328,3 +328,73 @@ def test_blotch_test_frame_by_frame_equals_the_whole_clip_at_once():
     got = detect_scratches(grey, kinds="blotch", channel_axis=None, motion=False)
     assert expected.any()
     np.testing.assert_array_equal(got, expected)
+
+
+def _numpy_line_fill(y, mask, offsets, lo, hi, strength=1e-6):
+    """One scan's fill by plain NumPy, forgetting 1, in raster order: a
+    missing pixel is gamma X_r (clipped to [lo, hi]) with the least-squares
+    gamma (prior as the core's) of the known pixels before it whose
+    neighbours are known; filled pixels serve as neighbours later."""
+    H, W = y.shape
+    var = y[~mask].var()
+    p = len(offsets) + 1
+    V = np.diag(np.r_[np.full(p - 1, strength * var), strength, strength * var])
+    out = y.copy()
+    for i in range(H):
+        for j in range(W):
+            nb = [(i - di, j - dj) for di, dj in offsets]
+            if any(not (0 <= a < H and 0 <= b < W) for a, b in nb):
+                continue
+            x = np.r_[[out[a, b] for a, b in nb], 1.0]
+            if mask[i, j]:
+                gamma = np.linalg.solve(V[:p, :p], V[:p, p])
+                out[i, j] = np.clip(gamma @ x, lo, hi)
+            elif not any(mask[a, b] for a, b in nb):
+                z = np.r_[x, out[i, j]]
+                V = V + np.outer(z, z)
+    return out
+
+
+def test_scans_are_interleaved_by_their_distance_from_the_known_side():
+    """method="scans" (forgetting 1, no halo test): four one-line-model fills
+    moving down, up, right and left (plain NumPy on the frame padded by
+    reflection), combined with weights exp(-distance / interleave), the
+    distance counted along each scan from the last known pixel."""
+    rng = np.random.default_rng(6)
+    H, W = 18, 20
+    image = ndimage.uniform_filter(rng.random((H, W)), 3) + 0.02 * rng.random((H, W))
+    mask = np.zeros((H, W), bool)
+    mask[7:10, 6:10] = mask[4:14, 15] = mask[12, 3:7] = True
+    interleave = 1.5
+    got = inpaint(image, mask, method="scans", neighbourhood=1, forgetting=1.0, halo=None,
+                  interleave=interleave, channel_axis=None)
+    np.testing.assert_array_equal(got[~mask], image[~mask])
+
+    mean = image[~mask].mean()
+    y = np.where(mask, 0.0, image - mean)
+    lo, hi = image[~mask].min() - mean, image[~mask].max() - mean
+    offsets = [(1, dj) for dj in range(-2, 3)]  # neighbourhood=1: the line before, +-2
+    pad = 2
+    views = {  # each scan's raster view of an image, and back
+        "down": (lambda a: a, lambda a: a),
+        "up": (lambda a: a[::-1], lambda a: a[::-1]),
+        "right": (lambda a: a.T, lambda a: a.T),
+        "left": (lambda a: a[:, ::-1].T, lambda a: a.T[:, ::-1]),
+    }
+    fills, distances = [], []
+    for to_scan, back in views.values():
+        padded = np.pad(y, pad, mode="reflect")
+        padded_mask = np.pad(mask, pad, mode="reflect")
+        filled = back(_numpy_line_fill(to_scan(padded), to_scan(padded_mask), offsets, lo, hi))
+        fills.append(filled[pad:-pad, pad:-pad][mask])
+        scan_mask = to_scan(mask)
+        run = np.zeros(scan_mask.shape)  # pixels since the last known one along the scan
+        for i in range(scan_mask.shape[0]):
+            for j in range(scan_mask.shape[1]):
+                if scan_mask[i, j]:
+                    run[i, j] = (run[i - 1, j] if i else scan_mask.shape[0]) + 1
+        distances.append(back(run)[mask])
+    distances = np.array(distances)
+    weights = np.exp(-(distances - distances.min(axis=0)) / interleave)
+    want = (weights * np.array(fills)).sum(axis=0) / weights.sum(axis=0) + mean
+    np.testing.assert_allclose(got[mask], want, rtol=1e-7, atol=1e-10)
