@@ -100,3 +100,19 @@ def test_reader_chooser_shows_the_plugin_not_a_model(make_napari_viewer, tmp_pat
     # and choosing it opens the file with the DICOM reader
     (layer,) = viewer.open(path, plugin="car-napari")
     assert layer.metadata["modality"] == "MG"
+
+
+@pytest.mark.parametrize("function", ["LINEAR_EXACT", "SIGMOID"])
+def test_voi_functions_are_the_standards_formulas(tmp_path, ramp, function):
+    """The VOI LUT functions of PS3.3 C.11.2.1.3, onto [0, 1]: LINEAR_EXACT
+    ``(x - c) / w + 0.5`` clipped, SIGMOID ``1 / (1 + exp(-4 (x - c) / w))``."""
+    path = _write(tmp_path / "e.dcm", ramp, WindowCenter=2000, WindowWidth=1500,
+                  VOILUTFunction=function)
+    image, meta = read_dicom(path)
+    x = ramp.astype(float)
+    if function == "LINEAR_EXACT":
+        expect = np.clip((x - 2000) / 1500 + 0.5, 0, 1)
+    else:
+        expect = 1 / (1 + np.exp(-4 * (x - 2000) / 1500))
+    np.testing.assert_allclose(image, expect, atol=1e-6)
+    assert "VOI window" in meta["applied"]
