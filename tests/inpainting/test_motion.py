@@ -232,3 +232,13 @@ def test_the_compensated_detector_in_bands_is_the_same(monkeypatch, band):
 def test_blotch_threshold_errors():
     with pytest.raises(ValueError, match="blotch_threshold"):
         detect_scratches(np.zeros((3, 16, 16)), blotch_threshold=0.0)
+
+
+def test_the_flows_3x3_median_is_scipys_median_filter():
+    """The compiled selection network against scipy's median filter (edges
+    repeated), on random planes, ties and tiny planes included."""
+    rng = np.random.default_rng(2)
+    for field in (rng.random((2, 17, 23)), rng.integers(0, 3, (2, 9, 8)).astype(float),
+                  rng.random((1, 1, 5)), rng.random((1, 2, 2)).astype(np.float32)):
+        want = ndimage.median_filter(field, size=(1, 3, 3), mode="nearest")
+        np.testing.assert_array_equal(_motion._median3x3(field), want)
