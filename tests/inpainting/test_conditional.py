@@ -376,3 +376,22 @@ def test_pooled_blend_leaves_a_lone_scene_edge_alone(monkeypatch):
         edge = calls["stats"]
         bad = (edge.alpha > 0.1) & (-0.5 * edge.chi2 < -4.0) & (edge.pooled > region_blend)
         assert bad.any() == want_flagged
+
+
+def test_dilation_is_scipys_binary_dilation():
+    """The compiled dilation (the fit's ring, the tiles and rows the solves
+    visit) against scipy's binary dilation by the cross or the 3 x 3 square,
+    ``radius`` iterations, damage touching the borders included."""
+    from car_napari.inpainting._local_fits import _dilate
+
+    rng = np.random.default_rng(8)
+    mask = rng.random((23, 19)) < 0.04
+    mask[0, 5] = mask[22, 18] = mask[10, 0] = True
+    cross = ndimage.generate_binary_structure(2, 1)
+    square = np.ones((3, 3), bool)
+    for radius in (1, 2, 4):
+        np.testing.assert_array_equal(
+            _dilate(mask, radius), ndimage.binary_dilation(mask, cross, iterations=radius))
+        np.testing.assert_array_equal(
+            _dilate(mask, radius, square=True),
+            ndimage.binary_dilation(mask, square, iterations=radius))
