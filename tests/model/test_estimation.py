@@ -265,3 +265,52 @@ def test_closing_a_fit_stops_it():
     job = iter_fit_car(skdata.astronaut()[:128, :128], "auto")
     assert next(job).stage == "support"
     job.close()
+
+
+def _design(Y, offsets, reach):
+    """(X, T) of plain NumPy least squares over the pixels whose neighbourhood
+    under ``reach = (up, left, right)`` lies inside Y (the raster scan):
+    X_r = [Y_{r-s_1}; ...; Y_{r-s_eta}], T_r = Y_r."""
+    H, W, d = Y.shape
+    up, left, right = reach
+    X = np.concatenate([Y[up - a : H - a, left - b : W - right - b] for a, b in offsets],
+                       axis=2).reshape(-1, d * len(offsets))
+    return X, Y[up:H, left : W - right].reshape(-1, d)
+
+
+@pytest.mark.parametrize("d", [1, 2])
+def test_decision_scores_equal_the_formula_written_out_in_numpy(d):
+    """D_j of (14.6), docs/model.md, from plain least-squares statistics of the
+    channels whitened by PCA (any whitening gives the same D_j: the
+    log-determinants do not see a rotation), every candidate on the pixels
+    whose order-3 neighbourhood lies inside, beta(0) = d*eta - 1, V_0 = 1e-9 I."""
+    from math import lgamma
+
+    A, offsets, sigma = random_stable_model(2, d, seed=11 + d)
+    field = car_field(A, offsets, sigma, (40, 44), seed=5) + 0.5
+    _, scores = select_support(field if d > 1 else field[..., 0], orders=[1, 2, 3])
+    Y = field - field.mean(axis=(0, 1))
+    flat = Y.reshape(-1, d)
+    evals, evecs = np.linalg.eigh(flat.T @ flat / flat.shape[0])
+    Y = (flat @ evecs / np.sqrt(evals)).reshape(Y.shape)
+    want = {}
+    for order in (1, 2, 3):
+        X, T = _design(Y, ORDERS[order], (2, 2, 1))  # the union's reach: order 3
+        m, n = X.shape[1], X.shape[0]
+        Z = np.hstack([X, T])
+        V = Z.T @ Z + 1e-9 * np.eye(m + d)
+        Vx, Vxy, Vy = V[:m, :m], V[:m, m:], V[m:, m:]
+        lam = Vy - Vxy.T @ np.linalg.solve(Vx, Vxy)
+        beta0 = m - 1.0
+        beta = beta0 + n
+        eta = len(ORDERS[order])
+        want[order] = (
+            -d / 2 * np.linalg.slogdet(Vx)[1]
+            - (beta - m + d + 1) / 2 * np.linalg.slogdet(lam)[1]
+            + d * d * eta / 2 * np.log(np.pi)
+            + sum(lgamma((beta - m + d + 2 - i) / 2) - lgamma((beta0 - m + d + 2 - i) / 2)
+                  for i in range(1, d + 1))
+        )
+    assert set(scores) == set(want)
+    for order in want:
+        assert scores[order] == pytest.approx(want[order], rel=1e-9, abs=1e-6), order
