@@ -314,3 +314,46 @@ def test_decision_scores_equal_the_formula_written_out_in_numpy(d):
     assert set(scores) == set(want)
     for order in want:
         assert scores[order] == pytest.approx(want[order], rel=1e-9, abs=1e-6), order
+
+
+def test_2d_path_factors_and_density_equal_least_squares_on_the_pca_factors():
+    """model='2d' against plain NumPy: the spectral factors are the principal
+    components of the centred pixels (by SVD here), each gets the least-squares
+    2DCAR of its own factor, the colour-space A_s and sigma are those rotated
+    back, and predict's log density is the sum of the factors' Student-t
+    densities ((14.23), nu = beta - eta + 2) since the rotation is orthonormal."""
+    from math import lgamma
+
+    img = skdata.astronaut()[300:340, 0:50] / 255.0
+    model = fit_car(img, 1, model="2d")
+    mean, logp = predict(model, img)
+    Y = img - img.mean(axis=(0, 1))
+    _, _, vt = np.linalg.svd(Y.reshape(-1, 3), full_matrices=False)
+    basis = vt.T  # strongest first; each column's sign is arbitrary, as is the model's
+    np.testing.assert_allclose(np.abs(basis.T @ model.basis), np.eye(3), atol=1e-8)
+    A = np.zeros((2, 3, 3))
+    sigma = np.zeros((3, 3))
+    ref_logp = np.zeros(39 * 49)
+    ref_mean = np.zeros((39 * 49, 3))
+    for k in range(3):
+        f = (Y @ basis[:, k])[..., None]
+        X, T = _design(f, ORDERS[1], (1, 1, 0))
+        coef, *_ = np.linalg.lstsq(X, T, rcond=None)
+        resid = T - X @ coef
+        lam = float(resid[:, 0] @ resid[:, 0])
+        beta = 1 + X.shape[0]
+        np.testing.assert_allclose(model.factors[k].gamma, coef.T, rtol=1e-6, atol=1e-9)
+        np.testing.assert_allclose(model.factors[k].lam[0, 0], lam, rtol=1e-6)
+        A += coef[:, 0, None, None] * np.outer(basis[:, k], basis[:, k])
+        sigma += lam / beta * np.outer(basis[:, k], basis[:, k])
+        nu = beta - 2 + 2
+        q = 1 + np.einsum("ij,ij->i", X, np.linalg.solve(X.T @ X, X.T).T)
+        e = resid[:, 0]
+        ref_logp += (lgamma((nu + 1) / 2) - lgamma(nu / 2) - 0.5 * np.log(np.pi * q)
+                     - 0.5 * np.log(lam) - (nu + 1) / 2 * np.log1p(e * e / (lam * q)))
+        ref_mean += np.outer((X @ coef)[:, 0], basis[:, k])
+    np.testing.assert_allclose(model.A, A, rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(model.sigma, sigma, rtol=1e-6, atol=1e-12)
+    np.testing.assert_allclose(logp[1:, 1:].ravel(), ref_logp, rtol=1e-6)
+    np.testing.assert_allclose(mean[1:, 1:].reshape(-1, 3), ref_mean + img.mean(axis=(0, 1)),
+                               rtol=1e-7, atol=1e-9)
