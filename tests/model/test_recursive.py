@@ -221,3 +221,50 @@ def test_forgetting_tracks_the_exact_stabilised_recursion(phi, order, collinear)
     assert np.abs(got[ok]).max() < 2 * np.abs(exact[ok]).max()
     rel = np.linalg.norm(got[ok] - exact[ok], axis=(1, 2)) / np.linalg.norm(exact[ok], axis=(1, 2))
     assert np.median(rel) < 0.05, np.median(rel)
+
+
+@pytest.mark.parametrize("direction", ["up", "left"])
+def test_prediction_outputs_equal_the_dense_one_step_statistics(direction):
+    """The scan's 'mean', 'q', 'maha' and 'logrel' outputs (no forgetting, with
+    an intercept) against the one-step-ahead statistics of (14.23)-(14.25)
+    computed from explicit matrices in the scan's own view: V of the pixels
+    before r plus V_0, gamma^T = V_x^-1 V_xy, lambda = V_y - V_xy^T V_x^-1 V_xy,
+    q = 1 + X^T V_x^-1 X, maha = e^T lambda^-1 e, logrel = -(nu + d)/2
+    log(1 + maha/q) with nu = beta - p + 2."""
+    rng = np.random.default_rng(4)
+    img = np.cumsum(rng.standard_normal((14, 17, 2)), axis=0) * 0.4
+    img -= img.mean(axis=(0, 1))
+    offsets = ORDERS[2]
+    d, m = 2, 2 * len(offsets)
+    p = m + 1
+    ctx = Context.spatial(np.array(offsets), d)
+    prior = default_prior(img.var(axis=(0, 1)), m, True, d, 1e-2)
+    res = scan(np.ascontiguousarray(img), ctx, direction=direction, intercept=True,
+               prior=prior, outputs=("mean", "q", "maha", "logrel"))
+    view = VIEWS[direction](img)
+    H, W, _ = view.shape
+    V = np.diag(prior)
+    beta = p - 1.0
+    want = {k: np.full((H, W), np.nan) for k in ("q", "maha", "logrel")}
+    want["mean"] = np.full((H, W, d), np.nan)
+    for i in range(1, H):
+        for j in range(1, W - 1):
+            x = np.concatenate([view[i - a, j - b] for a, b in offsets] + [[1.0]])
+            y = view[i, j]
+            Vx, Vxy, Vy = V[:p, :p], V[:p, p:], V[p:, p:]
+            gT = np.linalg.solve(Vx, Vxy)
+            lam = Vy - Vxy.T @ gT
+            e = y - gT.T @ x
+            q = 1 + x @ np.linalg.solve(Vx, x)
+            maha = e @ np.linalg.solve(lam, e)
+            want["mean"][i, j] = gT.T @ x
+            want["q"][i, j], want["maha"][i, j] = q, maha
+            want["logrel"][i, j] = -(beta - p + 2 + d) / 2 * np.log1p(maha / q)
+            z = np.r_[x, y]
+            V = V + np.outer(z, z)
+            beta += 1
+    for key, value in want.items():
+        got = VIEWS[direction](res[key])
+        np.testing.assert_array_equal(np.isnan(got), np.isnan(value), err_msg=key)
+        ok = ~np.isnan(value)
+        np.testing.assert_allclose(got[ok], value[ok], rtol=1e-8, atol=1e-10, err_msg=key)
