@@ -85,3 +85,45 @@ def test_magnitude_does_not_decide(scale):
     # scaling is an illumination change B = scale * I: the features must not move
     np.testing.assert_allclose(illumination_invariants(img * scale), illumination_invariants(img),
                                rtol=1e-9, atol=1e-12)
+
+
+def test_eigenvalues_and_alphas_equal_a_dense_numpy_computation():
+    """Every feature of one level (order 1) from explicit matrices: the
+    estimates with the covariant prior V / N (one pixel's worth of the data's
+    own statistics, so gamma is plain least squares and lambda is (1 + 1/N)
+    times its residual scatter); the eigenvalues of every A_m sorted by
+    modulus, then real part; alpha_1 the mean of 1 + Z^T V_z^-1 Z and alpha_2
+    the root of sum e^T lambda^-1 e over the one-step-ahead predictions, V_z
+    and gamma from the prior plus the pixels before r (raster scan); alpha_3
+    the root of sum (Y - mu)^T lambda^-1 (Y - mu)."""
+    img = skdata.astronaut()[256:280, 0:26] / 255.0
+    f = illumination_invariants(img, 1)
+    Y = img - img.mean(axis=(0, 1))
+    X = np.concatenate([Y[1:, :-1], Y[:-1, 1:]], axis=2).reshape(-1, 6)  # (0,1), (1,0)
+    T = Y[1:, 1:].reshape(-1, 3)
+    assert not np.any(np.all(X == np.tile(T, 2), axis=1))  # no flat neighbourhood
+    n = X.shape[0]
+    Z = np.hstack([X, T])
+    prior = Z.T @ Z / n
+    V = Z.T @ Z + prior
+    gT = np.linalg.solve(V[:6, :6], V[:6, 6:])
+    lam = V[6:, 6:] - V[6:, :6] @ gT
+    A = gT.T.reshape(3, 2, 3).transpose(1, 0, 2)
+    eig = [sorted(np.linalg.eigvals(a), key=lambda z: (abs(z), z.real)) for a in A]
+    q, maha = [], []
+    running = prior.copy()
+    for x, y in zip(X, T, strict=True):  # raster order
+        g = np.linalg.solve(running[:6, :6], running[:6, 6:])
+        q.append(1 + x @ np.linalg.solve(running[:6, :6], x))
+        e = y - g.T @ x
+        maha.append(e @ np.linalg.solve(lam, e))
+        running += np.outer(np.r_[x, y], np.r_[x, y])
+    flat = Y.reshape(-1, 3)
+    want = np.concatenate([
+        np.trace(A, axis1=1, axis2=2),
+        np.real(eig).ravel(), np.abs(np.imag(eig)).ravel(),
+        [np.mean(q), np.sqrt(np.sum(maha)),
+         np.sqrt(np.sum(flat * np.linalg.solve(lam, flat.T).T))],
+    ])
+    assert f.shape == want.shape == (2 + 2 * 2 * 3 + 3,)
+    np.testing.assert_allclose(f, want, rtol=1e-7, atol=1e-10)
