@@ -319,3 +319,38 @@ def test_field_kernel_matches_the_plain_recursion(channels, context, order, dire
     noise = rng.standard_normal((30, 20, channels + context))
     assert not _reference_field(exploding, chol, noise, taps, 1e3)[0]
     assert not synthesize_field(exploding, chol, noise.copy(), *args, 1e3)
+
+
+def _nshp_radius(gamma):
+    """The stability radius of a grey order-3 model written out from its
+    transfer function: the in-row recursion y_j = a1 y_{j-1} + a2 y_{j-2}
+    (roots of z^2 - a1 z - a2), and for every frequency w the row-to-row
+    recursion lead(w) y_i = C1(w) y_{i-1} + C2(w) y_{i-2}, lead(w) = 1 -
+    a1 e^{iw} - a2 e^{2iw}, whose roots z solve lead z^2 - C1 z - C2 = 0
+    (quadratic formula, on a fine grid plus the arguments of the in-row roots,
+    where a resonance peaks)."""
+    a1, c10, c1m, c11, a2, c20 = gamma  # ORDERS[3]: (0,1) (1,0) (1,-1) (1,1) (0,2) (2,0)
+    in_row = np.roots([1.0, -a1, -a2])
+    w = np.r_[np.linspace(0.0, 2 * np.pi, 1 << 16, endpoint=False), -np.angle(in_row)]
+    ew = np.exp(1j * w)
+    lead = 1 - a1 * ew - a2 * ew**2
+    c1 = c10 + c1m / ew + c11 * ew
+    root = np.sqrt(c1 * c1 + 4 * lead * c20)
+    rows = np.maximum(np.abs((c1 + root) / (2 * lead)), np.abs((c1 - root) / (2 * lead)))
+    return max(np.abs(in_row).max(), rows.max())
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_spectral_radius_equals_the_transfer_function_criterion(seed):
+    rng = np.random.default_rng(seed)
+    model = fit_car(rng.random((30, 30)), 3)
+    base = rng.uniform(-1.0, 1.0, 6)
+    base /= np.abs(base).sum()
+    for gain in (0.6, 0.95, 1.3):  # stable, nearly unstable, unstable
+        model.gamma = (gain * base)[None]
+        want = _nshp_radius(model.gamma[0])
+        got = spectral_radius(model)
+        # a maximum over fewer frequencies than the fine grid: never above it, and close
+        assert got <= want * (1 + 1e-9)
+        assert got == pytest.approx(want, rel=1e-3), (gain, got, want)
+        assert (got < 1) == (want < 1)
