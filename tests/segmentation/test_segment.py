@@ -776,3 +776,71 @@ def test_em_is_the_plain_numpy_em():
     np.testing.assert_allclose(fitted.means, mu, rtol=1e-9, atol=1e-12)
     np.testing.assert_allclose(fitted.variances, var, rtol=1e-9)
     assert abs(fitted.loglik - loglik) < 1e-9
+
+
+# --- the Kullback-Leibler merging ((14.36)) ----------------------------------------------
+
+def _random_mixture(rng, k=5, d=4):
+    weights = rng.uniform(0.2, 1.0, k)
+    return Mixture(weights / weights.sum(), rng.normal(0.0, 2.0, (k, d)),
+                   rng.uniform(0.3, 3.0, (k, d)), np.arange(1, k + 1) * 10)
+
+
+def test_kl_matrix_is_the_gaussian_kl_divergence_both_ways():
+    """Against the divergence of two Gaussians with full covariance matrices,
+    KL(P || Q) = (tr(S_Q^-1 S_P) + (m_Q - m_P)^T S_Q^-1 (m_Q - m_P) - D
+    + ln det S_Q - ln det S_P) / 2, summed both ways; no pair with itself."""
+    from car_napari.segmentation._mixture import _kl_matrix
+
+    mix = _random_mixture(np.random.default_rng(7))
+    got = _kl_matrix(mix)
+
+    def kl(a, b):
+        sa, sb = np.diag(mix.variances[a]), np.diag(mix.variances[b])
+        diff = mix.means[b] - mix.means[a]
+        inv = np.linalg.inv(sb)
+        return 0.5 * (np.trace(inv @ sa) + diff @ inv @ diff - sa.shape[0]
+                      + np.linalg.slogdet(sb)[1] - np.linalg.slogdet(sa)[1])
+
+    for a in range(mix.k):
+        assert got[a, a] == np.inf
+        for b in range(mix.k):
+            if a != b:
+                assert got[a, b] == pytest.approx(kl(a, b) + kl(b, a), rel=1e-12)
+
+
+def test_a_merge_keeps_the_two_components_mean_and_variance():
+    """The merge of the closest pair (smallest symmetric KL, found here by a
+    plain search) into its stronger partner: weight w_i + w_j, the pair's
+    mean, and its variance by the law of total variance (within plus between
+    components); the stronger's id survives, the other components stay."""
+    from car_napari.segmentation._mixture import _merge_closest
+
+    rng = np.random.default_rng(8)
+    mix = _random_mixture(rng)
+    mix.means[3] = mix.means[1] + 0.1  # a clearly closest pair
+    mix.variances[3] = mix.variances[1] * 1.1
+    mix.weights[[1, 3]] = [0.1, 0.3]
+    mix.weights /= mix.weights.sum()
+    before = mix.copy()
+    merged, divergence = _merge_closest(mix.copy())
+    assert divergence == pytest.approx(
+        0.5 * np.sum(before.variances[1] / before.variances[3]
+                     + before.variances[3] / before.variances[1] - 2
+                     + (before.means[1] - before.means[3]) ** 2
+                     * (1 / before.variances[1] + 1 / before.variances[3])), rel=1e-12)
+    w1, w3 = before.weights[1], before.weights[3]
+    w = w1 + w3
+    mean = (w1 * before.means[1] + w3 * before.means[3]) / w
+    var = ((w1 * before.variances[1] + w3 * before.variances[3]) / w
+           + w1 * w3 / w**2 * (before.means[1] - before.means[3]) ** 2)
+    # component 3 (id 40) is the stronger: component 1 (id 20) goes
+    assert merged.ids.tolist() == [10, 30, 40, 50]
+    np.testing.assert_allclose(merged.weights, np.r_[before.weights[0], before.weights[2], w,
+                                                     before.weights[4]], rtol=1e-12)
+    assert merged.weights.sum() == pytest.approx(1.0, rel=1e-12)
+    others = [0, 1, 3]  # rows of merged for the untouched components 0, 2, 4
+    np.testing.assert_array_equal(merged.means[others], before.means[[0, 2, 4]])
+    np.testing.assert_array_equal(merged.variances[others], before.variances[[0, 2, 4]])
+    np.testing.assert_allclose(merged.means[2], mean, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(merged.variances[2], var, rtol=1e-10)
