@@ -268,3 +268,46 @@ def test_prediction_outputs_equal_the_dense_one_step_statistics(direction):
         np.testing.assert_array_equal(np.isnan(got), np.isnan(value), err_msg=key)
         ok = ~np.isnan(value)
         np.testing.assert_allclose(got[ok], value[ok], rtol=1e-8, atol=1e-10, err_msg=key)
+
+
+def test_warm_start_is_the_whole_image_statistics_weighted_as_one_window():
+    """The adaptive scan's start (forgetting < 1) against the documented warm
+    start written out in NumPy: the whole image's statistics of [X; 1; Y]
+    (the intercept's cross terms taken as 0 on centred data, its own entry
+    the pixel count) weighted as one forgetting window, 1 / (1 - phi^2)
+    pixels, plus the prior V_0 = strength * var (strength alone for the
+    intercept). The estimate carried to the pixels before the first update is
+    its gamma, the first update's one-step prediction is its gamma X, and the
+    estimate after it that of phi^2 V + z z^T (the prior's re-injection is
+    below the tolerance: a 1e-6 share)."""
+    from car_napari.model.adaptive import adaptive_scanner
+
+    rng = np.random.default_rng(9)
+    img = np.cumsum(rng.standard_normal((20, 23, 2)), axis=1) * 0.3
+    img = np.ascontiguousarray(img - img.mean(axis=(0, 1)))
+    offsets, d, phi, strength = ORDERS[1], 2, 0.95, 1e-6
+    m = d * len(offsets)
+    var = img.var(axis=(0, 1))
+    res = adaptive_scanner(img, Context.spatial(np.array(offsets), d), var, forgetting=phi,
+                           direction="down", prior=strength,
+                           outputs=("gamma", "mean")).run()
+    X = np.concatenate([img[1:, :-1], img[:-1, 1:]], axis=2).reshape(-1, m)  # (0,1), (1,0)
+    T = img[1:, 1:].reshape(-1, d)
+    n = X.shape[0]
+    aug = np.zeros((m + 1 + d, m + 1 + d))
+    aug[:m, :m], aug[:m, m + 1:], aug[m + 1:, m + 1:] = X.T @ X, X.T @ T, T.T @ T
+    aug[m + 1:, :m] = T.T @ X
+    aug[m, m] = n
+    weight = min(1.0, 1.0 / (1.0 - phi**2) / n)
+    prior = np.full(m + 1 + d, strength * var.mean())
+    prior[m] = strength
+    V = weight * aug + np.diag(prior)
+    gT = np.linalg.solve(V[: m + 1, : m + 1], V[: m + 1, m + 1:])  # (m + 1, d)
+    np.testing.assert_allclose(res["gamma"][0, 0], gT[:m].T, rtol=1e-8, atol=1e-12)
+    x = np.r_[img[1, 0], img[0, 1], 1.0]
+    np.testing.assert_allclose(res["mean"][1, 1], gT.T @ x, rtol=1e-8, atol=1e-12)
+    z = np.r_[x, img[1, 1]]
+    V = phi**2 * V + np.outer(z, z)
+    after = np.linalg.solve(V[: m + 1, : m + 1], V[: m + 1, m + 1:])[:m].T
+    assert np.abs(after - gT[:m].T).max() > 1e-3  # one pixel moves a window's estimate
+    np.testing.assert_allclose(res["gamma"][1, 1], after, rtol=1e-5, atol=1e-9)
