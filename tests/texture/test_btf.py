@@ -52,6 +52,21 @@ def test_cumulative_histograms_are_monotone_and_end_at_one():
     assert np.all(np.diff(per_channel, axis=2) >= 0) and np.all(per_channel[..., -1] == 1)
 
 
+def test_cumulative_histograms_count_the_values_at_or_below_each_upper_edge():
+    """Against a plain count: per image and channel, the share of pixels <= k / bins
+    for k = 1..bins (values on the edges themselves included)."""
+    rng = np.random.default_rng(3)
+    stack = rng.random((3, 20, 17, 2))
+    stack[0, :4, :, 0] = 0.25  # on an edge
+    stack[1, :, :3, 1] = 1.0
+    stack[2, 5:9, :, :] = 0.0
+    bins = 8
+    f = cumulative_histograms(stack, bins=bins)
+    edges = np.arange(1, bins + 1) / bins
+    want = np.stack([np.concatenate([(image[..., c].ravel()[:, None] <= edges).mean(axis=0)
+                                     for c in range(2)]) for image in stack])
+    np.testing.assert_array_equal(f, want)
+
 def test_bad_input():
     stack, _ = _lit_stack(2)
     with pytest.raises(ValueError, match="n_subspaces"):
