@@ -129,6 +129,38 @@ def test_pyramid_by_blocks_is_the_same(monkeypatch):
                                                        180, 1, True))
 
 
+@pytest.mark.parametrize("shape", [(20, 26), (21, 17)])
+def test_pyramid_levels_are_the_blur_and_block_mean_and_keys_cubic(shape):
+    """The Gaussian pyramid's operators against plain SciPy/NumPy: a level
+    down is a Gaussian blur (sigma 1, reflected borders) averaged over 2 x 2
+    blocks, odd sides padded by their last row or column; a level up is
+    Keys cubic convolution (a = -0.5) with aligned pixel extents, which
+    reproduces a quadratic exactly where its four taps are inside."""
+    from scipy import ndimage
+
+    from car_napari.texture._pyramid import _expand
+
+    x = np.random.default_rng(5).random(shape + (2,))
+    blurred = ndimage.gaussian_filter(x, sigma=(1.0, 1.0, 0), mode="reflect")
+    blurred = np.pad(blurred, ((0, shape[0] % 2), (0, shape[1] % 2), (0, 0)), mode="edge")
+    h, w = blurred.shape[0] // 2, blurred.shape[1] // 2
+    want = blurred.reshape(h, 2, w, 2, 2).mean(axis=(1, 3))
+    np.testing.assert_allclose(laplacian_pyramid(x, levels=2)[1], want, rtol=0, atol=1e-14)
+
+    def quadratic(i, j):
+        return 0.3 + 0.1 * i - 0.05 * j + 0.002 * i * i + 0.001 * i * j - 0.003 * j * j
+
+    i, j = np.meshgrid(np.arange(shape[0]), np.arange(shape[1]), indexing="ij")
+    out_shape = (2 * shape[0] + 1, 2 * shape[1] - 3)
+    got = _expand(quadratic(i, j)[..., None], out_shape)[..., 0]
+    ci = (np.arange(out_shape[0]) + 0.5) * shape[0] / out_shape[0] - 0.5
+    cj = (np.arange(out_shape[1]) + 0.5) * shape[1] / out_shape[1] - 0.5
+    inside_i = (np.floor(ci) >= 1) & (np.floor(ci) + 2 <= shape[0] - 1)
+    inside_j = (np.floor(cj) >= 1) & (np.floor(cj) + 2 <= shape[1] - 1)
+    want = quadratic(ci[:, None], cj[None, :])
+    np.testing.assert_allclose(got[np.ix_(inside_i, inside_j)],
+                               want[np.ix_(inside_i, inside_j)], rtol=0, atol=1e-12)
+
 def test_iter_fit_texture_validates_before_the_first_record_and_can_be_closed():
     with pytest.raises(ValueError, match="64x64"):
         next(iter_fit_texture(np.random.default_rng(0).random((60, 200)), levels=3))
