@@ -11,56 +11,88 @@ from skimage.restoration import inpaint_biharmonic
 
 from car_napari.inpainting import _conditional, _solver, inpaint
 from car_napari.inpainting._conditional import conditional_mean, direction_offsets
-from car_napari.inpainting._local_fits import LocalModels, fit_local_models
+from car_napari.inpainting._local_fits import PREVIOUS_OFFSETS, LocalModels, fit_local_models
 from car_napari.inpainting._solver import BAND_WIDTH, stencil_solve
 from car_napari.model import causal_neighbourhood
 
 
-def _dense_precision(models, H, W):
-    """The precision of the product of the models' densities over an H x W
-    frame, built densely pixel by pixel: every pixel whose neighbourhood lies
-    inside has the row (I - A), the others the marginal row; and the mean."""
-    total = 0
+def _dense_precision(models, H, W, previous=None):
+    """The precision ``P`` and linear term ``h`` of the product of the
+    models' densities over an H x W frame (negative log density ``y^T P y / 2
+    - h^T y`` + const), built densely pixel by pixel, each pixel with its
+    own tile's model: every pixel whose neighbourhood (with a ``previous``
+    frame ``P``, its taps ``r - p_l``, ``p_l`` in ``PREVIOUS_OFFSETS``, too)
+    lies inside has the residual ``(Y_r - mu) - sum_k A_k (Y_{r - s_k} - mu)
+    - sum_l B_l (P_{r - p_l} - mu_p)`` (no ``B`` term without one),
+    covariance ``Sigma``, the others ``Y_r - mu`` with the marginal
+    covariance (docs/inpainting.md, "Precision")."""
+    P, h = 0, 0
     for model in models:
         C = model.sigma.shape[-1]
-        A = model.gamma[0, 0].reshape(C, len(model.offsets), C).transpose(1, 0, 2)
+        eta = len(model.offsets)
         N = H * W
-        P = np.zeros((N * C, N * C))
+        D = np.zeros((N * C, N * C))  # the residuals' rows: e = D y - m
+        m = np.zeros(N * C)
+        S_inv = np.zeros((N * C, N * C))
         for i in range(H):
             for j in range(W):
+                t = (i // model.tile, j // model.tile)
+                gamma, mu = model.gamma[t], model.mean[t]
+                rows = slice((i * W + j) * C, (i * W + j + 1) * C)
+                D[rows, rows] = np.eye(C)
                 nb = [(i - di, j - dj) for di, dj in model.offsets]
-                B = np.zeros((C, N * C))
-                B[:, (i * W + j) * C : (i * W + j + 1) * C] = np.eye(C)
-                if all(0 <= a < H and 0 <= b < W for a, b in nb):
+                back = [] if previous is None else [(i - di, j - dj)
+                                                    for di, dj in PREVIOUS_OFFSETS]
+                if all(0 <= a < H and 0 <= b < W for a, b in nb + back):
+                    m[rows] = mu
                     for k, (a, b) in enumerate(nb):
-                        B[:, (a * W + b) * C : (a * W + b + 1) * C] -= A[k]
-                    S = model.sigma[0, 0]
+                        A_k = gamma[:, k * C : (k + 1) * C]
+                        D[rows, (a * W + b) * C : (a * W + b + 1) * C] -= A_k
+                        m[rows] -= A_k @ mu
+                    for k, (a, b) in enumerate(back):
+                        B_k = gamma[:, (eta + k) * C : (eta + k + 1) * C]
+                        m[rows] += B_k @ (previous[a, b] - model.previous_mean[t])
+                    S = model.sigma[t]
                 else:
-                    S = model.marginal[0, 0]
-                P += B.T @ np.linalg.inv(S) @ B
-        total = total + P
-    return total
+                    m[rows] = mu
+                    S = model.marginal[t]
+                S_inv[rows, rows] = np.linalg.inv(S)
+        P = P + D.T @ S_inv @ D
+        h = h + D.T @ S_inv @ m
+    return P, h
 
 
-def _random_model(rng, offsets, C, mean):
+def _random_model(rng, offsets, C, mean, *, tile=100, previous_mean=None):
+    """Random coefficients, innovation and marginal covariances per tile
+    (``mean`` (d,): one tile; (ty, tx, d): a grid of ``tile`` pixels); with
+    ``previous_mean`` (ty, tx, d), random ``B`` on the previous frame too."""
+    mean = np.asarray(mean, float)
+    mean = mean[None, None] if mean.ndim == 1 else mean
+    ty, tx = mean.shape[:2]
     eta = len(offsets)
-    A = rng.normal(0, 0.2, (eta, C, C))
-    S = rng.normal(size=(C, C))
-    S = S @ S.T + C * np.eye(C)
-    Sm = 2 * S + np.eye(C)
-    gamma = A.transpose(1, 0, 2).reshape(C, eta * C)
-    return LocalModels(100, np.asarray(offsets), gamma[None, None], S[None, None],
-                       mean[None, None], None, Sm[None, None])
+    n_prev = 0 if previous_mean is None else len(PREVIOUS_OFFSETS)
+    gamma = np.zeros((ty, tx, C, (eta + n_prev) * C))
+    sigma, marginal = np.zeros((2, ty, tx, C, C))
+    for t in np.ndindex(ty, tx):
+        A = rng.normal(0, 0.2, (eta, C, C))
+        S = rng.normal(size=(C, C))
+        S = S @ S.T + C * np.eye(C)
+        gamma[t][:, : eta * C] = A.transpose(1, 0, 2).reshape(C, eta * C)
+        if n_prev:
+            B = rng.normal(0, 0.3, (n_prev, C, C))
+            gamma[t][:, eta * C :] = B.transpose(1, 0, 2).reshape(C, n_prev * C)
+        sigma[t], marginal[t] = S, 2 * S + np.eye(C)
+    return LocalModels(tile, np.asarray(offsets), gamma, sigma, mean, previous_mean, marginal)
 
 
-def _dense_conditional(frame, unknown, models, mean):
+def _dense_conditional(frame, unknown, models, previous=None):
     """The Gaussian conditional mean of the unknown pixels given the known,
     by a dense solve: ((n, C) values, the precision over the unknowns)."""
     H, W, C = frame.shape
-    P = _dense_precision(models, H, W)
-    y, mu = frame.reshape(-1), np.tile(mean, H * W)
+    P, h = _dense_precision(models, H, W, previous)
+    y = frame.reshape(-1)
     u = np.repeat(unknown.reshape(-1), C)
-    x = mu[u] - np.linalg.solve(P[np.ix_(u, u)], P[np.ix_(u, ~u)] @ (y[~u] - mu[~u]))
+    x = np.linalg.solve(P[np.ix_(u, u)], h[u] - P[np.ix_(u, ~u)] @ y[~u])
     return x.reshape(-1, C), P[np.ix_(u, u)]
 
 
@@ -78,8 +110,65 @@ def test_conditional_mean_matches_the_dense_gaussian_conditional(band_width, mon
     for directions in (("down",), ("down", "up", "right", "left")):
         models = [_random_model(rng, direction_offsets(base, d), C, mean) for d in directions]
         got = conditional_mean(frame, unknown, models)
-        x, _ = _dense_conditional(frame, unknown, models, mean)
+        x, _ = _dense_conditional(frame, unknown, models)
         np.testing.assert_allclose(got, x, rtol=1e-9, atol=1e-10)
+
+
+@pytest.mark.parametrize("band_width", [BAND_WIDTH, -1], ids=["band", "superlu"])
+def test_conditional_mean_with_a_previous_frame_matches_the_dense_gaussian_conditional(
+        band_width, monkeypatch):
+    """The 3.5D rows: random models per tile of 5 x 5 pixels, four
+    directions, each with ``B`` on the previous frame at ``PREVIOUS_OFFSETS``
+    (known, so it moves only the rows' constants); damage across tiles, two
+    pixels or more from the frame's edges."""
+    monkeypatch.setattr(_solver, "BAND_WIDTH", band_width)
+    rng = np.random.default_rng(6)
+    H, W, C, tile = 12, 13, 2, 5
+    frame = rng.normal(size=(H, W, C))
+    previous = frame + rng.normal(0, 0.5, (H, W, C)) + 0.7
+    unknown = np.zeros((H, W), bool)
+    unknown[3:9, 4] = unknown[2, 2] = unknown[9, 10] = unknown[5, 10] = True
+    unknown[7, 2:8] = unknown[4:6, 6:9] = True
+    base = causal_neighbourhood(2)
+    mean = rng.normal(0, 0.5, (3, 3, C))
+    previous_mean = mean + 0.7 + rng.normal(0, 0.1, (3, 3, C))
+    models = [_random_model(rng, direction_offsets(base, d), C, mean, tile=tile,
+                            previous_mean=previous_mean)
+              for d in ("down", "up", "right", "left")]
+    got = conditional_mean(frame, unknown, models, previous=previous)
+    x, _ = _dense_conditional(frame, unknown, models, previous)
+    np.testing.assert_allclose(got, x, rtol=1e-9, atol=1e-10)
+    without, _ = _dense_conditional(frame, unknown, models)  # B = 0: the test can tell
+    assert np.abs(without - x).max() > 0.1
+
+
+def test_fill_with_a_previous_frame_is_the_dense_conditional_of_its_models(monkeypatch):
+    """The fill of a clip's frame with the previous frame in the context
+    (the rows near the damage only, the previous frame's taps shared by the
+    four directions) against the dense Gaussian conditional under the same
+    fitted models."""
+    from car_napari.inpainting._conditional import fill_conditional
+
+    rng = np.random.default_rng(7)
+    H, W, C = 20, 22, 2
+    scene = ndimage.uniform_filter(rng.random((H + 1, W, C)), (3, 3, 1))
+    frame, previous = scene[1:], scene[:-1] + rng.normal(0, 0.01, (H, W, C))
+    mask = np.zeros((H, W), bool)
+    mask[6:9, 3:12] = mask[12:17, 15] = mask[2, 17:20] = True  # 2 px from the edges
+    fitted = {}
+    original = _conditional.iter_fit_local_models
+
+    def spy(*args, **options):
+        fitted["models"] = yield from original(*args, **options)
+        return fitted["models"]
+
+    monkeypatch.setattr(_conditional, "iter_fit_local_models", spy)
+    got = fill_conditional(frame, mask, order=2, previous=previous, tile=8, margin=4,
+                           fill_range=None)
+    models = fitted["models"]
+    assert models[0].previous_mean is not None and len(models) == 4
+    x, _ = _dense_conditional(frame, mask, models, previous)
+    np.testing.assert_allclose(got, x, rtol=1e-8, atol=1e-10)
 
 
 def test_superlu_solves_a_blob_in_the_pixel_graph_order(monkeypatch):
@@ -100,7 +189,7 @@ def test_superlu_solves_a_blob_in_the_pixel_graph_order(monkeypatch):
     models = [_random_model(rng, direction_offsets(causal_neighbourhood(2), d), C, mean)
               for d in ("down", "up")]
     got = conditional_mean(frame, unknown, models)
-    x, Q = _dense_conditional(frame, unknown, models, mean)
+    x, Q = _dense_conditional(frame, unknown, models)
     np.testing.assert_allclose(got, x, rtol=1e-9, atol=1e-10)
 
     Q[np.abs(Q) < 1e-300] = 0.0
@@ -240,7 +329,7 @@ def test_draws_have_the_conditional_covariance():
               for d in ("down", "up")]
     _, draws, diagonal = drain(iter_stencil_solve(frame, unknown, _row_sets(models, None),
                                                   100, probes=20000))
-    P = _dense_precision(models, H, W)
+    P, _ = _dense_precision(models, H, W)
     u = np.repeat(unknown.reshape(-1), C)
     Quu = P[np.ix_(u, u)]
     flat = draws.transpose(1, 0, 2).reshape(draws.shape[1], -1)
