@@ -711,3 +711,30 @@ def test_select_marks_keeps_the_best_regions_pixel_by_pixel():
             np.testing.assert_array_equal(cut_labels, want)
             np.testing.assert_array_equal(cut["label"], np.arange(1, m + 1))
         np.testing.assert_array_equal(labels, before)
+
+
+def test_block_means_and_fractions_are_plain_block_averages_with_ragged_edges_cropped():
+    """``_block_mean`` (the working image) and ``_block_fraction`` (of a
+    mask) against a loop over the whole ``factor`` x ``factor`` blocks: the
+    mean of each block; the last rows and columns that do not fill one are
+    left out; a factor of 1 or less keeps the image."""
+    from car_napari.mammography._images import _block_mean
+    from car_napari.mammography._rois import _block_fraction
+
+    rng = np.random.default_rng(6)
+    grey = rng.random((23, 17))
+    mask = rng.random((23, 17)) < 0.4
+    for factor in (2, 3, 4, 5, 17):
+        rows, cols = 23 // factor, 17 // factor
+        want = np.zeros((rows, cols))
+        part = np.zeros((rows, cols))
+        for a in range(rows):
+            for b in range(cols):
+                block = (slice(a * factor, (a + 1) * factor), slice(b * factor, (b + 1) * factor))
+                want[a, b] = sum(grey[block].ravel().tolist()) / factor**2
+                part[a, b] = np.count_nonzero(mask[block]) / factor**2
+        np.testing.assert_allclose(_block_mean(grey, factor), want, rtol=1e-13)
+        np.testing.assert_array_equal(_block_fraction(mask, factor), part)
+    for factor in (1, 0):
+        np.testing.assert_array_equal(_block_mean(grey, factor), grey)
+        np.testing.assert_array_equal(_block_fraction(mask, factor), mask.astype(float))
