@@ -400,3 +400,65 @@ def test_density_benchmark_describes_films_as_segment_tissue(shared_data, monkey
     probabilities = _tissue.shipped_tissue_model().class_probabilities(row)
     for c in _tissue.TISSUE_CLASSES:
         assert probabilities[c] == pytest.approx(tissue.probabilities[c], abs=1e-12)
+
+
+def test_standardised_flattened_and_places_against_their_definitions():
+    """The pixel descriptors' pieces written out from their docstrings:
+    ``_standardised`` the first three levels' four CAR parameters, then
+    their energies (8 values a level), over the breast less their mean over
+    their standard deviation (a constant one: 0); ``_flattened`` the grey
+    less the median grey of its band of distance from the skin (16 bands
+    between the linear-interpolation quantiles), over the grey's standard
+    deviation; ``_places`` on a half disc against either chest wall: the
+    distance to the nearest pixel out of the breast (the breast continued
+    beyond the chest wall, which is not skin) over its largest, the
+    distance from the chest-wall column over the breast's width in
+    columns, and the distance off the middle row over half the height."""
+    rng = np.random.default_rng(8)
+    H, W = 41, 37
+    rr, cc = np.mgrid[:H, :W]
+    for side in ("left", "right"):
+        breast = ((rr - 20) ** 2 + cc**2 <= 30**2) & (rr >= 3) & (rr < 36)
+        breast = breast if side == "left" else breast[:, ::-1]
+        # standardised
+        features = rng.normal(size=(H, W, 32)).astype(np.float32)
+        features[..., 12] = 2.5  # level 1's energy: constant
+        z, raw = _tissue._standardised(features, breast)
+        cols = [0, 1, 2, 3, 8, 9, 10, 11, 16, 17, 18, 19, 4, 12, 20]
+        values = np.array([[float(features[i, j, c]) for c in cols]
+                           for i, j in zip(*np.nonzero(breast), strict=True)])
+        np.testing.assert_array_equal(raw, values)
+        for k in range(len(cols)):
+            v = values[:, k]
+            mu = sum(v) / len(v)
+            sd = (sum((v - mu) ** 2) / len(v)) ** 0.5
+            want = np.zeros(len(v)) if sd == 0 else (v - mu) / sd
+            np.testing.assert_allclose(z[:, k], want, rtol=1e-9, atol=1e-12)
+        # places
+        skin, chest, height = _tissue._places(breast)
+        bi, bj = np.nonzero(breast)
+        wall = 0 if side == "left" else W - 1
+        out = [(i, j) for i in range(H) for j in range(W) if not breast[i, j]]
+        out += [(i, wall - 1 if side == "left" else wall + 1) for i in range(H)
+                if not breast[i, wall]]
+        oi, oj = np.array(out).T
+        d = np.sqrt((bi[:, None] - oi[None]) ** 2 + (bj[:, None] - oj[None]) ** 2).min(axis=1)
+        np.testing.assert_allclose(skin, d / d.max(), rtol=1e-12)
+        width = bj.max() - bj.min() + 1
+        from_wall = bj - bj.min() if side == "left" else bj.max() - bj
+        np.testing.assert_allclose(chest, from_wall / width, rtol=1e-12)
+        middle, half = (bi.min() + bi.max()) / 2, (bi.max() - bi.min() + 1) / 2
+        np.testing.assert_allclose(height, np.abs(bi - middle) / half, rtol=1e-12)
+    # flattened
+    skin = rng.random(3000)
+    g = 0.3 * skin + rng.normal(0, 0.1, 3000)
+    s = np.sort(skin)
+    edges = []
+    for k in range(1, 16):
+        at = (len(s) - 1) * k / 16
+        lo = int(at)
+        edges.append(s[lo] + (at - lo) * (s[lo + 1] - s[lo]))
+    band = np.array([sum(e < v for e in edges) for v in skin])
+    sd = (np.mean((g - g.mean()) ** 2)) ** 0.5
+    want = [(g[n] - np.median(g[band == band[n]])) / sd for n in range(len(g))]
+    np.testing.assert_allclose(_tissue._flattened(g, skin), want, rtol=1e-10, atol=1e-12)
