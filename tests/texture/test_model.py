@@ -444,8 +444,6 @@ def test_synthesis_of_the_vistex_sample_has_no_speckle():
 # the job form: whole-array passes, no blocks.
 
 def _reference_match(values, quantiles, bins=4096):
-    from car_napari.texture._histogram import _exponential_tails
-
     h, w, d = values.shape
     flat = values.reshape(-1, d)
     out = np.empty_like(flat)
@@ -464,8 +462,18 @@ def _reference_match(values, quantiles, bins=4096):
         pos = p * (q - 1)
         k = np.minimum(pos.astype(np.int64), q - 2)
         mapped = quantiles[k, c] + (pos - k) * (quantiles[k + 1, c] - quantiles[k, c])
-        if q >= 4:
-            _exponential_tails(mapped, pos, k, quantiles[:, c])
+        if q >= 4:  # exponential tails (written out from _exponential_tails' docstring)
+            qc = quantiles[:, c]
+            # top: at t = q - 1 - pos from probability 1, q[-2] + s log(1 / t),
+            # through q[-3] at t = 2; the linear map where it is lower, or s = 0
+            s = (qc[-2] - qc[-3]) / np.log(2.0)
+            top = k == q - 2
+            if s > 0:
+                mapped[top] = np.minimum(mapped[top], qc[-2] - s * np.log((q - 1) - pos[top]))
+            s = (qc[2] - qc[1]) / np.log(2.0)  # bottom: the same mirrored, t = pos
+            bottom = k == 0
+            if s > 0:
+                mapped[bottom] = np.maximum(mapped[bottom], qc[1] + s * np.log(pos[bottom]))
         out[:, c] = mapped
     return out.reshape(h, w, d)
 
