@@ -116,3 +116,41 @@ def test_voi_functions_are_the_standards_formulas(tmp_path, ramp, function):
         expect = 1 / (1 + np.exp(-4 * (x - 2000) / 1500))
     np.testing.assert_allclose(image, expect, atol=1e-6)
     assert "VOI window" in meta["applied"]
+
+
+def _linear_window(x, center, width):
+    """PS3.3 C.11.2.1.2.1 (the default LINEAR function), its pseudo-code as
+    written, onto [0, 1]."""
+    out = []
+    for v in x.ravel().tolist():
+        if v <= center - 0.5 - (width - 1) / 2:
+            out.append(0.0)
+        elif v > center - 0.5 + (width - 1) / 2:
+            out.append(1.0)
+        else:
+            out.append((v - (center - 0.5)) / (width - 1) + 0.5)
+    return np.array(out).reshape(x.shape)
+
+
+@pytest.mark.parametrize("width", [1, 1.25, 2, 3])
+def test_linear_window_of_width_one_or_more_is_the_standards_pseudo_code(tmp_path, width):
+    """The LINEAR window down to its smallest width, 1 (a threshold: 1 above
+    ``c - 0.5``, 0 at or below), against the pseudo-code of PS3.3
+    C.11.2.1.2.1 on modality values (rescaled by 0.5, less 0.5) landing on
+    ``c - 0.5`` and the window's other ends; with integer values a width of
+    2 thresholds as a width of 1 does (its Note 5)."""
+    stored = np.concatenate([np.arange(1990, 2011), [0, 4095, 2001, 2002]])
+    stored = np.tile(stored.astype(np.uint16), (2, 1))
+    values = 0.5 * stored - 0.5  # 999.5 = c - 0.5 at stored 2000
+    path = _write(tmp_path / f"w{width}.dcm", stored, WindowCenter=1000, WindowWidth=width,
+                  RescaleSlope=0.5, RescaleIntercept=-0.5)
+    image, meta = read_dicom(path)
+    assert "VOI window" in meta["applied"]
+    np.testing.assert_allclose(image, _linear_window(values, 1000, width), atol=1e-6)
+    if width == 1:
+        np.testing.assert_array_equal(image, values > 999.5)
+    if width in (1, 2):  # integer input values: a threshold at the centre
+        path = _write(tmp_path / f"i{width}.dcm", stored, WindowCenter=2000, WindowWidth=width)
+        image, _ = read_dicom(path)
+        np.testing.assert_array_equal(image, stored >= 2000)
+        np.testing.assert_allclose(image, _linear_window(stored.astype(float), 2000, width))
