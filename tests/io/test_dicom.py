@@ -118,6 +118,27 @@ def test_voi_functions_are_the_standards_formulas(tmp_path, ramp, function):
     assert "VOI window" in meta["applied"]
 
 
+
+@pytest.mark.xfail(strict=True, reason=(
+    "_window raises every width below 1 to 1, the LINEAR function's least "
+    "width; LINEAR_EXACT and SIGMOID take any width > 0 (PS3.3 "
+    "C.11.2.1.3): a width of 0.5 is windowed as a width of 1"))
+@pytest.mark.parametrize("function", ["LINEAR_EXACT", "SIGMOID"])
+def test_voi_functions_take_widths_below_one(tmp_path, function):
+    """LINEAR_EXACT and SIGMOID with a window width of 0.5 on modality
+    values within a pixel of the centre, against the formulas of the
+    test above."""
+    stored = np.tile(np.arange(1990, 2011).astype(np.uint16), (2, 1))
+    x = 0.1 * stored  # 199.0 .. 201.0
+    path = _write(tmp_path / "n.dcm", stored, WindowCenter=200, WindowWidth=0.5,
+                  RescaleSlope=0.1, RescaleIntercept=0, VOILUTFunction=function)
+    image, _ = read_dicom(path)
+    if function == "LINEAR_EXACT":
+        expect = np.clip((x - 200) / 0.5 + 0.5, 0, 1)
+    else:
+        expect = 1 / (1 + np.exp(-4 * (x - 200) / 0.5))
+    np.testing.assert_allclose(image, expect, atol=1e-6)
+
 def _linear_window(x, center, width):
     """PS3.3 C.11.2.1.2.1 (the default LINEAR function), its pseudo-code as
     written, onto [0, 1]."""
