@@ -144,11 +144,14 @@ def _first(value):
 
 def _window(x, center, width, function="LINEAR"):
     """DICOM VOI window (PS3.3 C.11.2.1.2) onto [0, 1]."""
-    width = max(float(width), 1.0)
-    if function == "SIGMOID":
-        return 1.0 / (1.0 + np.exp(-4.0 * (x - center) / width))
-    if function == "LINEAR_EXACT":
+    width = float(width)
+    if function in ("SIGMOID", "LINEAR_EXACT"):
+        # any width > 0 (C.11.2.1.3); a file's 0 or less is read as LINEAR's least, 1
+        width = width if width > 0 else 1.0
+        if function == "SIGMOID":
+            return 1.0 / (1.0 + np.exp(-4.0 * (x - center) / width))
         return np.clip((x - center) / width + 0.5, 0.0, 1.0)
+    width = max(width, 1.0)  # LINEAR's width is at least 1 (C.11.2.1.2.1)
     if width <= 1.0:
         return (x > center - 0.5).astype(np.float64)
     return np.clip((x - (center - 0.5)) / (width - 1.0) + 0.5, 0.0, 1.0)

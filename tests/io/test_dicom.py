@@ -118,11 +118,6 @@ def test_voi_functions_are_the_standards_formulas(tmp_path, ramp, function):
     assert "VOI window" in meta["applied"]
 
 
-
-@pytest.mark.xfail(strict=True, reason=(
-    "_window raises every width below 1 to 1, the LINEAR function's least "
-    "width; LINEAR_EXACT and SIGMOID take any width > 0 (PS3.3 "
-    "C.11.2.1.3): a width of 0.5 is windowed as a width of 1"))
 @pytest.mark.parametrize("function", ["LINEAR_EXACT", "SIGMOID"])
 def test_voi_functions_take_widths_below_one(tmp_path, function):
     """LINEAR_EXACT and SIGMOID with a window width of 0.5 on modality
@@ -138,6 +133,7 @@ def test_voi_functions_take_widths_below_one(tmp_path, function):
     else:
         expect = 1 / (1 + np.exp(-4 * (x - 200) / 0.5))
     np.testing.assert_allclose(image, expect, atol=1e-6)
+
 
 def _linear_window(x, center, width):
     """PS3.3 C.11.2.1.2.1 (the default LINEAR function), its pseudo-code as
