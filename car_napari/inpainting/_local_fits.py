@@ -487,10 +487,13 @@ def model_rows(models):
 
 def _previous_taps(models, previous, where=None):
     """The pixels ``where`` (H, W) bool (None: all) and the previous frame at
-    each of their :data:`PREVIOUS_OFFSETS` (0 outside the frame) less the
-    tile's previous-frame mean: ``(ii, jj, [(n, d)] * 5)``. The models of
-    the scan directions share the mean, so they share these."""
-    H, W, C = previous.shape
+    each of their :data:`PREVIOUS_OFFSETS` less the tile's previous-frame
+    mean: ``(ii, jj, [(n, d)] * 5)``. A tap outside the frame repeats the
+    frame's edge pixel: the previous frame is known data, so a row at the
+    edge keeps its pixel's link to it (0 there pulled edge fills towards
+    ``-B mu_p``: up to 174 grey levels off). The models of the scan
+    directions share the mean, so they share these."""
+    H, W, _ = previous.shape
     if where is None:
         ii, jj = (a.ravel() for a in np.indices((H, W)))
     else:
@@ -498,12 +501,8 @@ def _previous_taps(models, previous, where=None):
     pmean = models.previous_mean[ii // models.tile, jj // models.tile]
     centred = []
     for di, dj in PREVIOUS_OFFSETS:
-        si, sj = ii - di, jj - dj
-        inside = (si >= 0) & (si < H) & (sj >= 0) & (sj < W)
-        shifted = np.zeros((len(ii), C))  # 0 outside the frame
-        shifted[inside] = previous[si[inside], sj[inside]]
-        shifted -= pmean
-        centred.append(shifted)
+        si, sj = np.clip(ii - di, 0, H - 1), np.clip(jj - dj, 0, W - 1)
+        centred.append(previous[si, sj] - pmean)
     return ii, jj, centred
 
 

@@ -20,12 +20,13 @@ def _dense_precision(models, H, W, previous=None):
     """The precision ``P`` and linear term ``h`` of the product of the
     models' densities over an H x W frame (negative log density ``y^T P y / 2
     - h^T y`` + const), built densely pixel by pixel, each pixel with its
-    own tile's model: every pixel whose neighbourhood (with a ``previous``
-    frame ``P``, its taps ``r - p_l``, ``p_l`` in ``PREVIOUS_OFFSETS``, too)
-    lies inside has the residual ``(Y_r - mu) - sum_k A_k (Y_{r - s_k} - mu)
-    - sum_l B_l (P_{r - p_l} - mu_p)`` (no ``B`` term without one),
-    covariance ``Sigma``, the others ``Y_r - mu`` with the marginal
-    covariance (docs/inpainting.md, "Precision")."""
+    own tile's model: every pixel whose neighbourhood lies inside has the
+    residual ``(Y_r - mu) - sum_k A_k (Y_{r - s_k} - mu) - sum_l B_l
+    (P_{r - p_l} - mu_p)`` (with a ``previous`` frame ``P``, its taps
+    ``p_l`` in ``PREVIOUS_OFFSETS``, a tap outside the frame repeating its
+    edge pixel; no ``B`` term without one), covariance ``Sigma``, the others
+    ``Y_r - mu`` with the marginal covariance (docs/inpainting.md,
+    "Precision")."""
     P, h = 0, 0
     for model in models:
         C = model.sigma.shape[-1]
@@ -41,9 +42,10 @@ def _dense_precision(models, H, W, previous=None):
                 rows = slice((i * W + j) * C, (i * W + j + 1) * C)
                 D[rows, rows] = np.eye(C)
                 nb = [(i - di, j - dj) for di, dj in model.offsets]
-                back = [] if previous is None else [(i - di, j - dj)
-                                                    for di, dj in PREVIOUS_OFFSETS]
-                if all(0 <= a < H and 0 <= b < W for a, b in nb + back):
+                back = [] if previous is None else [
+                    (min(max(i - di, 0), H - 1), min(max(j - dj, 0), W - 1))
+                    for di, dj in PREVIOUS_OFFSETS]
+                if all(0 <= a < H and 0 <= b < W for a, b in nb):
                     m[rows] = mu
                     for k, (a, b) in enumerate(nb):
                         A_k = gamma[:, k * C : (k + 1) * C]
@@ -142,16 +144,10 @@ def test_conditional_mean_with_a_previous_frame_matches_the_dense_gaussian_condi
     assert np.abs(without - x).max() > 0.1
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "a row whose previous-frame taps leave the frame is kept as a model row, "
-    "the previous frame read as 0 there (_previous_taps), though the model "
-    "was fitted only where they are inside: fills at the frame's edges are "
-    "pulled towards -B mu_p (a moving clip, damage in column 0, motion=False: "
-    "error 173 grey levels with the previous frame, 19 without)"))
 def test_damage_at_the_edges_with_a_previous_frame_matches_the_dense_conditional():
-    """As above, with damage on the frame's edges: a pixel whose
-    previous-frame taps leave the frame has no model row (its neighbourhood
-    does not lie inside); an unknown one gets the marginal row."""
+    """As above, with damage on the frame's edges: a previous-frame tap
+    outside the frame repeats the frame's edge pixel (before, it read 0,
+    which pulled edge fills towards -B mu_p)."""
     rng = np.random.default_rng(6)
     H, W, C, tile = 12, 13, 2, 5
     frame = rng.normal(size=(H, W, C))
