@@ -278,7 +278,12 @@ def _iter_match(values, quantiles, bins=4096, *, clip=None, out=None, preview=No
                 _kernels.block_histogram(values[a:b], c, lo[c], hi[c], edges[c], counts[c])
         yield Progress(stage_name, next(fractions), f"histogram, rows {b}/{h}")
     cdfs = [np.concatenate([[0.0], np.cumsum(counts[c]) / (h * w)]) for c in range(d)]
-    # the exponential tails' scales (see _exponential_tails; 0: none)
+    # the end intervals capped by exponential tails: with ``pos`` the
+    # probability in units of the quantile spacing, a value at ``t = q - 1 -
+    # pos`` (in (0, 1]) from probability 1 maps to ``q[-2] + s log(1 / t)``,
+    # ``s = (q[-2] - q[-3]) / log 2`` (the tail passes through q[-3]: an
+    # exponential's quantile function), mirrored at the bottom; a scale of 0
+    # (an empty next interval) keeps the linear map
     tails = np.zeros((d, 2))
     if q >= 4:
         tails[:, 0] = (quantiles[-2] - quantiles[-3]) / math.log(2.0)
@@ -299,29 +304,4 @@ def _iter_match(values, quantiles, bins=4096, *, clip=None, out=None, preview=No
                                    out[a:b])
         yield Progress(stage_name, next(fractions), f"rows {b}/{h}", preview)
     return out
-
-
-def _exponential_tails(mapped, pos, k, quantiles):
-    """In place: cap the end intervals of :func:`_match` by exponential tails.
-
-    With ``pos`` the probability in units of the quantile spacing, a value in
-    the last interval at distance ``t = q - 1 - pos`` (in (0, 1]) from
-    probability 1 is mapped to ``q[-2] + s log(1 / t)``, where ``s`` makes the
-    tail pass through ``q[-3]`` (``s = (q[-2] - q[-3]) / log 2``): the
-    quantile function of an exponential tail. The same mirrored at the
-    bottom. Where the next interval is empty (``s = 0``) the linear map
-    stays.
-    """
-    n = quantiles.size
-    with np.errstate(divide="ignore"):
-        scale = (quantiles[-2] - quantiles[-3]) / math.log(2.0)
-        top = k == n - 2
-        if scale > 0 and top.any():
-            tail = quantiles[-2] - scale * np.log((n - 1) - pos[top])
-            mapped[top] = np.minimum(mapped[top], tail)
-        scale = (quantiles[2] - quantiles[1]) / math.log(2.0)
-        bottom = k == 0
-        if scale > 0 and bottom.any():
-            tail = quantiles[1] + scale * np.log(pos[bottom])
-            mapped[bottom] = np.maximum(mapped[bottom], tail)
 

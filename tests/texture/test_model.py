@@ -462,7 +462,7 @@ def _reference_match(values, quantiles, bins=4096):
         pos = p * (q - 1)
         k = np.minimum(pos.astype(np.int64), q - 2)
         mapped = quantiles[k, c] + (pos - k) * (quantiles[k + 1, c] - quantiles[k, c])
-        if q >= 4:  # exponential tails (written out from _exponential_tails' docstring)
+        if q >= 4:  # exponential tails (written out from the rule stated in _iter_match)
             qc = quantiles[:, c]
             # top: at t = q - 1 - pos from probability 1, q[-2] + s log(1 / t),
             # through q[-3] at t = 2; the linear map where it is lower, or s = 0
