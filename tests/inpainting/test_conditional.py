@@ -334,6 +334,28 @@ def test_edge_test_recovers_soft_edges_and_leaves_hard_ones(monkeypatch):
                                                         method="conditional"), mask) - 0.05
 
 
+def test_edge_test_beside_the_frame_edge_leaves_hard_edged_damage_alone():
+    """A hard-edged scratch (value 255) one pixel from the frame's right
+    edge, and the frame mirrored (the scratch one pixel from the left edge):
+    the edge test (``halo="auto"``) changes the fill there as little as it
+    does inside the frame, where it changes nothing."""
+    rng = np.random.default_rng(0)
+    scene = 0.5 + 5 * (ndimage.gaussian_filter(rng.random((64, 66)), 2) - 0.5)
+    frame = np.clip(np.round(scene[:, 1:65] * 255), 0, 255).astype(np.uint8)
+
+    def error(image, column, halo):
+        mask = np.zeros(image.shape, bool)
+        mask[20:40, column] = True
+        damaged = image.copy()
+        damaged[mask] = 255
+        out = inpaint(damaged, mask, halo=halo, method="conditional")
+        return int(np.abs(out[mask].astype(int) - image[mask]).max())
+
+    assert error(frame, 32, "auto") == error(frame, 32, None)
+    for image, column in ((frame, 62), (frame[:, ::-1], 1)):
+        assert error(image, column, "auto") <= 1.5 * error(image, column, None) + 2
+
+
 def test_draws_have_the_conditional_covariance():
     """The edge test's draws (random signs pushed through the rows, then
     solved) have covariance ``Q_UU^-1``: against the dense precision."""
