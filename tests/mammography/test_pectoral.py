@@ -83,3 +83,24 @@ def test_edge_step_cuts_the_muscle_of_a_ddsm_tissue_film():
 
     assert jaccard(level=0.5) < 0.45
     assert jaccard(level=LEVELS) > 0.7
+
+
+def test_theil_sen_is_the_median_of_pairwise_slopes_as_in_scipy():
+    """Slope: median of (y_j - y_i) / (x_j - x_i) over the pairs with
+    x_j > x_i (tied x left out); intercept: median(y) - slope median(x), the
+    'separate' intercept of scipy.stats.theilslopes."""
+    from scipy import stats
+
+    rng = np.random.default_rng(5)
+    for n, ties in ((2, False), (7, False), (40, True), (41, True)):
+        x = (rng.integers(0, n // 2 + 1, n) if ties else rng.permutation(n)).astype(float)
+        y = 3.0 - 0.7 * x + rng.standard_normal(n)
+        y[rng.random(n) < 0.2] += 25.0  # outliers
+        slopes = [(y[j] - y[i]) / (x[j] - x[i])
+                  for i in range(n) for j in range(n) if x[j] > x[i]]
+        slope = np.median(slopes)
+        b, a = _breast._theil_sen(y, x)
+        assert b == pytest.approx(slope, rel=1e-12)
+        assert a == pytest.approx(np.median(y) - slope * np.median(x), rel=1e-12, abs=1e-12)
+        scipy_fit = stats.theilslopes(y, x, method="separate")
+        assert (b, a) == pytest.approx((scipy_fit.slope, scipy_fit.intercept), rel=1e-12)
