@@ -290,3 +290,83 @@ def test_a_mostly_masked_frame_warns_before_the_fill():
         inpaint(frame, mask)
     with pytest.warns(UserWarning, match=r"covers 75\.0 % of frame 1"):
         inpaint(np.stack([frame, frame]), np.stack([~mask, mask]), channel_axis=None)
+
+
+def test_back_to_the_input_dtype_rounds_half_to_even_and_clips():
+    """Integer dtypes: the nearest integer (ties to even, as Python's round)
+    clipped to the dtype's range; float dtypes: the nearest value of the
+    dtype (float32 by struct's IEEE rounding)."""
+    import struct
+
+    values = np.array([-300.4, -128.5, -0.5, 0.5, 1.5, 2.5, 2.4999, 2.5001, 127.5,
+                       254.5, 255.5, 256.0, 1e300, -1e300, 40000.0, 65535.5, 1 / 3])
+    for dtype in (np.uint8, np.int8, np.uint16, np.int16, np.int32):
+        lo, hi = int(np.iinfo(dtype).min), int(np.iinfo(dtype).max)
+        expected = [min(max(round(v), lo), hi) for v in values.tolist()]
+        got = _filling._to_dtype(values, np.dtype(dtype))
+        assert got.dtype == dtype
+        assert got.tolist() == expected
+    got = _filling._to_dtype(values[np.abs(values) < 1e30], np.dtype(np.float32))
+    expected = [struct.unpack("f", struct.pack("f", v))[0]
+                for v in values[np.abs(values) < 1e30].tolist()]
+    assert got.dtype == np.float32 and got.tolist() == expected
+    got = _filling._to_dtype(values, np.dtype(np.float64))
+    assert got.dtype == np.float64 and got.tolist() == values.tolist()
+
+
+def test_working_units_map_a_far_float_clip_onto_minus_one_to_one():
+    """Far from unit scale: shift = (min + max) / 2 and scale = (max - min) / 2
+    (exact rational arithmetic in the test), so that (clip - shift) / scale
+    runs from -1 to 1; within reach (8- and 16-bit ranges, unit floats,
+    integer dtypes): None."""
+    from fractions import Fraction
+
+    rng = np.random.default_rng(4)
+    unit = rng.random((9, 7, 1))
+    unit.flat[[0, 1]] = 0.0, 1.0
+    for near in (unit, unit * 255, unit * 65535 - 32768, (unit * 255).astype(np.uint8),
+                 (unit * 65535).astype(np.uint16), unit.astype(np.float32)):
+        assert _filling._working_units(near) is None
+    for far in (unit * 1e300, unit * 1.7e308 - 0.85e308, unit * 1e-300,
+                unit + 1e10, -unit * 3e9 - 1e20):
+        lo, hi = Fraction(float(far.min())), Fraction(float(far.max()))
+        shift, scale = _filling._working_units(far)
+        assert shift == pytest.approx(float((lo + hi) / 2), rel=1e-15, abs=1e-320)
+        assert scale == pytest.approx(float((hi - lo) / 2), rel=1e-15, abs=1e-320)
+        mapped = (far - shift) / scale
+        rounding = 4 * np.spacing(abs(shift)) / scale + 1e-15  # 1e10 + [0, 1]: 4e-6
+        assert mapped.min() == pytest.approx(-1, abs=rounding)
+        assert mapped.max() == pytest.approx(1, abs=rounding)
+    # a constant far clip: shifted to 0, scaled by its magnitude
+    assert _filling._working_units(np.full((3, 3, 1), -4e20)) == (-4e20, 4e20)
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.int16, np.float32])
+def test_the_fill_of_a_narrow_dtype_is_the_float_fill_rounded_and_clipped(dtype):
+    """inpaint works on the clip as float64: the fill of an integer image is
+    the fill of the same values as float64, rounded (ties to even) and
+    clipped to the dtype's range; of a float32 image, rounded to float32.
+    (The fill stays within the known pixels' range, so the clipping is a
+    safety net only, compared in the test above.)"""
+    import struct
+
+    rng = np.random.default_rng(8)
+    r, c = np.mgrid[0:40, 0:40]
+    frame = np.clip(0.5 + 0.6 * np.sin(c / 2.5 + r / 4.0)
+                    + 0.03 * rng.standard_normal((40, 40)), 0, 1)
+    mask = np.zeros(frame.shape, bool)
+    mask[8:32, 18:21] = True
+    if dtype == np.float32:
+        image = frame.astype(np.float32)
+    else:
+        lo, hi = int(np.iinfo(dtype).min), int(np.iinfo(dtype).max)
+        image = np.clip(np.round(frame * (hi - lo) + lo), lo, hi).astype(dtype)
+    fill = inpaint(image.astype(np.float64), mask)[mask]
+    got = inpaint(image, mask)
+    assert got.dtype == dtype
+    np.testing.assert_array_equal(got[~mask], image[~mask])
+    if dtype == np.float32:
+        expected = [struct.unpack("f", struct.pack("f", v))[0] for v in fill.tolist()]
+    else:
+        expected = [min(max(round(v), lo), hi) for v in fill.tolist()]
+    assert got[mask].tolist() == expected
