@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from skimage.util import img_as_float, img_as_ubyte, img_as_uint
 
-from car_napari._validation import as_channel_last_float, from_unit
+from car_napari._validation import as_channel_last_float, from_unit, scale_exponent
 
 
 def _full_range(dtype, shape, rng):
@@ -79,3 +79,42 @@ def test_from_unit_is_skimages_img_as_ubyte_and_img_as_uint():
         image = _full_range(dtype, (6, 8), rng)
         np.testing.assert_array_equal(
             from_unit(as_channel_last_float(image, channel_axis=None)[..., 0], dtype), image)
+
+
+def _nearest_power(spread):
+    """The integer nearest log2(spread), from the binary exponent:
+    spread = m 2**k with 0.5 <= m < 1 is nearer 2**k than 2**(k - 1) when
+    m >= 2**-0.5 (m is never exactly sqrt(1/2))."""
+    m, k = np.frexp(spread)
+    return int(k) if m >= np.sqrt(0.5) else int(k) - 1
+
+
+def test_scale_exponent_is_the_nearest_power_of_two_of_the_spread_beyond_2_to_the_32():
+    """e = round(log2(max - min)) when |e| > 32, else 0; 0 for integers,
+    constant, empty or non-finite images and values beyond 1e150; the
+    scaled spread is then within [2**-0.5, 2**0.5]."""
+    rng = np.random.default_rng(6)
+    for target in [-480, -300, -120, -34, -33, -32, -5, 0, 5, 32, 33, 34, 120, 300, 440]:
+        for _ in range(4):
+            image = rng.random((5, 6)) * 2.0 ** (target + rng.uniform(-0.5, 0.5))
+            image += rng.normal() * 2.0 ** (target + 2)  # an offset: the spread decides
+            image = image.astype(np.float64)
+            spread = float(image.max() - image.min())
+            want = _nearest_power(spread)
+            want = want if abs(want) > 32 else 0
+            got = scale_exponent(image)
+            assert isinstance(got, int) and got == want, (target, spread)
+            if got:
+                assert 2**-0.5 <= spread * 2.0**-got <= 2**0.5
+            if abs(target) <= 100:  # float32: the spread of its own values
+                small = image.astype(np.float32)
+                want = _nearest_power(float(small.max()) - float(small.min()))
+                assert scale_exponent(small) == (want if abs(want) > 32 else 0)
+    # log2(1e-120) = -398.6, log2(3e40 + 5) = 134.5
+    for image, want in [(np.array([0, 2**40], np.int64), 0), (np.full((3, 3), 2.0**80), 0),
+                        (np.zeros((0, 4)), 0), (np.array([0.0, np.inf]), 0),
+                        (np.array([0.0, np.nan]), 0), (np.array([0.0, 2e150]), 0),
+                        (np.array([-2e150, 0.0]), 0), (np.array([0.0, 1e-120]), -399),
+                        (np.array([-3e40, 5.0]), 134), (np.array([1.0, 1.0 + 2**-32]), 0),
+                        (np.array([1.0, 1.0 + 2**-33]), -33)]:
+        assert scale_exponent(image) == want, image
