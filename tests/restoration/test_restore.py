@@ -814,3 +814,39 @@ def test_multichannel_prediction_matches_the_dense_2_5d_regression():
     prob = np.mean([r for _, r in dense], axis=0)
     np.testing.assert_allclose(result.probability[have], prob[have], rtol=1e-6, atol=1e-12)
     assert np.all(result.probability[~have] == 1.0)
+
+
+def test_a_far_image_is_restored_at_its_nearest_power_of_two_and_scaled_back():
+    """An image whose spread is near 2**e (|e| > 32, e the integer nearest
+    log2 of the spread, by np.frexp) is restored as the image times 2**-e,
+    its observed, prediction, noise and restored values multiplied back by
+    2**e, bit for bit; probabilities and weights unchanged. A given noise
+    is scaled with the image."""
+    rng = np.random.default_rng(2)
+    unit = _degraded(img_as_float(skdata.camera())[:40, :40], rng) * 12.0  # spread 3.7
+    for power in (70, -90):
+        far = np.ldexp(unit, power)
+        m, k = np.frexp(np.ptp(far))
+        e = int(k) if m >= np.sqrt(0.5) else int(k) - 1
+        assert abs(e) > 32 and e != power  # not the power it was made with
+        near = np.ldexp(far, -e)
+        for noise in (None, 0.04):
+            far_noise = None if noise is None else np.ldexp(noise, power)
+            near_noise = None if noise is None else np.ldexp(far_noise, -e)
+            got = restore(far, channel_axis=None, noise=far_noise, return_result=True)
+            want = restore(near, channel_axis=None, noise=near_noise, return_result=True)
+            for name in ("observed", "prediction", "noise"):
+                np.testing.assert_array_equal(getattr(got, name),
+                                              np.ldexp(getattr(want, name), e), err_msg=name)
+            np.testing.assert_array_equal(got.probability, want.probability)
+            np.testing.assert_array_equal(got.weight, want.weight)
+            np.testing.assert_array_equal(
+                restore(far, channel_axis=None, noise=far_noise),
+                np.ldexp(restore(near, channel_axis=None, noise=near_noise), e))
+        stack = np.stack([far, np.ldexp(unit * 0.9 + 0.05, power)])
+        got = restore_multichannel(stack, reference=0, return_result=True)
+        want = restore_multichannel(np.ldexp(stack, -e), reference=0, return_result=True)
+        for name in ("observed", "prediction", "noise"):
+            np.testing.assert_array_equal(getattr(got, name),
+                                          np.ldexp(getattr(want, name), e), err_msg=name)
+        np.testing.assert_array_equal(got.probability, want.probability)
