@@ -757,18 +757,25 @@ def test_psf_width_is_the_root_mean_second_moment():
     assert psf_width(psf) == pytest.approx(np.sqrt((var_r + var_c) / 2), rel=1e-12)
 
 
-def _dense_versions(stack, offsets, reference, strength=1e-6):
+def _dense_versions(stack, offsets, reference, strength=1e-6, extra=None):
     """The 2.5D model of section 14.6 by plain NumPy, one colour channel:
     the reference version regressed on the causal neighbours in every
-    version, the other versions at r and 1, over the earlier pixels (raster
-    order; each version centred on its mean; V_0 as in the core); returns
-    the one-step prediction and the relative Student-t density."""
+    version, the other versions at r, ``extra`` at r if given (an (H, W)
+    image centred on its mean, like a version) and 1, over the earlier
+    pixels (raster order; each version centred on its mean; V_0 as in the
+    core); returns the one-step prediction and the relative Student-t
+    density."""
+    n = len(stack)
+    if extra is not None:
+        stack = np.concatenate([stack, extra[None]])
     means = stack.mean(axis=(1, 2))
     y = stack - means[:, None, None]
-    n, H, W = y.shape
+    _, H, W = y.shape
     var = y[reference].var()
     taps = [(di, dj, v) for v in range(n) for di, dj in offsets]
     taps += [(0, 0, v) for v in range(n) if v != reference]
+    if extra is not None:
+        taps.append((0, 0, n))
     p = len(taps) + 1
     V = np.diag(np.r_[np.full(p - 1, strength * var), strength, strength * var])
     count = 0
@@ -815,6 +822,34 @@ def test_multichannel_prediction_matches_the_dense_2_5d_regression():
     np.testing.assert_allclose(result.probability[have], prob[have], rtol=1e-6, atol=1e-12)
     assert np.all(result.probability[~have] == 1.0)
 
+
+
+def test_the_reference_prediction_enters_the_2_5d_regression_as_one_more_regressor():
+    """reference_prediction: the reference's single-image prediction
+    (restore's defaults, edges not kept: its own tests compare it with
+    dense least squares) is one more regressor at r, after the versions,
+    centred on its mean like them; the prediction and probability against
+    the dense regression with that column. A grey stack larger than half
+    the default window (a narrower window would predict otherwise)."""
+    rng = np.random.default_rng(10)
+    scene = ndimage.uniform_filter(rng.random((30, 32)), 3)
+    stack = scene + rng.normal(0, 0.03, (3, 30, 32))
+    stack[0] = 0.8 * stack[0] + 0.1
+    result = restore_multichannel(stack, reference=2, directions=("down",), forgetting=1.0,
+                                  keep_edges=False, reference_prediction=True,
+                                  return_result=True)
+    single = restore(stack[2], keep_edges=False, return_result=True).prediction[..., 0]
+    offsets = causal_neighbourhood(1)
+    pred, prob = _dense_versions(stack, offsets, 2, extra=single)
+    have = np.isfinite(pred)
+    np.testing.assert_allclose(result.prediction[..., 0][have], pred[have], rtol=1e-6,
+                               atol=1e-12)
+    np.testing.assert_allclose(result.prediction[..., 0][~have], stack[2][~have], rtol=0,
+                               atol=1e-15)
+    np.testing.assert_allclose(result.probability[have], prob[have], rtol=1e-6, atol=1e-12)
+    # the extra column changes the fit: without it the prediction differs
+    without = _dense_versions(stack, offsets, 2)[0]
+    assert np.abs(without[have] - pred[have]).max() > 1e-3
 
 def test_a_far_image_is_restored_at_its_nearest_power_of_two_and_scaled_back():
     """An image whose spread is near 2**e (|e| > 32, e the integer nearest
