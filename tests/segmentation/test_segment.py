@@ -844,3 +844,71 @@ def test_a_merge_keeps_the_two_components_mean_and_variance():
     np.testing.assert_array_equal(merged.variances[others], before.variances[[0, 2, 4]])
     np.testing.assert_allclose(merged.means[2], mean, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(merged.variances[2], var, rtol=1e-10)
+
+
+# --- the initial division and the weak components --------------------------------------
+
+@pytest.mark.parametrize("h, w, n_init, rows, cols", [
+    (40, 80, 8, 2, 4),  # sqrt(8 * 40 / 80) = 2
+    (30, 30, 10, 3, 3),  # sqrt(10) = 3.2; 10 / 3 = 3.3
+    (23, 17, 12, 4, 3),  # sqrt(12 * 23 / 17) = 4.03; 12 / 4
+    (7, 60, 12, 1, 12),  # sqrt(1.4) = 1.18
+    (60, 7, 12, 10, 1),  # sqrt(102.9) = 10.1; 12 / 10 = 1.2
+])
+def test_initial_components_are_the_block_means_and_floored_variances(h, w, n_init, rows,
+                                                                       cols):
+    """A rows x cols division (block sides differing by at most one, the
+    larger first), row by row: one component per block, equal weights,
+    the block's mean and variance per feature, the variance floored; ids
+    1..k. Pixel by pixel sums in the test."""
+    from car_napari.segmentation._mixture import _block_init
+
+    def edges(n, parts):
+        sizes = [n // parts + (i < n % parts) for i in range(parts)]
+        return np.r_[0, np.cumsum(sizes)]
+
+    r_edges, c_edges = edges(h, rows), edges(w, cols)
+    rng = np.random.default_rng(h * w)
+    features = rng.normal(0.0, 1.0, (h, w, 3)) * np.array([1.0, 10.0, 0.1])
+    features[: r_edges[1], : c_edges[1], 2] = 0.25  # constant in the first block: the floor
+    floor = 1e-4
+    mix = _block_init(features, n_init, floor)
+    k = rows * cols
+    assert mix.k == k
+    np.testing.assert_array_equal(mix.ids, np.arange(1, k + 1))
+    np.testing.assert_allclose(mix.weights, np.full(k, 1.0 / k), rtol=1e-15)
+    for a in range(rows):
+        for b in range(cols):
+            pixels = [features[i, j] for i in range(r_edges[a], r_edges[a + 1])
+                      for j in range(c_edges[b], c_edges[b + 1])]
+            n = len(pixels)
+            mean = sum(pixels) / n
+            var = sum((p - mean) ** 2 for p in pixels) / n
+            np.testing.assert_allclose(mix.means[a * cols + b], mean, rtol=1e-12, atol=1e-14)
+            np.testing.assert_allclose(mix.variances[a * cols + b], np.maximum(var, floor),
+                                       rtol=1e-10, atol=1e-16)
+    assert mix.variances[0, 2] == floor
+
+
+def test_weak_components_are_dropped_and_the_others_renormalised():
+    """Components lighter than min_weight go (ids, means and variances of
+    the others kept in order), the remaining weights divided by their sum;
+    the mixture is unchanged when none or all are light."""
+    from car_napari.segmentation._mixture import _drop_weak
+
+    rng = np.random.default_rng(11)
+    weights = np.array([0.30, 0.004, 0.25, 0.0099, 0.4361])
+    mix = Mixture(weights, rng.normal(size=(5, 2)), rng.uniform(0.5, 2, (5, 2)),
+                  np.array([3, 5, 8, 13, 21]))
+    got = _drop_weak(mix.copy(), 0.01)
+    kept = [0, 2, 4]
+    assert got.ids.tolist() == [3, 8, 21]
+    total = 0.30 + 0.25 + 0.4361
+    np.testing.assert_allclose(got.weights, [0.30 / total, 0.25 / total, 0.4361 / total],
+                               rtol=1e-15)
+    np.testing.assert_array_equal(got.means, mix.means[kept])
+    np.testing.assert_array_equal(got.variances, mix.variances[kept])
+    for limit in (0.004, 0.5):  # none lighter (strictly), all lighter
+        same = _drop_weak(mix.copy(), limit)
+        assert same.ids.tolist() == mix.ids.tolist()
+        np.testing.assert_array_equal(same.weights, mix.weights)
