@@ -354,3 +354,54 @@ def test_spectral_radius_equals_the_transfer_function_criterion(seed):
         assert got <= want * (1 + 1e-9)
         assert got == pytest.approx(want, rel=1e-3), (gain, got, want)
         assert (got < 1) == (want < 1)
+
+
+def test_burn_in_is_the_rows_until_the_transient_falls_below_the_tolerance():
+    """The smallest n with radius**n <= tolerance (counted by repeated
+    multiplication in the test), clipped to [16, 256]."""
+    from car_napari.model.synthesis import burn_in
+
+    rng = np.random.default_rng(12)
+    radii = np.r_[rng.uniform(0.55, 0.999, 40), 0.0, 1e-6, 0.3, 0.9, 0.99, 0.9999]
+    for radius in radii:
+        for tolerance in (1e-4, 1e-2, 1e-8):
+            n, left = 0, 1.0
+            while left > tolerance and n < 300:
+                left *= radius
+                n += 1
+            assert burn_in(radius, tolerance) == min(max(n, 16), 256), (radius, tolerance)
+    assert burn_in(0.9) == burn_in(0.9, 1e-4)  # the default tolerance
+
+
+def _rotated(eigenvalues, seed):
+    q, _ = np.linalg.qr(np.random.default_rng(seed).normal(size=(len(eigenvalues),) * 2))
+    return q @ np.diag(eigenvalues) @ q.T
+
+
+@pytest.mark.parametrize("eigenvalues, jitter", [
+    ([2.0, 1.0, 0.5], 0.0),  # positive definite: factored as it is
+    ([3.0, 0.0, 0.0], 1e-12),  # rank 1 (grey stored as RGB): the smallest jitter
+    ([2.0, 1.0, -1e-10], 1e-9),  # slightly indefinite (rounding): 1e-12 is not enough
+    ([2.0, 1.0, -1e-8], 1e-6),
+    ([2.0, 1.0, -1e-5], None),  # not semi-definite: an error
+])
+def test_innovation_factor_adds_the_smallest_listed_jitter_that_factors(eigenvalues, jitter):
+    """L lower triangular with L L^T = sigma + jitter (trace / d) I, the
+    jitter the first of 1e-12, 1e-9, 1e-6 that makes the matrix positive
+    definite (its eigenvalues, from the test's construction, decide: the
+    cases are far from the boundary)."""
+    from car_napari.model.synthesis import innovation_factor
+
+    sigma = _rotated(np.array(eigenvalues), 13)
+    if jitter is None:
+        with pytest.raises(ValueError, match="not positive semi-definite"):
+            innovation_factor(sigma)
+        return
+    L = innovation_factor(sigma)
+    np.testing.assert_array_equal(L, np.tril(L))
+    mean_variance = np.trace(sigma) / 3
+    want = sigma + jitter * mean_variance * np.eye(3)
+    np.testing.assert_allclose(L @ L.T, want, rtol=0, atol=1e-15 * 8)
+    # the jitter added is that one, not a larger or smaller one of the list
+    np.testing.assert_allclose(np.diag(L @ L.T - sigma), jitter * mean_variance,
+                               rtol=1e-2, atol=1e-15 * 8)
