@@ -211,3 +211,56 @@ def test_synthesis_job_is_bit_identical_and_yields_by_rows(channels, monkeypatch
     assert [r.preview for r in records if r.preview is not None][-1] is got
     with pytest.raises(ValueError, match="n_frames"):
         next(model.iter_synthesize(0, (5, 5)))
+
+
+def _frame_to_frame_radius(gamma, offsets, d, n=64):
+    """max over the n x n grid of frequencies w of the largest eigenvalue
+    modulus of T(w) = (I - A(w))^-1 B(w), A and B summed tap by tap from
+    temporal_context's taps: current-frame channel c -> A[:, c], previous
+    frame channel d + c -> B[:, c], each times e^{i w.s}."""
+    taps = temporal_context(offsets, d).taps
+    largest = 0.0
+    for w1 in 2 * np.pi * np.arange(n) / n:
+        for w2 in 2 * np.pi * np.arange(n) / n:
+            A = np.zeros((d, d), complex)
+            B = np.zeros((d, d), complex)
+            for k, (di, dj, ch) in enumerate(taps):
+                term = gamma[:, k] * np.exp(1j * (w1 * di + w2 * dj))
+                if ch < d:
+                    A[:, ch] += term
+                else:
+                    B[:, ch - d] += term
+            T = np.linalg.inv(np.eye(d) - A) @ B
+            largest = max(largest, np.abs(np.linalg.eigvals(T)).max())
+    return largest
+
+
+@pytest.mark.parametrize("d, order, gain", [(1, 1, 1.05), (1, 2, 0.9), (1, 2, 1.2),
+                                            (2, 1, 0.8), (2, 1, 1.1)])
+def test_stability_is_the_largest_frame_to_frame_eigenvalue_over_the_frequencies(d, order,
+                                                                                 gain):
+    """With a stable spatial part: the largest |eigenvalue| of T(w) over the
+    64 x 64 grid, written out frequency by frequency, when it exceeds the
+    spatial spectral radius."""
+    from car_napari import causal_neighbourhood
+
+    offsets = causal_neighbourhood(order)
+    eta = len(offsets)
+    rng = np.random.default_rng(d * 10 + order)
+    gamma = rng.uniform(-1.0, 1.0, (d, 2 * eta * d + d))
+    gamma[:, : eta * d] *= 0.4 / np.abs(gamma[:, : eta * d]).sum(axis=1, keepdims=True)
+    gamma[:, eta * d :] *= gain / np.abs(gamma[:, eta * d :]).sum(axis=1, keepdims=True)
+    want = _frame_to_frame_radius(gamma, offsets, d)
+    got = _stability(gamma, offsets, d)
+    assert got == pytest.approx(want, rel=1e-10)
+    assert want > 0.4  # above the spatial part's radius (its taps sum to 0.4)
+
+
+def test_stability_is_the_spatial_radius_when_that_dominates():
+    """A strong left tap (0.9 stable, 1.2 unstable: the in-row root) and a
+    weak previous frame: the spatial spectral radius decides."""
+    offsets = np.array([(0, 1), (1, 0)])
+    for left in (0.9, 1.2):
+        gamma = np.array([[left, 0.0, 0.01, 0.0, 0.0]])
+        assert _frame_to_frame_radius(gamma, offsets, 1) < left
+        assert _stability(gamma, offsets, 1) == pytest.approx(left, rel=1e-9)
