@@ -397,7 +397,10 @@ def detect_scratches(image, *, kinds=KINDS, channel_axis=-1, line_width=3,
       than both by more than the threshold), which also flags motion.
 
     Misses: scratches that are not vertical, lines fainter than the texture's
-    own vertical structure, blotches that persist over two frames, blotches
+    own vertical structure, lines in the first and last ``line_width`` columns
+    (a line is told from a step edge by both sides, and those have one only:
+    the frame's own border would be a step), blotches that persist over two
+    frames, blotches
     no more different from the neighbours than their own detail within a
     pixel, and damage on the first and last frames of a clip (they have one
     neighbour only). Motion the estimate cannot follow (an occlusion, a
