@@ -416,13 +416,6 @@ def test_scans_are_interleaved_by_their_distance_from_the_known_side():
     np.testing.assert_allclose(got[mask], want, rtol=1e-7, atol=1e-10)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "the scans' halo test misfires beside the frame's edge: the frame is padded "
-    "by reflection, so the damage's mirror image lies in the pad, and the scan "
-    "coming from the edge tests the ring pixel between the two with taps that "
-    "are fills of the mirrored damage, calls it damaged and fills the hole from "
-    "fills (scratch in column 1: max error 92 grey levels, 10 with halo=None; "
-    "column W - 2: 66 against 30; in column 32 the test changes nothing, 24)"))
 def test_halo_test_beside_the_frame_edge_does_no_more_harm_than_inside():
     """A scratch one pixel from the frame's left or right edge: the scans'
     halo test (``halo=-12``) may only call the known ring pixels damaged when
