@@ -149,17 +149,8 @@ def iter_fill_conditional(frame, mask, *, order=3, directions=DIRECTIONS, previo
     damage = mask.copy()
     known = frame  # the known pixels' values, unblended (a copy) where called damaged
     tested = None  # the last edge test's system: the damage is a part of its unknowns
-    # a ring pixel is tested only where every model row touching it (the rows of
-    # the pixels within the models' reach) lies inside the frame: nearer the
-    # edge its statistic is not calibrated (clean pixels' chi2 medians 10-27,
-    # 0.2-0.8 inside), and it called clean pixels damaged and unblended them
-    # towards the damage (a hard scratch beside the edge filled 23 grey
-    # levels off, 4 without the test)
-    margin_px = 2 * int(np.abs(base).max())
-    testable = np.zeros(mask.shape, bool)
-    testable[margin_px:mask.shape[0] - margin_px, margin_px:mask.shape[1] - margin_px] = True
     for ring_number in range(rings):
-        ring = _dilate(damage, 1) & ~damage & testable
+        ring = _dilate(damage, 1) & ~damage
         if not ring.any():
             break
         both = damage | ring
