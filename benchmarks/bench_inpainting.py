@@ -2,7 +2,7 @@
 against OpenCV and scikit-image.
 
     PYTHONPATH=. nice -n 5 python benchmarks/bench_inpainting.py [--part REPORT]
-        [--frames N] [--skip-speed] [--skip-clip] [--variants]
+        [--frames N] [--skip-speed] [--skip-clip] [--variants] [--methods TEXT]
     PYTHONPATH=. nice -n 10 python benchmarks/bench_inpainting.py --tune-halo=H:R:B[:P[:U]],...
         [--part REPORT] [--frames N]    # the conditional fill's edge test alone
     PYTHONPATH=. nice -n 10 python benchmarks/bench_inpainting.py --speed-only
@@ -379,6 +379,8 @@ def main():
     ap.add_argument("--skip-scans", action="store_true")
     ap.add_argument("--variants", action="store_true",
                     help="also the other methods and options of ours")
+    ap.add_argument("--methods", default=None, metavar="TEXT",
+                    help="only the methods whose name contains TEXT (e.g. 'scans')")
     ap.add_argument("--speed-only", action="store_true", help="only the speed case")
     ap.add_argument("--records", action="store_true",
                     help="only the longest stretch between Progress records on a real scan")
@@ -409,6 +411,8 @@ def main():
         return
     parts = PARTS if args.part == "both" else (args.part,)
     run = methods(args.variants)
+    if args.methods:
+        run = {name: f for name, f in run.items() if args.methods in name}
     table = {}
     if not args.skip_scans:
         bench_a(table, parts, run)
