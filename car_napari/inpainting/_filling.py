@@ -471,10 +471,10 @@ def _iter_fill_frame(frame, mask, previous, offsets, forgetting, interleave, pri
 
     codes = mask.astype(np.uint8)
     if halo is not None:
-        # not within the models' reach of the frame's edge: there the taps reach
-        # into the reflected pad, where the damage's mirror image is filled from
-        # nothing yet (a scratch in column 1 came out 92 grey levels off, 10
-        # without the test)
+        # not within two reaches (2 * pad) of the frame's edge: there the taps
+        # (or theirs) reach into the reflected pad, where the damage's mirror
+        # image is filled from nothing yet (a scratch in column 1 came out 92
+        # grey levels off, 10 without the test; one reach left some misfiring)
         inner = np.zeros((H, W), bool)
         inner[2 * pad:H - 2 * pad, 2 * pad:W - 2 * pad] = True
         codes[ndimage.binary_dilation(mask, structure=_CROSS) & ~mask & inner] = 2
