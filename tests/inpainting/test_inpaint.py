@@ -48,21 +48,7 @@ def test_fill_in_the_kernel_matches_a_plain_numpy_fill():
     scan(work, context, direction="down", forgetting=1.0, intercept=True, prior=prior,
          outputs=(), missing=mask)
     # plain NumPy: raster order, learn from known pixels with known neighbours
-    ref = y.copy()
-    V = np.diag(prior)
-    H, W = y.shape
-    for i in range(H):
-        for j in range(W):
-            nb = [(i - di, j - dj) for di, dj in offsets]
-            if any(not (0 <= a < H and 0 <= b < W) for a, b in nb):
-                continue
-            x = np.r_[[ref[a, b] for a, b in nb], 1.0]
-            if mask[i, j]:
-                gamma = np.linalg.solve(V[:4, :4], V[:4, 4])
-                ref[i, j] = gamma @ x
-            elif not any(mask[a, b] for a, b in nb):
-                z = np.r_[x, ref[i, j]]
-                V = V + np.outer(z, z)
+    ref = _numpy_line_fill(y, mask, offsets, -np.inf, np.inf, prior=prior)
     np.testing.assert_allclose(work[..., 0][mask], ref[mask], rtol=1e-8, atol=1e-12)
     np.testing.assert_array_equal(work[..., 0][~mask], y[~mask])
 
@@ -346,15 +332,17 @@ def test_blotch_test_frame_by_frame_equals_the_whole_clip_at_once():
     np.testing.assert_array_equal(got, expected)
 
 
-def _numpy_line_fill(y, mask, offsets, lo, hi, strength=1e-6):
+def _numpy_line_fill(y, mask, offsets, lo, hi, strength=1e-6, prior=None):
     """One scan's fill by plain NumPy, forgetting 1, in raster order: a
     missing pixel is gamma X_r (clipped to [lo, hi]) with the least-squares
-    gamma (prior as the core's) of the known pixels before it whose
-    neighbours are known; filled pixels serve as neighbours later."""
+    gamma (prior as the core's, or the diagonal ``prior`` given) of the known
+    pixels before it whose neighbours are known; filled pixels serve as
+    neighbours later."""
     H, W = y.shape
     var = y[~mask].var()
     p = len(offsets) + 1
-    V = np.diag(np.r_[np.full(p - 1, strength * var), strength, strength * var])
+    V = np.diag(np.r_[np.full(p - 1, strength * var), strength, strength * var]
+                if prior is None else prior)
     out = y.copy()
     for i in range(H):
         for j in range(W):
